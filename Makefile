@@ -1,0 +1,37 @@
+# linemap: the two commands a new user runs are `make demo` and `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+
+.PHONY: demo test install lint typecheck pytest bench clean
+
+demo: install  ## the main job (for now: the kernel benchmark on simulated URG-04LX data)
+	$(BIN)/linemap bench kernels
+
+test: install lint typecheck pytest  ## ruff, mypy and pytest in a fresh or updated virtual environment
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev,bench]'
+	touch $(STAMP)
+
+lint: install
+	$(BIN)/ruff check .
+
+typecheck: install
+	$(BIN)/mypy
+
+# pytest exits 5 when it collected no test: that must fail, never pass silently.
+pytest: install
+	$(BIN)/python -m pytest -q -p no:cacheprovider; rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing" >&2; exit 1; fi; exit $$rc
+
+bench: install  ## kernel benchmark with JSON output
+	$(BIN)/linemap bench kernels --json bench-kernels.json
+
+clean:
+	rm -rf $(VENV) .mypy_cache .ruff_cache bench-kernels.json

@@ -1,0 +1,1 @@
+"""Built-in clustering kernels (imported for registration)."""

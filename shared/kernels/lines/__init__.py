@@ -1,0 +1,1 @@
+"""Built-in lines kernels (imported for registration)."""

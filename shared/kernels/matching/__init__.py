@@ -1,0 +1,1 @@
+"""Built-in matching kernels (imported for registration)."""

@@ -1,0 +1,1 @@
+"""Built-in noise kernels (imported for registration)."""

@@ -1,0 +1,1 @@
+"""Built-in segmentation kernels (imported for registration)."""
