@@ -56,7 +56,10 @@ def canonical_hesse(rho: ArrayLike, theta: ArrayLike) -> tuple[FloatArray, Float
     t2 = t - turns * np.pi
     flip = (turns.astype(np.int64) % 2) != 0
     r2 = np.where(flip, -r, r)
-    # floating point can leave t2 == pi exactly
+    # floating point can leave t2 == pi exactly, or a denormal just below 0 (t / pi underflows to -0.0)
+    below = t2 < 0.0
+    t2 = np.where(below, t2 + np.pi, t2)
+    r2 = np.where(below, -r2, r2)
     at_pi = t2 >= np.pi
     t2 = np.where(at_pi, t2 - np.pi, t2)
     r2 = np.where(at_pi, -r2, r2)

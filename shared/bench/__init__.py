@@ -1,0 +1,1 @@
+"""Benchmarks (not tests): time the kernels against library equivalents on the same data."""

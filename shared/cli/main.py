@@ -1,0 +1,91 @@
+"""``linemap``: the one console command. Errors become a one-line message and exit code 2, never a traceback."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from shared.errors import LinemapError
+
+__all__ = ["app"]
+
+app = typer.Typer(
+    name="linemap",
+    help="Indoor line mapping with a 2D laser scanner: kernels, benchmarks, robot agent and server.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+bench_app = typer.Typer(help="Benchmarks (figures, not tests).", no_args_is_help=True)
+app.add_typer(bench_app, name="bench")
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+@app.callback()
+def _main(verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages.")] = False) -> None:
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+
+
+@app.command("kernels")
+def kernels_cmd(
+    as_json: Annotated[bool, typer.Option("--json", help="Print the catalogue with JSON Schemas.")] = False,
+) -> None:
+    """List the registered kernels with their parameters, units, ranges and defaults."""
+    from shared.cli.render import kernel_table
+    from shared.kernels import REGISTRY
+
+    if as_json:
+        typer.echo(json.dumps(REGISTRY.describe(), indent=2))
+        return
+    console.print(kernel_table(REGISTRY.list()))
+
+
+@bench_app.command("kernels")
+def bench_kernels(
+    json_path: Annotated[Path | None, typer.Option("--json", help="Also write the figures to this JSON file.")] = None,
+    runs: Annotated[int, typer.Option(min=5, max=10_000, help="Timed runs per kernel (after warm-up).")] = 200,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the simulated data.")] = 0,
+) -> None:
+    """Time each kernel and one whole online step against scikit-learn/scikit-fuzzy/scipy on the same data."""
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from shared.bench.kernels import run_kernel_bench
+    from shared.cli.render import bench_tables
+
+    try:
+        with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                      console=err_console, transient=True) as progress:
+            task = progress.add_task("compiling kernels (first run only)...", total=None)
+
+            def note(label: str) -> None:
+                progress.update(task, description=f"timing {label}")
+
+            report = run_kernel_bench(runs=runs, seed=seed, progress=note)
+    except LinemapError as exc:
+        err_console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from None
+    for table in bench_tables(report):
+        console.print(table)
+    if json_path is not None:
+        try:
+            json_path.write_text(json.dumps(report.as_dict(), indent=2) + "\n", encoding="utf-8")
+        except OSError as exc:
+            err_console.print(f"[red]error:[/red] cannot write {json_path}: {exc.strerror}")
+            raise typer.Exit(2) from None
+        console.print(f"figures written to {json_path}")
+
+
+def main() -> None:
+    """Entry point for ``python -m shared.cli.main``."""
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,89 @@
+"""Rich tables for the CLI: the kernel catalogue and the benchmark figures (with the targets of issue 2)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rich.table import Table
+
+from shared.bench.kernels import BenchReport
+from shared.kernels import KernelInfo
+
+__all__ = ["TARGETS", "bench_tables", "kernel_table", "param_rows"]
+
+#: Targets from issue 2: online step median/p99 (ms) and speed-up over the library chain; offline batch.
+TARGETS: dict[str, Any] = {
+    "online_step": {"median_ms": 2.0, "p99_ms": 5.0, "ratio": 40.0},
+    "offline_batch": {"median_ms": 50.0},
+    "clustering/fcm (batch)": {"ratio": 30.0},
+}
+
+
+def param_rows(info: KernelInfo) -> list[str]:
+    """One ``name = default unit (range)`` string per parameter of a kernel."""
+    schema = info.cls.param_schema()
+    rows = []
+    for name, prop in schema.get("properties", {}).items():
+        unit = f" {prop['unit']}" if "unit" in prop else ""
+        bounds = []
+        if "minimum" in prop:
+            bounds.append(f">= {prop['minimum']}")
+        if "exclusiveMinimum" in prop:
+            bounds.append(f"> {prop['exclusiveMinimum']}")
+        if "maximum" in prop:
+            bounds.append(f"<= {prop['maximum']}")
+        if "exclusiveMaximum" in prop:
+            bounds.append(f"< {prop['exclusiveMaximum']}")
+        if "enum" in prop:
+            bounds.append("one of " + "/".join(map(str, prop["enum"])))
+        rng = f" ({', '.join(bounds)})" if bounds else ""
+        rows.append(f"{name} = {prop.get('default')!r}{unit}{rng}")
+    return rows
+
+
+def kernel_table(infos: list[KernelInfo]) -> Table:
+    """The catalogue: stage, name@version, summary, parameters."""
+    table = Table(title="linemap kernels", show_lines=True)
+    table.add_column("stage")
+    table.add_column("kernel")
+    table.add_column("what it does")
+    table.add_column("parameters (default, unit, range)")
+    for info in infos:
+        table.add_row(str(info.stage), f"{info.name}@{info.version}", info.summary, "\n".join(param_rows(info)))
+    return table
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def _verdict(key: str, median: float, p99: float, ratio: float | None) -> str:
+    target = TARGETS.get(key)
+    if not target:
+        return ""
+    ok = median <= target.get("median_ms", float("inf")) and p99 <= target.get("p99_ms", float("inf"))
+    if "ratio" in target:
+        ok = ok and ratio is not None and ratio >= target["ratio"]
+    return "[green]meets target[/green]" if ok else "[red]misses target[/red]"
+
+
+def bench_tables(report: BenchReport) -> list[Table]:
+    """The figures as two tables: timings, then quality against the libraries."""
+    timings = Table(title="kernel benchmark: median / p99 ms on one core; library timed in the same run")
+    for col in ("kernel", "data", "median ms", "p99 ms", "library", "lib median ms", "x faster", "target"):
+        timings.add_column(col, justify="right" if "ms" in col or col == "x faster" else "left")
+    for row in report.rows:
+        timings.add_row(
+            row.key, row.data, _fmt(row.ours.median_ms), _fmt(row.ours.p99_ms), row.library or "-",
+            _fmt(row.baseline.median_ms if row.baseline else None, 2), _fmt(row.ratio, 1),
+            _verdict(row.key, row.ours.median_ms, row.ours.p99_ms, row.ratio),
+        )
+    quality = Table(title="quality against the libraries (batch data)")
+    quality.add_column("check")
+    quality.add_column("value", justify="right")
+    quality.add_column("target", justify="right")
+    for name, q in report.quality.items():
+        value = q["value"]
+        text = f"{value:+.4%}" if isinstance(value, float) else str(value)
+        quality.add_row(name, text, str(q["target"]))
+    return [timings, quality]
