@@ -36,11 +36,15 @@ def _main(verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Log deb
 @app.command("kernels")
 def kernels_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print the catalogue with JSON Schemas.")] = False,
+    markdown: Annotated[bool, typer.Option("--markdown", help="Print the catalogue as a Markdown table.")] = False,
 ) -> None:
     """List the registered kernels with their parameters, units, ranges and defaults."""
-    from shared.cli.render import kernel_table
+    from shared.cli.render import kernel_markdown, kernel_table
     from shared.kernels import REGISTRY
 
+    if markdown:
+        typer.echo(kernel_markdown(REGISTRY.list()), nl=False)
+        return
     if as_json:
         typer.echo(json.dumps(REGISTRY.describe(), indent=2))
         return

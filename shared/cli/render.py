@@ -9,7 +9,7 @@ from rich.table import Table
 from shared.bench.kernels import BenchReport
 from shared.kernels import KernelInfo
 
-__all__ = ["TARGETS", "bench_tables", "kernel_table", "param_rows"]
+__all__ = ["TARGETS", "bench_tables", "kernel_markdown", "kernel_table", "param_rows"]
 
 #: Targets from issue 2: online step median/p99 (ms) and speed-up over the library chain; offline batch.
 TARGETS: dict[str, Any] = {
@@ -51,6 +51,15 @@ def kernel_table(infos: list[KernelInfo]) -> Table:
     for info in infos:
         table.add_row(str(info.stage), f"{info.name}@{info.version}", info.summary, "\n".join(param_rows(info)))
     return table
+
+
+def kernel_markdown(infos: list[KernelInfo]) -> str:
+    """The catalogue as a Markdown table (the README's kernel catalogue is this text)."""
+    lines = ["| stage | kernel | what it does | parameters (default, unit, range) |", "|---|---|---|---|"]
+    for info in infos:
+        params = "<br>".join(f"`{p}`" for p in param_rows(info))
+        lines.append(f"| {info.stage} | `{info.name}`@{info.version} | {info.summary} | {params} |")
+    return "\n".join(lines) + "\n"
 
 
 def _fmt(value: float | None, digits: int = 3) -> str:
