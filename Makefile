@@ -3,10 +3,11 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
+NUMBA_STAMP := $(VENV)/.numba-cache-stamp
 
 .PHONY: demo test install lint typecheck pytest bench clean
 
-demo: install  ## the main job (for now: the kernel benchmark on simulated URG-04LX data)
+demo: install $(NUMBA_STAMP)  ## the main job (for now: the kernel benchmark on simulated URG-04LX data)
 	$(BIN)/linemap bench kernels
 
 test: install lint typecheck pytest  ## ruff, mypy and pytest in a fresh or updated virtual environment
@@ -25,8 +26,14 @@ lint: install
 typecheck: install
 	$(BIN)/mypy
 
+# numba's on-disk cache only watches the file that defines a jitted function, not the jitted helpers it
+# calls from other modules: drop the cache whenever any source under shared/ changed.
+$(NUMBA_STAMP): $(shell find shared -name '*.py' 2>/dev/null) | $(STAMP)
+	find shared -name '*.nbi' -delete -o -name '*.nbc' -delete
+	touch $@
+
 # pytest exits 5 when it collected no test: that must fail, never pass silently.
-pytest: install
+pytest: install $(NUMBA_STAMP)
 	$(BIN)/python -m pytest -q -p no:cacheprovider; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing" >&2; exit 1; fi; exit $$rc
 
@@ -35,3 +42,4 @@ bench: install  ## kernel benchmark with JSON output
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache bench-kernels.json
+	find shared -name '*.nbi' -delete -o -name '*.nbc' -delete

@@ -18,8 +18,8 @@ from shared.types import FloatArray, IntArray, Pose2D
 __all__ = [
     "cmeans_skfuzzy",
     "dbscan_sklearn",
-    "erosion_ndimage",
     "dilation_ndimage",
+    "erosion_ndimage",
     "hough_cluster_numpy",
     "icp_ckdtree",
     "kmeans_sklearn",
@@ -35,7 +35,9 @@ def dbscan_sklearn(points: FloatArray, epsilon_m: float, min_points: int) -> Int
     return labels
 
 
-def kmeans_sklearn(points: FloatArray, n_clusters: int, seed: int = 0, n_init: int = 10) -> tuple[FloatArray, float]:
+def kmeans_sklearn(
+    points: FloatArray, n_clusters: int, seed: int = 0, n_init: int = 10
+) -> tuple[FloatArray, float]:
     """scikit-learn KMeans centres and inertia (eq. 24), best of ``n_init`` k-means++ starts."""
     from sklearn.cluster import KMeans
 
@@ -44,7 +46,12 @@ def kmeans_sklearn(points: FloatArray, n_clusters: int, seed: int = 0, n_init: i
 
 
 def cmeans_skfuzzy(
-    points: FloatArray, n_clusters: int, m: float = 2.0, error: float = 0.005, maxiter: int = 1000, seed: int = 0
+    points: FloatArray,
+    n_clusters: int,
+    m: float = 2.0,
+    error: float = 0.005,
+    maxiter: int = 1000,
+    seed: int = 0,
 ) -> tuple[FloatArray, float]:
     """scikit-fuzzy c-means centres and the eq. 25 objective computed from its memberships."""
     import skfuzzy
@@ -118,7 +125,11 @@ def icp_ckdtree(
 
 
 def hough_cluster_numpy(
-    points: FloatArray, groups: IntArray, delta: int = 1, theta_step_deg: float = 1.0, rho_step_m: float = 0.02
+    points: FloatArray,
+    groups: IntArray,
+    delta: int = 1,
+    theta_step_deg: float = 1.0,
+    rho_step_m: float = 0.02,
 ) -> FloatArray:
     """Algorithm 2 with plain numpy per group: vote, keep cells >= max - delta, average (rho, theta)."""
     thetas = np.deg2rad(np.arange(0.0, 180.0, theta_step_deg))

@@ -46,8 +46,9 @@ def make_bench_data(seed: int = 0, outlier_rate: float = 0.05) -> BenchData:
     for pose, scan in zip(poses[1:], scans[1:], strict=True):
         pts, _ = scan.to_points()
         batch.append(pose.transform_points(pts))
-    return BenchData(world, current, previous, true_motion, odometry_motion, np.vstack(batch),
-                     scans[1:], poses[1:])
+    return BenchData(
+        world, current, previous, true_motion, odometry_motion, np.vstack(batch), scans[1:], poses[1:]
+    )
 
 
 def batch_groups(data: BenchData, labels_per_scan: list[IntArray]) -> IntArray:

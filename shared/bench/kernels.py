@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -65,7 +66,7 @@ class BenchReport:
         return next(r for r in self.rows if r.key == key)
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON document: ``kernels`` rows by key, ``online_step``, ``offline_batch``, ``quality``, ``info``."""
+        """JSON: ``kernels`` rows by key, ``online_step``, ``offline_batch``, ``quality``, ``info``."""
         kernels = {r.key: r.as_dict() for r in self.rows if r.key not in ("online_step", "offline_batch")}
         out: dict[str, Any] = {"kernels": kernels, "quality": self.quality, "info": self.info}
         for key in ("online_step", "offline_batch"):
@@ -74,7 +75,8 @@ class BenchReport:
         return out
 
 
-def _k(stage: Stage, name: str, **params: Any) -> Kernel[Any]:
+def _k(stage: Stage, name: str, **params: Any) -> Any:
+    """A registered kernel (typed ``Any``: the benchmark drives every stage through its own ``apply``)."""
     return REGISTRY.create(stage, name, params)
 
 
@@ -122,8 +124,14 @@ def run_kernel_bench(
     report = BenchReport()
     slow = max(3, runs // 50)
 
-    def measure(key: str, label: str, ours: Callable[[], Any], library: str | None = None,
-                base: Callable[[], Any] | None = None, lib_runs: int | None = None) -> None:
+    def measure(
+        key: str,
+        label: str,
+        ours: Callable[[], Any],
+        library: str | None = None,
+        base: Callable[[], Any] | None = None,
+        lib_runs: int | None = None,
+    ) -> None:
         note(key)
         mine = time_call(ours, runs=runs, budget_s=20.0)
         theirs = None
@@ -150,63 +158,128 @@ def run_kernel_bench(
     icp = _k(Stage.SCAN_MATCHING, "icp")
     ref, _ = data.previous_scan.to_points()
     report.info.update(
-        scan_points=int(len(pts)), scan_segments=seg.n_segments, online_clusters=k_online,
-        batch_points=int(len(data.batch_points)), batch_clusters=OFFLINE_CLUSTERS,
+        scan_points=len(pts),
+        scan_segments=seg.n_segments,
+        online_clusters=k_online,
+        batch_points=len(data.batch_points),
+        batch_clusters=OFFLINE_CLUSTERS,
         dbscan=dict(epsilon_m=eps, min_points=minpts),
     )
 
     measure("segmentation/abd-iepf", scan_label, lambda: segment.apply(data.scan))
-    measure("noise-removal/dbscan", scan_label, lambda: dbscan.apply(pts), "sklearn DBSCAN",
-            lambda: lib.dbscan_sklearn(pts, eps, minpts))
+    measure(
+        "noise-removal/dbscan",
+        scan_label,
+        lambda: dbscan.apply(pts),
+        "sklearn DBSCAN",
+        lambda: lib.dbscan_sklearn(pts, eps, minpts),
+    )
+    morph_baselines: dict[str, Callable[[FloatArray, float, tuple[int, int, int]], int]] = {
+        "erosion": lib.erosion_ndimage,
+        "dilation": lib.dilation_ndimage,
+    }
     for name in ("erosion", "dilation", "opening"):
         morph = _k(Stage.NOISE_REMOVAL, name)
-        mp = morph.params
-        psi = _psi_of(morph)
-        base: Callable[[], Any] | None = None
-        if name == "erosion":
-            base = lambda mp=mp, psi=psi: lib.erosion_ndimage(pts, mp.cell_size_m, psi)  # noqa: E731
-        elif name == "dilation":
-            base = lambda mp=mp, psi=psi: lib.dilation_ndimage(pts, mp.cell_size_m, psi)  # noqa: E731
-        measure(f"noise-removal/{name}", scan_label, lambda m=morph: m.apply(pts),
-                "scipy.ndimage" if base else None, base)
-    measure("clustering/kmeans", f"{scan_label}, k={k_online}", lambda: kmeans.apply(clean),
-            "sklearn KMeans n_init=10", lambda: lib.kmeans_sklearn(clean, k_online, n_init=10))
-    measure("clustering/fcm", f"{scan_label}, c={k_online}", lambda: fcm.apply(clean),
-            "skfuzzy cmeans", lambda: lib.cmeans_skfuzzy(clean, k_online), lib_runs=slow * 5)
+        reference = morph_baselines.get(name)
+        base = (
+            None if reference is None else partial(reference, pts, morph.params.cell_size_m, _psi_of(morph))
+        )
+        measure(
+            f"noise-removal/{name}",
+            scan_label,
+            partial(morph.apply, pts),
+            "scipy.ndimage" if base else None,
+            base,
+        )
+    measure(
+        "clustering/kmeans",
+        f"{scan_label}, k={k_online}",
+        lambda: kmeans.apply(clean),
+        "sklearn KMeans n_init=10",
+        lambda: lib.kmeans_sklearn(clean, k_online, n_init=10),
+    )
+    measure(
+        "clustering/fcm",
+        f"{scan_label}, c={k_online}",
+        lambda: fcm.apply(clean),
+        "skfuzzy cmeans",
+        lambda: lib.cmeans_skfuzzy(clean, k_online),
+        lib_runs=slow * 5,
+    )
     for name in ("centroid-join", "svd", "hough"):
         kern = _k(Stage.STRAIGHT_LINE, name)
-        base = (lambda: lib.svd_lines_numpy(centroids, cgroups)) if name == "svd" else None
-        measure(f"straight-line/{name}", f"{scan_label}, {len(centroids)} centroids",
-                lambda kern=kern: kern.apply(centroids, cgroups), "numpy svd" if base else None, base)
+        line_base: Callable[[], Any] | None = (
+            partial(lib.svd_lines_numpy, centroids, cgroups) if name == "svd" else None
+        )
+        measure(
+            f"straight-line/{name}",
+            f"{scan_label}, {len(centroids)} centroids",
+            partial(kern.apply, centroids, cgroups),
+            "numpy svd" if line_base else None,
+            line_base,
+        )
     hc = _k(Stage.STRAIGHT_LINE, "hough-cluster")
-    measure("straight-line/hough-cluster", scan_label, lambda: hc.apply(clean, clean_groups),
-            "numpy Hough", lambda: lib.hough_cluster_numpy(clean, clean_groups))
-    measure("scan-matching/icp", scan_label, lambda: icp.apply(ref, pts, data.odometry_motion),
-            "cKDTree ICP", lambda: lib.icp_ckdtree(ref, pts, data.odometry_motion))
+    measure(
+        "straight-line/hough-cluster",
+        scan_label,
+        lambda: hc.apply(clean, clean_groups),
+        "numpy Hough",
+        lambda: lib.hough_cluster_numpy(clean, clean_groups),
+    )
+    measure(
+        "scan-matching/icp",
+        scan_label,
+        lambda: icp.apply(ref, pts, data.odometry_motion),
+        "cKDTree ICP",
+        lambda: lib.icp_ckdtree(ref, pts, data.odometry_motion),
+    )
 
     online = _Online(segment, dbscan, kmeans, hc, icp)
-    measure("online_step", scan_label, lambda: online.run(data),
-            "sklearn/numpy/cKDTree chain", lambda: _library_online(data, segment, eps, minpts, k_online),
-            lib_runs=max(20, runs // 4))
+    measure(
+        "online_step",
+        scan_label,
+        lambda: online.run(data),
+        "sklearn/numpy/cKDTree chain",
+        lambda: _library_online(data, segment, eps, minpts, k_online),
+        lib_runs=max(20, runs // 4),
+    )
 
     # ---------------- (b) offline batch of 9 scans ----------------
     batch_label = f"b: 9 scans, {OFFLINE_CLUSTERS} clusters"
     bpts = data.batch_points
     bgroups = batch_groups(data, [segment.apply(s).labels for s in data.batch_scans])
     bkeep = dbscan.apply(bpts)
-    bclean, bclean_groups = bkeep.points, bgroups[bkeep.keep]
+    bclean = bkeep.points
     bkm = _k(Stage.CLUSTERING, "kmeans", n_clusters=OFFLINE_CLUSTERS)
     bfcm = _k(Stage.CLUSTERING, "fcm", n_clusters=OFFLINE_CLUSTERS)
     bclusters = bfcm.apply(bclean)
     svd = _k(Stage.STRAIGHT_LINE, "svd")
     hough = _k(Stage.STRAIGHT_LINE, "hough")
 
-    measure("noise-removal/dbscan (batch)", batch_label, lambda: dbscan.apply(bpts), "sklearn DBSCAN",
-            lambda: lib.dbscan_sklearn(bpts, eps, minpts), lib_runs=slow * 5)
-    measure("clustering/kmeans (batch)", batch_label, lambda: bkm.apply(bclean), "sklearn KMeans n_init=10",
-            lambda: lib.kmeans_sklearn(bclean, OFFLINE_CLUSTERS, n_init=10), lib_runs=slow)
-    measure("clustering/fcm (batch)", batch_label, lambda: bfcm.apply(bclean), "skfuzzy cmeans",
-            lambda: lib.cmeans_skfuzzy(bclean, OFFLINE_CLUSTERS), lib_runs=3)
+    measure(
+        "noise-removal/dbscan (batch)",
+        batch_label,
+        lambda: dbscan.apply(bpts),
+        "sklearn DBSCAN",
+        lambda: lib.dbscan_sklearn(bpts, eps, minpts),
+        lib_runs=slow * 5,
+    )
+    measure(
+        "clustering/kmeans (batch)",
+        batch_label,
+        lambda: bkm.apply(bclean),
+        "sklearn KMeans n_init=10",
+        lambda: lib.kmeans_sklearn(bclean, OFFLINE_CLUSTERS, n_init=10),
+        lib_runs=slow,
+    )
+    measure(
+        "clustering/fcm (batch)",
+        batch_label,
+        lambda: bfcm.apply(bclean),
+        "skfuzzy cmeans",
+        lambda: lib.cmeans_skfuzzy(bclean, OFFLINE_CLUSTERS),
+        lib_runs=3,
+    )
 
     def offline_ours() -> Any:
         keep = dbscan.apply(bpts)
@@ -221,21 +294,33 @@ def run_kernel_bench(
         centres, _ = lib.cmeans_skfuzzy(bpts[keep], OFFLINE_CLUSTERS)
         return lib.svd_lines_numpy(centres, np.zeros(len(centres), dtype=np.intp))
 
-    measure("offline_batch", f"{batch_label}: DBSCAN+FCM+SVD+Hough", offline_ours,
-            "sklearn DBSCAN + skfuzzy + numpy svd", offline_library, lib_runs=3)
+    measure(
+        "offline_batch",
+        f"{batch_label}: DBSCAN+FCM+SVD+Hough",
+        offline_ours,
+        "sklearn DBSCAN + skfuzzy + numpy svd",
+        offline_library,
+        lib_runs=3,
+    )
 
     # ---------------- quality against the libraries ----------------
     note("quality")
     ref_labels = lib.dbscan_sklearn(bpts, eps, minpts)
     report.quality["dbscan_keep_identical_to_sklearn"] = {
-        "value": bool(np.array_equal(bkeep.keep, ref_labels >= 0)), "target": True}
+        "value": bool(np.array_equal(bkeep.keep, ref_labels >= 0)),
+        "target": True,
+    }
     _, inertia = lib.kmeans_sklearn(bclean, OFFLINE_CLUSTERS, n_init=10)
     ours_q = bkm.apply(bclean).objective
     report.quality["kmeans_objective_vs_sklearn_best_of_10"] = {
-        "value": ours_q / inertia - 1.0, "target": "<= +0.01"}
+        "value": ours_q / inertia - 1.0,
+        "target": "<= +0.01",
+    }
     _, fcm_ref = lib.cmeans_skfuzzy(bclean, OFFLINE_CLUSTERS)
-    report.quality["fcm_objective_vs_skfuzzy"] = {"value": bclusters.objective / fcm_ref - 1.0,
-                                                  "target": "<= +0.01"}
+    report.quality["fcm_objective_vs_skfuzzy"] = {
+        "value": bclusters.objective / fcm_ref - 1.0,
+        "target": "<= +0.01",
+    }
     return report
 
 

@@ -1,4 +1,4 @@
-"""``linemap``: the one console command. Errors become a one-line message and exit code 2, never a traceback."""
+"""``linemap``, the one console command. Errors print one line and exit with code 2, never a traceback."""
 
 from __future__ import annotations
 
@@ -29,14 +29,20 @@ err_console = Console(stderr=True)
 
 
 @app.callback()
-def _main(verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages.")] = False) -> None:
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+def _main(
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Log debug messages.")] = False,
+) -> None:
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
+    )
 
 
 @app.command("kernels")
 def kernels_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Print the catalogue with JSON Schemas.")] = False,
-    markdown: Annotated[bool, typer.Option("--markdown", help="Print the catalogue as a Markdown table.")] = False,
+    markdown: Annotated[
+        bool, typer.Option("--markdown", help="Print the catalogue as a Markdown table.")
+    ] = False,
 ) -> None:
     """List the registered kernels with their parameters, units, ranges and defaults."""
     from shared.cli.render import kernel_markdown, kernel_table
@@ -53,8 +59,12 @@ def kernels_cmd(
 
 @bench_app.command("kernels")
 def bench_kernels(
-    json_path: Annotated[Path | None, typer.Option("--json", help="Also write the figures to this JSON file.")] = None,
-    runs: Annotated[int, typer.Option(min=5, max=10_000, help="Timed runs per kernel (after warm-up).")] = 200,
+    json_path: Annotated[
+        Path | None, typer.Option("--json", help="Also write the figures to this JSON file.")
+    ] = None,
+    runs: Annotated[
+        int, typer.Option(min=5, max=10_000, help="Timed runs per kernel (after warm-up).")
+    ] = 200,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the simulated data.")] = 0,
 ) -> None:
     """Time each kernel and one whole online step against scikit-learn/scikit-fuzzy/scipy on the same data."""
@@ -63,9 +73,19 @@ def bench_kernels(
     from shared.bench.kernels import run_kernel_bench
     from shared.cli.render import bench_tables
 
+    if json_path is not None and not json_path.resolve().parent.is_dir():
+        err_console.print(
+            f"[red]error:[/red] cannot write {json_path}: folder {json_path.parent} does not exist"
+        )
+        raise typer.Exit(2)
     try:
-        with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                      console=err_console, transient=True) as progress:
+        with Progress(
+            SpinnerColumn(),
+            TextColumn("{task.description}"),
+            TimeElapsedColumn(),
+            console=err_console,
+            transient=True,
+        ) as progress:
             task = progress.add_task("compiling kernels (first run only)...", total=None)
 
             def note(label: str) -> None:

@@ -49,7 +49,9 @@ def kernel_table(infos: list[KernelInfo]) -> Table:
     table.add_column("what it does")
     table.add_column("parameters (default, unit, range)")
     for info in infos:
-        table.add_row(str(info.stage), f"{info.name}@{info.version}", info.summary, "\n".join(param_rows(info)))
+        table.add_row(
+            str(info.stage), f"{info.name}@{info.version}", info.summary, "\n".join(param_rows(info))
+        )
     return table
 
 
@@ -83,8 +85,13 @@ def bench_tables(report: BenchReport) -> list[Table]:
         timings.add_column(col, justify="right" if "ms" in col or col == "x faster" else "left")
     for row in report.rows:
         timings.add_row(
-            row.key, row.data, _fmt(row.ours.median_ms), _fmt(row.ours.p99_ms), row.library or "-",
-            _fmt(row.baseline.median_ms if row.baseline else None, 2), _fmt(row.ratio, 1),
+            row.key,
+            row.data,
+            _fmt(row.ours.median_ms),
+            _fmt(row.ours.p99_ms),
+            row.library or "-",
+            _fmt(row.baseline.median_ms if row.baseline else None, 2),
+            _fmt(row.ratio, 1),
             _verdict(row.key, row.ours.median_ms, row.ours.p99_ms, row.ratio),
         )
     quality = Table(title="quality against the libraries (batch data)")

@@ -119,7 +119,7 @@ class Kernel(ABC, Generic[P]):
         return f"{type(self).__name__}({args})"
 
     def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and cast(Kernel[P], other)._params == self._params
+        return isinstance(other, Kernel) and type(other) is type(self) and other._params == self._params
 
     def __hash__(self) -> int:
         return hash((type(self), self._params))
@@ -176,4 +176,4 @@ class ScanMatchingKernel(Kernel[P], ABC):
 
     @abstractmethod
     def apply(self, reference: ArrayLike, current: ArrayLike, initial: Pose2D | None = None) -> Match:
-        """Find the pose mapping ``current`` ``(N, 2)`` onto ``reference`` ``(M, 2)``, starting at ``initial``."""
+        """The pose mapping ``current`` ``(N, 2)`` onto ``reference`` ``(M, 2)``, starting at ``initial``."""

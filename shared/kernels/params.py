@@ -43,7 +43,9 @@ def param(
         extra["unit"] = unit
     if paper is not None:
         extra["paper"] = paper
-    return Field(default, description=description, ge=ge, gt=gt, le=le, lt=lt, json_schema_extra=extra or None)
+    return Field(
+        default, description=description, ge=ge, gt=gt, le=le, lt=lt, json_schema_extra=extra or None
+    )
 
 
 def allowed_range(model: type[KernelParams], name: str) -> str | None:
@@ -85,7 +87,8 @@ def validate_params(kernel: str, model: type[P], values: P | Mapping[str, Any] |
         values = values.model_dump()
     if not isinstance(values, Mapping):
         raise KernelParameterError(
-            kernel, [("<params>", f"got {type(values).__name__}: expected a mapping of parameter names to values")]
+            kernel,
+            [("<params>", f"got {type(values).__name__}: expected a mapping of parameter names to values")],
         )
     try:
         return model.model_validate(dict(values))
@@ -95,7 +98,9 @@ def validate_params(kernel: str, model: type[P], values: P | Mapping[str, Any] |
             name = ".".join(str(part) for part in err["loc"]) or "<params>"
             if err["type"] == "extra_forbidden":
                 known = ", ".join(sorted(model.model_fields))
-                problems.append((name, f"unknown parameter (value {err['input']!r}); expected one of: {known}"))
+                problems.append(
+                    (name, f"unknown parameter (value {err['input']!r}); expected one of: {known}")
+                )
                 continue
             text = f"{err['input']!r} is invalid: {err['msg']}"
             rng = allowed_range(model, str(err["loc"][0])) if err["loc"] else None

@@ -7,6 +7,7 @@ refused with :class:`DuplicateKernelError`.
 
 from __future__ import annotations
 
+import builtins
 import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
@@ -70,7 +71,8 @@ class KernelRegistry:
         versions = self._kernels.setdefault((stage, name), {})
         if version in versions:
             raise DuplicateKernelError(
-                f"kernel {stage}/{name}@{cls.version} is already registered (by {versions[version].__qualname__})"
+                f"kernel {stage}/{name}@{cls.version} is already registered"
+                f" (by {versions[version].__qualname__})"
             )
         versions[version] = cls
         return cls
@@ -116,18 +118,19 @@ class KernelRegistry:
 
     def __iter__(self) -> Iterator[KernelInfo]:
         order = list(Stage)
-        for (stage, name), versions in sorted(self._kernels.items(), key=lambda kv: (order.index(kv[0][0]), kv[0][1])):
+        items = sorted(self._kernels.items(), key=lambda kv: (order.index(kv[0][0]), kv[0][1]))
+        for (stage, name), versions in items:
             for v in sorted(versions):
                 cls = versions[v]
                 summary = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
                 yield KernelInfo(stage, name, cls.version, summary, cls)
 
-    def list(self, stage: Stage | str | None = None) -> list[KernelInfo]:
+    def list(self, stage: Stage | str | None = None) -> builtins.list[KernelInfo]:
         """All registered kernels (optionally of one stage), in stage order then by name and version."""
         want = None if stage is None else Stage(stage)
         return [info for info in self if want is None or info.stage == want]
 
-    def describe(self) -> list[dict[str, Any]]:
+    def describe(self) -> builtins.list[dict[str, Any]]:
         """The catalogue as JSON-compatible dicts with parameter schemas (for the dashboard and the API)."""
         return [info.as_dict() for info in self]
 

@@ -78,9 +78,9 @@ class Clusters:
 
 @dataclass(frozen=True, slots=True)
 class Lines:
-    """Straight lines (paper §3.4, §4): ``segments`` ``(L, 4)`` as ``[x0, y0, x1, y1]`` with their Hesse form.
+    """Straight lines (paper §3.4, §4): ``segments`` ``(L, 4)`` ``[x0, y0, x1, y1]`` and their Hesse form.
 
-    ``rho_m``/``theta_rad`` describe the infinite line (``theta`` in ``[0, pi)``); the segment is its span over
+    ``rho_m``, ``theta_rad``: the infinite line (``theta`` in ``[0, pi)``); the segment is its span over
     the points it came from. ``group[l]`` is the input group of line ``l``; ``support[l]`` counts its points.
     """
 

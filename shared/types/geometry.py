@@ -81,9 +81,7 @@ def hesse_from_endpoints(segments: ArrayLike) -> tuple[FloatArray, FloatArray]:
     return canonical_hesse(rho, theta)
 
 
-def segments_from_hesse(
-    rho: ArrayLike, theta: ArrayLike, t0: ArrayLike, t1: ArrayLike
-) -> FloatArray:
+def segments_from_hesse(rho: ArrayLike, theta: ArrayLike, t0: ArrayLike, t1: ArrayLike) -> FloatArray:
     """End points ``(L, 4)`` of lines ``(rho, theta)`` between line parameters ``t0`` and ``t1``.
 
     A point on the line is ``rho * n + t * d`` with normal ``n = (cos, sin)`` and direction

@@ -46,8 +46,14 @@ class BeamGeometry:
     ) -> BeamGeometry:
         """Geometry of a SCIP scanner that reports steps ``first_step..last_step`` inclusive."""
         inc = 2.0 * math.pi / steps_per_turn
-        return cls((first_step - front_step) * inc, inc, last_step - first_step + 1, range_min_m,
-                   range_max_m, rate_hz)
+        return cls(
+            (first_step - front_step) * inc,
+            inc,
+            last_step - first_step + 1,
+            range_min_m,
+            range_max_m,
+            rate_hz,
+        )
 
 
 #: Hokuyo URG-04LX: steps 44..725 of 1024, front at 384 (682 beams, ~240 deg), 10 Hz. Range window
@@ -74,11 +80,10 @@ class Scan:
     _angles: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        ranges = np.array(self.ranges_m, dtype=np.float64, copy=True).reshape(-1)
-        if np.asarray(self.ranges_m).ndim > 1:
-            raise InvalidInputError(
-                f"Scan.ranges_m has shape {np.asarray(self.ranges_m).shape}: expected one range per beam (1-D)"
-            )
+        given = np.asarray(self.ranges_m)
+        if given.ndim > 1:
+            raise InvalidInputError(f"Scan.ranges_m has shape {given.shape}: expected one value per beam")
+        ranges = np.array(given, dtype=np.float64, copy=True).reshape(-1)
         for name in ("stamp_s", "angle_min_rad", "angle_increment_rad", "range_min_m", "range_max_m"):
             value = float(getattr(self, name))
             if not math.isfinite(value):
@@ -118,8 +123,15 @@ class Scan:
             raise InvalidInputError(
                 f"scan has {arr.size} ranges: expected {geometry.beam_count} for this scanner's geometry"
             )
-        return cls(stamp_s, geometry.angle_min_rad, geometry.angle_increment_rad, geometry.range_min_m,
-                   geometry.range_max_m, arr, odometry=odometry)
+        return cls(
+            stamp_s,
+            geometry.angle_min_rad,
+            geometry.angle_increment_rad,
+            geometry.range_min_m,
+            geometry.range_max_m,
+            arr,
+            odometry=odometry,
+        )
 
     @property
     def beam_count(self) -> int:
@@ -146,4 +158,3 @@ class Scan:
         pts[:, 0] = r * np.cos(a)
         pts[:, 1] = r * np.sin(a)
         return pts, idx
-

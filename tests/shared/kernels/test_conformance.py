@@ -56,13 +56,23 @@ def points_to_scan(points: FloatArray) -> Scan:
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     finite = np.all(np.isfinite(pts), axis=1)
     r = np.hypot(pts[finite, 0], pts[finite, 1])
-    beam = np.rint((np.arctan2(pts[finite, 1], pts[finite, 0]) - URG04LX.angle_min_rad)
-                   / URG04LX.angle_increment_rad).astype(int)
+    beam = np.rint(
+        (np.arctan2(pts[finite, 1], pts[finite, 0]) - URG04LX.angle_min_rad) / URG04LX.angle_increment_rad
+    ).astype(int)
     ok = (beam >= 0) & (beam < URG04LX.beam_count)
     ranges[beam[ok]] = r[ok]
     if (~finite).any():
         ranges[: int((~finite).sum())] = np.inf
     return Scan.from_geometry(URG04LX, ranges)
+
+
+MOTION = Pose2D(0.05, -0.03, 0.02)
+
+
+def moved_copy(points: FloatArray) -> FloatArray:
+    """The "current scan" for scan matchers: ``points`` seen after the robot moved by ``MOTION^-1``."""
+    with np.errstate(invalid="ignore"):
+        return MOTION.transform_points(points)
 
 
 def run(kernel: Kernel[Any], points: FloatArray) -> Any:
@@ -73,8 +83,7 @@ def run(kernel: Kernel[Any], points: FloatArray) -> Any:
     if stage == Stage.STRAIGHT_LINE:
         return kernel.apply(points, np.zeros(len(points), dtype=np.intp))  # type: ignore[attr-defined]
     if stage == Stage.SCAN_MATCHING:
-        moved = Pose2D(0.05, -0.03, 0.02).transform_points(points)
-        return kernel.apply(points, moved, Pose2D())  # type: ignore[attr-defined]
+        return kernel.apply(points, moved_copy(points), Pose2D())  # type: ignore[attr-defined]
     return kernel.apply(points)  # type: ignore[attr-defined]
 
 
@@ -83,7 +92,9 @@ def check_result(stage: Stage, result: Any, n_in: int) -> None:
     if stage == Stage.SEGMENTATION:
         assert isinstance(result, Segments)
         n = len(result.points)
-        assert result.points.shape == (n, 2) and result.beam_index.shape == (n,) and result.labels.shape == (n,)
+        assert (
+            result.points.shape == (n, 2) and result.beam_index.shape == (n,) and result.labels.shape == (n,)
+        )
         assert np.all(np.isfinite(result.points))
         lab = result.labels[result.labels >= 0]
         assert np.all(np.diff(lab) >= 0), "segment labels must increase along the scan"
@@ -108,7 +119,9 @@ def check_result(stage: Stage, result: Any, n_in: int) -> None:
         assert isinstance(result, Lines)
         n = result.n_lines
         assert result.segments.shape == (n, 4) and np.all(np.isfinite(result.segments))
-        assert result.rho_m.shape == result.theta_rad.shape == result.group.shape == result.support.shape == (n,)
+        assert (
+            result.rho_m.shape == result.theta_rad.shape == result.group.shape == result.support.shape == (n,)
+        )
         assert np.all((result.theta_rad >= 0.0) & (result.theta_rad < math.pi))
         # end points lie on the reported line
         for (x0, y0, x1, y1), rho, th in zip(result.segments, result.rho_m, result.theta_rad, strict=True):
@@ -160,7 +173,7 @@ def readonly(arr: FloatArray) -> FloatArray:
 
 def test_every_builtin_is_registered() -> None:
     got = {(str(i.stage), i.name) for i in KERNELS}
-    assert EXPECTED_BUILTINS <= got
+    assert got >= EXPECTED_BUILTINS
 
 
 @pytest.fixture(params=KERNELS, ids=_ids)
@@ -208,15 +221,23 @@ def test_thousand_points_on_one_line(kernel: Kernel[Any]) -> None:
     check_result(kernel.stage, result, len(pts))
     if kernel.stage == Stage.STRAIGHT_LINE:
         assert result.n_lines >= 1
-        np.testing.assert_allclose(result.theta_rad, 0.0, atol=math.radians(2.0))
-        np.testing.assert_allclose(result.rho_m, 2.0, atol=0.03)
+        # every end point is on the wall x = 2 (centroid-join joins the noisy points themselves)
+        np.testing.assert_allclose(result.segments[:, [0, 2]], 2.0, atol=0.03)
+        if kernel.name != "centroid-join":
+            # a fitted line is the wall: normal along x, i.e. theta ~ 0 (rho ~ 2) or theta ~ pi (rho ~ -2)
+            near_pi = result.theta_rad > math.pi / 2
+            off_axis = np.where(near_pi, math.pi - result.theta_rad, result.theta_rad)
+            assert np.all(off_axis < math.radians(2.0))
+            np.testing.assert_allclose(np.where(near_pi, -result.rho_m, result.rho_m), 2.0, atol=0.03)
     if kernel.stage == Stage.CLUSTERING:
         assert np.all(np.abs(result.centroids[:, 0] - 2.0) < 0.01)
     if kernel.stage == Stage.SEGMENTATION:
         assert result.n_segments >= 1
     if kernel.stage == Stage.SCAN_MATCHING:
-        # along a single wall only the normal direction is observable: check x and heading
-        assert abs(result.pose.x_m - 0.05) < 0.2
+        # along a single wall only the wall's normal offset and direction are observable:
+        # the matched current scan must land back on the wall x = 2
+        aligned = result.pose.transform_points(moved_copy(pts))
+        np.testing.assert_allclose(aligned[:, 0], 2.0, atol=0.01)
 
 
 def test_room_scan(kernel: Kernel[Any], room_scan: Scan) -> None:

@@ -8,7 +8,7 @@ import pytest
 from numpy.typing import ArrayLike
 
 from shared.errors import DuplicateKernelError, KernelParameterError, LinemapError, UnknownKernelError
-from shared.kernels import REGISTRY, Clusters, ClusteringKernel, KernelParams, KernelRegistry, Stage, param
+from shared.kernels import REGISTRY, ClusteringKernel, Clusters, KernelParams, KernelRegistry, Stage, param
 
 
 class ToyParams(KernelParams):
@@ -45,15 +45,15 @@ def test_unknown_names_are_clear() -> None:
     reg = make_registry()
     with pytest.raises(UnknownKernelError, match="known kernels are toy"):
         reg.get("clustering", "nope")
-    with pytest.raises(UnknownKernelError, match="unknown stage 'bogus'"):
+    with pytest.raises(UnknownKernelError, match=r"unknown stage 'bogus'"):
         reg.get("bogus", "toy")
-    with pytest.raises(UnknownKernelError, match="registered versions are 1.2.0"):
+    with pytest.raises(UnknownKernelError, match=r"registered versions are 1\.2\.0"):
         reg.get("clustering", "toy", "9.9.9")
 
 
 def test_duplicates_refused_and_versions_coexist() -> None:
     reg = make_registry()
-    with pytest.raises(DuplicateKernelError, match="clustering/toy@1.2.0"):
+    with pytest.raises(DuplicateKernelError, match=r"clustering/toy@1\.2\.0"):
         reg.register(Toy)
 
     class Toy2(Toy):
@@ -74,9 +74,9 @@ def test_bad_declarations_refused() -> None:
         version = "v1"
 
     reg = KernelRegistry()
-    with pytest.raises(LinemapError, match="lower-case"):
+    with pytest.raises(LinemapError, match=r"lower-case"):
         reg.register(BadName)
-    with pytest.raises(LinemapError, match="MAJOR.MINOR.PATCH"):
+    with pytest.raises(LinemapError, match=r"MAJOR\.MINOR\.PATCH"):
         reg.register(BadVersion)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -22,8 +23,12 @@ def test_raycast_hits_known_walls() -> None:
 def test_noise_free_scan_lies_on_walls() -> None:
     world = default_world()
     pose = Pose2D(4.5, 2.0, math.pi)
-    scan = simulate_scan(world, pose, np.random.default_rng(0),
-                         RangeNoise(near_accuracy_m=0.0, far_accuracy_ratio=0.0, outlier_rate=0.0))
+    scan = simulate_scan(
+        world,
+        pose,
+        np.random.default_rng(0),
+        RangeNoise(near_accuracy_m=0.0, far_accuracy_ratio=0.0, outlier_rate=0.0),
+    )
     pts, _ = scan.to_points()
     world_pts = pose.transform_points(pts)
     w = world.walls
@@ -53,5 +58,5 @@ def test_default_world_and_path() -> None:
     assert math.isclose(world.floor_area_m2, 40.0 + 6.4 - 0.64 - 0.36)
     path = default_path(50)
     assert len(path) == 50
-    steps = [math.hypot(b.x_m - a.x_m, b.y_m - a.y_m) for a, b in zip(path, path[1:], strict=False)]
+    steps = [math.hypot(b.x_m - a.x_m, b.y_m - a.y_m) for a, b in itertools.pairwise(path)]
     assert max(steps) < 0.5

@@ -18,8 +18,11 @@ poses = st.builds(Pose2D, coord, coord, angle)
 
 
 def close(a: Pose2D, b: Pose2D, tol: float = 1e-9) -> bool:
-    return (abs(a.x_m - b.x_m) < tol and abs(a.y_m - b.y_m) < tol
-            and abs(wrap_angle(a.theta_rad - b.theta_rad)) < tol)
+    return (
+        abs(a.x_m - b.x_m) < tol
+        and abs(a.y_m - b.y_m) < tol
+        and abs(wrap_angle(a.theta_rad - b.theta_rad)) < tol
+    )
 
 
 @given(poses)
