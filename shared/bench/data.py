@@ -36,8 +36,8 @@ def make_bench_data(seed: int = 0, outlier_rate: float = 0.05) -> BenchData:
     rng = np.random.default_rng(seed)
     world = default_world()
     noise = RangeNoise(outlier_rate=outlier_rate)
-    # Stand in the big room looking west along it: ~640 of the 682 beams return.
-    poses = tuple(Pose2D(4.5 - 0.08 * i, 2.0 + 0.01 * i, np.pi - 0.02 * i) for i in range(10))
+    # Stand in the big room looking east at the far wall and the box: all 682 beams return.
+    poses = tuple(Pose2D(6.0 + 0.08 * i, 2.0 + 0.01 * i, 0.02 * i) for i in range(10))
     scans = tuple(simulate_scan(world, p, rng, noise, stamp_s=0.1 * i) for i, p in enumerate(poses))
     previous, current = scans[0], scans[1]
     true_motion = poses[0].between(poses[1])

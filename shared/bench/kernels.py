@@ -148,13 +148,11 @@ def run_kernel_bench(
     eps, minpts = dbscan.params.epsilon_m, dbscan.params.min_points
     kept = dbscan.apply(pts)
     clean, clean_groups = kept.points, labels[kept.keep]
-    k_online = max(1, seg.n_segments)
-    kmeans = _k(Stage.CLUSTERING, "kmeans", n_clusters=k_online)
+    # Online mode clusters each step's new data into a few clusters (paper §3.3: one per step in online
+    # mode; Listing 1 asks for cluster-no 2): the kernels' default n_clusters.
+    kmeans = _k(Stage.CLUSTERING, "kmeans")
+    k_online = int(kmeans.params.n_clusters)
     fcm = _k(Stage.CLUSTERING, "fcm", n_clusters=k_online)
-    online_clusters = kmeans.apply(clean)
-    order = _scan_order(online_clusters.labels, online_clusters.n_clusters)
-    centroids = online_clusters.centroids[order]
-    cgroups = _centroid_groups(clean, clean_groups, online_clusters.labels, len(order))[order]
     icp = _k(Stage.SCAN_MATCHING, "icp")
     ref, _ = data.previous_scan.to_points()
     report.info.update(
@@ -206,18 +204,6 @@ def run_kernel_bench(
         lambda: lib.cmeans_skfuzzy(clean, k_online),
         lib_runs=slow * 5,
     )
-    for name in ("centroid-join", "svd", "hough"):
-        kern = _k(Stage.STRAIGHT_LINE, name)
-        line_base: Callable[[], Any] | None = (
-            partial(lib.svd_lines_numpy, centroids, cgroups) if name == "svd" else None
-        )
-        measure(
-            f"straight-line/{name}",
-            f"{scan_label}, {len(centroids)} centroids",
-            partial(kern.apply, centroids, cgroups),
-            "numpy svd" if line_base else None,
-            line_base,
-        )
     hc = _k(Stage.STRAIGHT_LINE, "hough-cluster")
     measure(
         "straight-line/hough-cluster",
@@ -281,6 +267,23 @@ def run_kernel_bench(
         lib_runs=3,
     )
 
+    # Straight lines from the batch's 52 centroids, ordered along the scans and grouped by segment.
+    border = _scan_order(bclusters.labels, bclusters.n_clusters)
+    centroids = bclusters.centroids[border]
+    cgroups = _centroid_groups(bclean, bgroups[bkeep.keep], bclusters.labels, len(border))[border]
+    for name in ("centroid-join", "svd", "hough"):
+        kern = _k(Stage.STRAIGHT_LINE, name)
+        line_base: Callable[[], Any] | None = (
+            partial(lib.svd_lines_numpy, centroids, cgroups) if name == "svd" else None
+        )
+        measure(
+            f"straight-line/{name}",
+            f"b: {len(centroids)} centroids",
+            partial(kern.apply, centroids, cgroups),
+            "numpy svd" if line_base else None,
+            line_base,
+        )
+
     def offline_ours() -> Any:
         keep = dbscan.apply(bpts)
         cl = bfcm.apply(keep.points)
@@ -314,12 +317,12 @@ def run_kernel_bench(
     ours_q = bkm.apply(bclean).objective
     report.quality["kmeans_objective_vs_sklearn_best_of_10"] = {
         "value": ours_q / inertia - 1.0,
-        "target": "<= +0.01",
+        "target": "<= +1 %",
     }
     _, fcm_ref = lib.cmeans_skfuzzy(bclean, OFFLINE_CLUSTERS)
     report.quality["fcm_objective_vs_skfuzzy"] = {
         "value": bclusters.objective / fcm_ref - 1.0,
-        "target": "<= +0.01",
+        "target": "<= +1 %",
     }
     return report
 

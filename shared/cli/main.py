@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -24,7 +25,8 @@ app = typer.Typer(
 bench_app = typer.Typer(help="Benchmarks (figures, not tests).", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
 
-console = Console()
+# Wide enough for the benchmark table when the output goes to a file or a pipe (rich assumes 80 columns).
+console = Console(width=None if sys.stdout.isatty() else 160)
 err_console = Console(stderr=True)
 
 
@@ -66,12 +68,13 @@ def bench_kernels(
         int, typer.Option(min=5, max=10_000, help="Timed runs per kernel (after warm-up).")
     ] = 200,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the simulated data.")] = 0,
+    markdown: Annotated[bool, typer.Option("--markdown", help="Print Markdown tables instead.")] = False,
 ) -> None:
     """Time each kernel and one whole online step against scikit-learn/scikit-fuzzy/scipy on the same data."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from shared.bench.kernels import run_kernel_bench
-    from shared.cli.render import bench_tables
+    from shared.cli.render import bench_markdown, bench_tables
 
     if json_path is not None and not json_path.resolve().parent.is_dir():
         err_console.print(
@@ -95,8 +98,11 @@ def bench_kernels(
     except LinemapError as exc:
         err_console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(2) from None
-    for table in bench_tables(report):
-        console.print(table)
+    if markdown:
+        typer.echo(bench_markdown(report), nl=False)
+    else:
+        for table in bench_tables(report):
+            console.print(table)
     if json_path is not None:
         try:
             json_path.write_text(json.dumps(report.as_dict(), indent=2) + "\n", encoding="utf-8")

@@ -71,6 +71,7 @@ def simulate_scan(
     sigma = noise.sigma_m(np.where(finite, true, 0.0))
     ranges = ranges + rng.normal(0.0, 1.0, ranges.shape) * sigma
     clutter = finite & (rng.random(ranges.shape) < noise.outlier_rate)
-    ranges = np.where(clutter, rng.uniform(geometry.range_min_m, np.where(finite, true, 1.0)), ranges)
+    clutter_high = np.maximum(np.where(finite, true, 1.0), geometry.range_min_m)
+    ranges = np.where(clutter, rng.uniform(geometry.range_min_m, clutter_high), ranges)
     ranges = np.where((ranges >= geometry.range_min_m) & (ranges <= geometry.range_max_m), ranges, np.nan)
     return Scan.from_geometry(geometry, ranges, stamp_s=stamp_s, odometry=pose)

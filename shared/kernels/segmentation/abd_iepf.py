@@ -6,9 +6,12 @@
    ``||P_{i+1} - P_i|| < D_th`` (eq. 14) with ``D_th = r_i sin(dphi) / sin(lambda - dphi) + 3 sigma_r``
    (eq. 15). ``dphi`` is the actual angle between the two beams, so a run of invalid beams between them
    widens the threshold like a coarser scanner would; ``lambda <= dphi`` (a gap so wide that no wall at
-   incidence ``lambda`` could bridge it) is always a break. Optional extension (``max_skip > 0``, off by
-   default): up to ``max_skip`` returns that break from the piece are dropped as isolated outliers (label
-   ``-1``) when the return after them continues it, so a stray return does not cut a wall in two.
+   incidence ``lambda`` could bridge it) is always a break. Extension (``max_skip``, default 2; 0 is
+   the paper's plain ABD): up to ``max_skip`` returns that break from the piece are dropped as isolated
+   outliers (label ``-1``) when the return after them continues it, so a stray return does not cut a wall
+   in two.
+   The paper segments before removing noise, so without this 5 % clutter returns cut a simulated room
+   scan into ~38 pieces instead of ~11.
 3. Each breakpoint chunk is split by iterative end-point fit (IEPF): a piece whose farthest point lies more
    than ``D_T`` from its chord is split there. ``D_T`` follows the modified IEPF (MIEPF) rule, eq. 16:
    ``D_T = 3 sigma_r0 + epsilon_a (rho_h - r0)`` clamped to ``[3 sigma_r0, D_T_max]``; we take ``rho_h``
@@ -97,7 +100,7 @@ class AbdIepfParams(KernelParams):
         paper="§3.1 eq. 16",
     )
     max_skip: int = param(
-        0,
+        2,
         description="Most consecutive returns dropped as isolated outliers (label -1) when the return after "
         "them continues the piece; 0 is the paper's plain ABD",
         ge=0,

@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from lines_helpers import assert_lines_valid
 
 from shared.errors import KernelParameterError
 from shared.kernels.lines import CentroidJoin
 from shared.types import hesse_from_endpoints
+from tests.shared.kernels.lines.lines_helpers import assert_lines_valid
 
 
 def _as_set(segments: np.ndarray) -> set[tuple[float, ...]]:

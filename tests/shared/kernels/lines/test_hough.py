@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from lines_helpers import angle_diff, assert_lines_valid, line_points, max_distance
 
 from shared.kernels.lines import Hough, Svd
+from tests.shared.kernels.lines.lines_helpers import angle_diff, assert_lines_valid, line_points, max_distance
 
 
 @pytest.mark.parametrize(

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from lines_helpers import angle_diff, assert_lines_valid, line_points, max_distance
 
 from shared.kernels.lines import HoughCluster, Svd
 from shared.types import FloatArray, IntArray, canonical_hesse
+from tests.shared.kernels.lines.lines_helpers import angle_diff, assert_lines_valid, line_points, max_distance
 
 
 def _top_cells(

@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 import pytest
-from lines_helpers import assert_lines_valid
 
 from shared.errors import InvalidInputError
 from shared.kernels import REGISTRY, Stage
 from shared.kernels.lines import Hough, HoughCluster
 from shared.kernels.lines._common import MIN_LENGTH_M, build_lines, empty_lines, group_points, theta_grid
+from tests.shared.kernels.lines.lines_helpers import assert_lines_valid
 
 
 def test_all_four_kernels_are_registered() -> None:

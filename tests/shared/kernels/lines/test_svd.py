@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from lines_helpers import angle_diff, assert_lines_valid, line_points, max_distance
 from sklearn.decomposition import PCA
 
 from shared.kernels.lines import Svd
 from shared.types import FloatArray, canonical_hesse
+from tests.shared.kernels.lines.lines_helpers import angle_diff, assert_lines_valid, line_points, max_distance
 
 
 def _numpy_svd_line(pts: FloatArray) -> tuple[float, float, FloatArray]:
