@@ -109,7 +109,7 @@ def bench_kernels(
         except OSError as exc:
             err_console.print(f"[red]error:[/red] cannot write {json_path}: {exc.strerror}")
             raise typer.Exit(2) from None
-        console.print(f"figures written to {json_path}")
+        err_console.print(f"figures written to {json_path}")
 
 
 def main() -> None:

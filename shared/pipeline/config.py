@@ -1,0 +1,117 @@
+"""The pipeline's configuration: mode, kernel per stage and their parameters (SPEC §4, §6).
+
+This is the object the XML control message sets (issue 4): a message is parsed into a new
+:class:`PipelineConfig`, validated whole (kernel names, parameters), and only then swapped in, so a bad
+message never leaves the robot half-configured. It round-trips through a plain dict / JSON.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from shared.errors import KernelParameterError, LinemapError, UnknownKernelError
+from shared.kernels import REGISTRY, Kernel, Stage
+
+__all__ = ["KernelChoice", "Mode", "PipelineConfig", "StageSchedule"]
+
+
+class Mode(StrEnum):
+    """When noise removal, clustering and line extraction run (paper §3)."""
+
+    ONLINE = "online"  # every step, on that step's new data only
+    OFFLINE = "offline"  # on N_smax accumulated steps (flushed early when the heading changes)
+    MIXED = "mixed"  # per stage, see PipelineConfig.schedule
+
+
+class KernelChoice(BaseModel):
+    """One kernel by name (and optionally version) with its parameters as a plain dict."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str
+    version: str | None = None
+    params: dict[str, Any] = Field(default_factory=dict)
+
+    def build(self, stage: Stage) -> Kernel[Any]:
+        """Look the kernel up in the registry and validate its parameters."""
+        return REGISTRY.create(stage, self.name, self.params, self.version)
+
+
+class StageSchedule(BaseModel):
+    """In mixed mode: whether a stage runs online or offline, and its own N_smax."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    mode: Mode = Mode.ONLINE
+    n_smax: int = Field(9, ge=1, le=10_000)
+
+
+# Stages whose schedule the modes govern (segmentation and scan matching always run per scan).
+SCHEDULED = (Stage.NOISE_REMOVAL, Stage.CLUSTERING, Stage.STRAIGHT_LINE)
+
+
+class PipelineConfig(BaseModel):
+    """Everything that decides how scans become a map. Validated whole on construction."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    mode: Mode = Mode.ONLINE
+    n_smax: int = Field(9, ge=1, le=10_000, description="Steps accumulated in offline mode (paper §3)")
+    heading_flush_deg: float = Field(
+        15.0, gt=0.0, le=360.0, description="Offline batches flush early once the heading turned this much"
+    )
+    segmentation: KernelChoice = KernelChoice(name="abd-iepf")
+    noise_removal: tuple[KernelChoice, ...] = (KernelChoice(name="dbscan"),)
+    clustering: KernelChoice = KernelChoice(name="kmeans")
+    straight_line: KernelChoice = KernelChoice(name="hough-cluster")
+    scan_matching: KernelChoice | None = KernelChoice(name="icp")
+    schedule: dict[Stage, StageSchedule] = Field(
+        default_factory=dict, description="Mixed mode: online/offline and N_smax per scheduled stage"
+    )
+
+    @model_validator(mode="after")
+    def _kernels_exist(self) -> PipelineConfig:
+        try:
+            self.build()
+        except (UnknownKernelError, KernelParameterError) as exc:
+            raise ValueError(str(exc)) from None
+        for stage in self.schedule:
+            if stage not in SCHEDULED:
+                allowed = ", ".join(SCHEDULED)
+                raise ValueError(f"schedule for stage {stage!s}: only {allowed} can be scheduled")
+        return self
+
+    def build(self) -> dict[Stage, list[Kernel[Any]]]:
+        """Instantiate every kernel (validated); noise removal may chain several."""
+        out: dict[Stage, list[Kernel[Any]]] = {
+            Stage.SEGMENTATION: [self.segmentation.build(Stage.SEGMENTATION)],
+            Stage.NOISE_REMOVAL: [c.build(Stage.NOISE_REMOVAL) for c in self.noise_removal],
+            Stage.CLUSTERING: [self.clustering.build(Stage.CLUSTERING)],
+            Stage.STRAIGHT_LINE: [self.straight_line.build(Stage.STRAIGHT_LINE)],
+            Stage.SCAN_MATCHING: [],
+        }
+        if self.scan_matching is not None:
+            out[Stage.SCAN_MATCHING] = [self.scan_matching.build(Stage.SCAN_MATCHING)]
+        return out
+
+    def stage_schedule(self, stage: Stage) -> StageSchedule:
+        """How ``stage`` runs: from ``mode`` unless mixed, where ``schedule`` decides (default online)."""
+        if self.mode == Mode.MIXED:
+            return self.schedule.get(stage, StageSchedule())
+        return StageSchedule(mode=self.mode, n_smax=self.n_smax)
+
+    @classmethod
+    def parse(cls, data: dict[str, Any]) -> PipelineConfig:
+        """Validate a plain dict; errors become :class:`LinemapError` naming the field and the reason."""
+        from pydantic import ValidationError
+
+        try:
+            return cls.model_validate(data)
+        except ValidationError as exc:
+            problems = "; ".join(
+                f"{'.'.join(str(p) for p in e['loc']) or 'config'}: {e['msg']}" for e in exc.errors()
+            )
+            raise LinemapError(f"invalid pipeline configuration: {problems}") from None
