@@ -26,7 +26,7 @@ import re
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from enum import StrEnum
-from typing import Any, ClassVar, Generic, TypeVar, cast
+from typing import Any, ClassVar, Generic, Literal, TypeVar, cast
 
 from numpy.typing import ArrayLike
 
@@ -160,9 +160,13 @@ class StraightLineKernel(Kernel[P], ABC):
 
     ``groups[i]`` is the group (e.g. segment S^n) of point ``i``; lines never span two groups. Within a
     group the points are in scan order. ``None`` puts every point in group 0.
+
+    ``consumes`` tells the pipeline what to feed: ``"centroids"`` (the clustering stage's centroids, as in
+    §3.4: centroid joining, SVD and Hough on centroids) or ``"points"`` (the denoised points, as in §4).
     """
 
     stage = Stage.STRAIGHT_LINE
+    consumes: ClassVar[Literal["points", "centroids"]] = "points"
 
     @abstractmethod
     def apply(self, points: ArrayLike, groups: ArrayLike | None = None) -> Lines:

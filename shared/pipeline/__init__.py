@@ -1,5 +1,19 @@
 """The mapping pipeline (SPEC §2-§4): one ``step(scan)`` at a time, from scans and odometry to a line map."""
 
 from shared.pipeline.config import KernelChoice, Mode, PipelineConfig, StageSchedule
+from shared.pipeline.pipeline import IcpGate, Pipeline, StepResult
+from shared.pipeline.snapshot import MapSnapshot
+from shared.pipeline.wallmap import MergeTolerances, WallMap
 
-__all__ = ["KernelChoice", "Mode", "PipelineConfig", "StageSchedule"]
+__all__ = [
+    "IcpGate",
+    "KernelChoice",
+    "MapSnapshot",
+    "MergeTolerances",
+    "Mode",
+    "Pipeline",
+    "PipelineConfig",
+    "StageSchedule",
+    "StepResult",
+    "WallMap",
+]

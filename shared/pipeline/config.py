@@ -66,7 +66,7 @@ class PipelineConfig(BaseModel):
     segmentation: KernelChoice = KernelChoice(name="abd-iepf")
     noise_removal: tuple[KernelChoice, ...] = (KernelChoice(name="dbscan"),)
     clustering: KernelChoice = KernelChoice(name="kmeans")
-    straight_line: KernelChoice = KernelChoice(name="hough-cluster")
+    straight_line: KernelChoice = KernelChoice(name="hough-cluster", params={"min_points": 8})
     scan_matching: KernelChoice | None = KernelChoice(name="icp")
     schedule: dict[Stage, StageSchedule] = Field(
         default_factory=dict, description="Mixed mode: online/offline and N_smax per scheduled stage"

@@ -36,6 +36,8 @@ class CentroidJoinParams(KernelParams):
 class CentroidJoin(StraightLineKernel[CentroidJoinParams]):
     """Centroid joining (CJ, paper §3.4): a polyline through each group's points in scan order."""
 
+    consumes = "centroids"
+
     name = "centroid-join"
     version = "1.0.0"
     Params = CentroidJoinParams

@@ -130,6 +130,8 @@ def _hough_lines(
 class Hough(StraightLineKernel[HoughParams]):
     """Hough transform lines (paper §3.4.2, Algorithm 1): peak, inverse transform, remove inliers, repeat."""
 
+    consumes = "centroids"
+
     name = "hough"
     version = "1.0.0"
     Params = HoughParams

@@ -41,6 +41,8 @@ class SvdParams(KernelParams):
 class Svd(StraightLineKernel[SvdParams]):
     """SVD regression line per group (paper §3.4.1, eq. 27-32): total least squares, rank-1 reconstruction."""
 
+    consumes = "centroids"
+
     name = "svd"
     version = "1.0.0"
     Params = SvdParams

@@ -1,0 +1,268 @@
+"""The step loop (SPEC §2-§4): one ``step(scan)`` at a time, from a scan and odometry to the line map.
+
+Per step: pose prediction from odometry (paper §2, eq. 9-11), ICP correction against the previous scan
+(§6.2.2), segmentation (§3.1) of the scan, then the scheduled stages (noise removal §3.2, clustering §3.3,
+straight lines §3.4/§4) and the map update. In **online** mode the scheduled stages run on every step's new
+points; in **offline** mode points accumulate for ``n_smax`` steps (flushed early once the heading turned
+more than ``heading_flush_deg`` since the batch began); in **mixed** mode each stage has its own schedule.
+Every point passes each stage exactly once: a stage's buffer is emptied when it runs.
+
+The pipeline is stateful (it is the robot's memory); the kernels it calls are pure.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from shared.errors import LinemapError
+from shared.kernels import Stage
+from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
+from shared.pipeline.snapshot import MapSnapshot
+from shared.pipeline.stages import Chunk, cluster, concat, extract_lines, remove_noise
+from shared.pipeline.wallmap import MergeTolerances, WallMap
+from shared.types import FloatArray, Pose2D, Scan, wrap_angle
+
+__all__ = ["IcpGate", "Pipeline", "StepResult"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class IcpGate:
+    """When an ICP correction is trusted over odometry, and when the reference scan (keyframe) moves on.
+
+    Scans are matched against the last keyframe rather than the previous scan, so pose error accumulates
+    per keyframe (every ``keyframe_m`` metres or ``keyframe_rad`` of turn), not per scan.
+    """
+
+    min_inlier_ratio: float = 0.5
+    max_correction_m: float = 0.5
+    max_correction_rad: float = 0.35
+    keyframe_m: float = 0.1
+    keyframe_rad: float = 0.1
+
+
+@dataclass(frozen=True, slots=True)
+class StepResult:
+    """What one step did: the new pose, whether ICP corrected it, which stages ran, the map version."""
+
+    version: int
+    pose: Pose2D
+    icp_used: bool
+    ran: tuple[Stage, ...]
+    step_ms: float
+
+
+@dataclass(slots=True)
+class _Buffer:
+    chunks: list[Chunk] = field(default_factory=list)
+    steps: int = 0
+    heading0: float | None = None
+
+
+class Pipeline:
+    """Maps scans one step at a time. ``snapshot()`` gives the temporary map after any step."""
+
+    def __init__(
+        self,
+        config: PipelineConfig | None = None,
+        *,
+        laser_offset: Pose2D | None = None,
+        merge: MergeTolerances | None = None,
+        icp_gate: IcpGate | None = None,
+        timing_window: int = 1000,
+    ) -> None:
+        self._config = config or PipelineConfig()
+        # typed Any: each stage's kernels are driven through that stage's own apply signature
+        self._kernels: dict[Stage, list[Any]] = dict(self._config.build())
+        self._offset = laser_offset or Pose2D()
+        self._gate = icp_gate or IcpGate()
+        self._map = WallMap(merge)
+        self._centroids: list[FloatArray] = []
+        self._trajectory: list[tuple[float, float, float, float]] = []
+        self._pose: Pose2D | None = None
+        self._prev_odom: Pose2D | None = None
+        self._key_pose: Pose2D | None = None  # robot pose of the keyframe
+        self._key_points: FloatArray | None = None  # keyframe scan points, scanner frame
+        self._next_group = 0
+        self._version = 0
+        self._stamp = 0.0
+        self._buffers: dict[Stage, _Buffer] = {s: _Buffer() for s in SCHEDULED}
+        self._step_ms: deque[float] = deque(maxlen=timing_window)
+        self.icp_rejections = 0
+
+    # ------------------------------------------------------------------ configuration
+    @property
+    def config(self) -> PipelineConfig:
+        """The configuration in force."""
+        return self._config
+
+    def reconfigure(self, config: PipelineConfig) -> None:
+        """Swap in a new configuration between steps. Kernels are built (validated) first; on any error the
+        old configuration stays in force and the error propagates. Pending batches are kept and run under
+        the new schedule."""
+        kernels: dict[Stage, list[Any]] = dict(config.build())
+        self._config, self._kernels = config, kernels
+        log.info("pipeline reconfigured: mode=%s", config.mode)
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
+        """Process one scan; ``odometry`` (robot pose from the wheels) defaults to ``scan.odometry``."""
+        t0 = time.perf_counter()
+        odom = odometry if odometry is not None else scan.odometry
+        seg = self._kernels[Stage.SEGMENTATION][0].apply(scan)
+        icp_used = self._estimate_pose(odom, seg.points)
+        assert self._pose is not None
+        laser = self._pose @ self._offset
+        world = laser.transform_points(seg.points) if len(seg.points) else np.zeros((0, 2))
+        labels = np.asarray(seg.labels)
+        groups = np.where(labels >= 0, labels + self._next_group, -1).astype(np.intp)
+        self._next_group += seg.n_segments
+        self._stamp = scan.stamp_s
+        self._trajectory.append((scan.stamp_s, self._pose.x_m, self._pose.y_m, self._pose.theta_rad))
+        ran = self._feed(Chunk.of(world, groups), final=False)
+        self._version += 1
+        elapsed = (time.perf_counter() - t0) * 1e3
+        self._step_ms.append(elapsed)
+        return StepResult(self._version, self._pose, icp_used, ran, elapsed)
+
+    def flush(self) -> tuple[Stage, ...]:
+        """Run every pending batch now (end of a log, or before a mode change)."""
+        ran = self._feed(None, final=True)
+        if ran:
+            self._version += 1
+        return ran
+
+    def _estimate_pose(self, odom: Pose2D | None, points: FloatArray) -> bool:
+        """Predict the pose from odometry, then correct it by ICP against the keyframe scan."""
+        if self._pose is None:
+            self._pose = odom or Pose2D()
+            self._prev_odom = odom
+            self._key_pose, self._key_points = self._pose, points
+            return False
+        delta = Pose2D()
+        if odom is not None and self._prev_odom is not None:
+            delta = self._prev_odom.between(odom)
+        predicted = self._pose @ delta
+        self._prev_odom = odom
+        icp_used = False
+        matchers = self._kernels[Stage.SCAN_MATCHING]
+        key_pose, key_points = self._key_pose, self._key_points
+        if (
+            matchers
+            and key_pose is not None
+            and key_points is not None
+            and min(len(points), len(key_points)) >= 3
+        ):
+            # laser motion from the keyframe's scanner frame to the current one
+            guess = self._offset.inverse() @ key_pose.between(predicted) @ self._offset
+            match = matchers[0].apply(key_points, points, guess)
+            corr = guess.between(match.pose)
+            trusted = (
+                match.inlier_ratio >= self._gate.min_inlier_ratio
+                and math.hypot(corr.x_m, corr.y_m) <= self._gate.max_correction_m
+                and abs(corr.theta_rad) <= self._gate.max_correction_rad
+            )
+            if trusted:
+                predicted = key_pose @ self._offset @ match.pose @ self._offset.inverse()
+                icp_used = True
+            else:
+                self.icp_rejections += 1
+        self._pose = predicted
+        moved = self._key_pose.between(predicted) if self._key_pose is not None else Pose2D()
+        if (
+            not icp_used
+            or math.hypot(moved.x_m, moved.y_m) > self._gate.keyframe_m
+            or abs(moved.theta_rad) > self._gate.keyframe_rad
+        ):
+            self._key_pose, self._key_points = predicted, points
+        return icp_used
+
+    # ------------------------------------------------------------------ scheduled stages
+    def _ready(self, stage: Stage, buf: _Buffer, final: bool) -> bool:
+        if not buf.chunks:
+            return False
+        sched = self._config.stage_schedule(stage)
+        if final or sched.mode == Mode.ONLINE:
+            return True
+        if buf.steps >= sched.n_smax:
+            return True
+        assert self._pose is not None
+        turned = abs(wrap_angle(self._pose.theta_rad - (buf.heading0 or 0.0)))
+        return turned > math.radians(self._config.heading_flush_deg)
+
+    def _feed(self, chunk: Chunk | None, final: bool) -> tuple[Stage, ...]:
+        """Push a step's chunk through the scheduled stages, running each one whose batch is ready."""
+        ran: list[Stage] = []
+        for stage in SCHEDULED:
+            buf = self._buffers[stage]
+            if chunk is not None:
+                if not buf.chunks:
+                    buf.heading0 = self._pose.theta_rad if self._pose is not None else 0.0
+                buf.chunks.append(chunk)
+                buf.steps += 1
+            if not self._ready(stage, buf, final):
+                chunk = None
+                continue
+            batch = concat(buf.chunks)
+            self._buffers[stage] = _Buffer()
+            chunk = self._run(stage, batch)
+            ran.append(stage)
+        return tuple(ran)
+
+    def _run(self, stage: Stage, batch: Chunk) -> Chunk | None:
+        kernels = self._kernels[stage]
+        try:
+            if stage == Stage.NOISE_REMOVAL:
+                return remove_noise(kernels, batch)
+            if stage == Stage.CLUSTERING:
+                out = cluster(kernels[0], batch)
+                if len(out.centroids):
+                    self._centroids.append(out.centroids)
+                return out
+            segments = extract_lines(kernels[0], batch)
+            self._map.add_segments(segments)
+            return None
+        except LinemapError:
+            raise
+        except Exception as exc:  # a kernel that raises must not take the robot down
+            kernel = kernels[0] if kernels else None
+            raise LinemapError(
+                f"kernel {kernel.ident() if kernel else stage} failed on {len(batch.points)} points: "
+                f"{type(exc).__name__}: {exc}"
+            ) from exc
+
+    # ------------------------------------------------------------------ the map
+    @property
+    def version(self) -> int:
+        """Increases with every step (and every flush that ran a stage)."""
+        return self._version
+
+    @property
+    def pose(self) -> Pose2D:
+        """The current robot pose (world frame)."""
+        return self._pose or Pose2D()
+
+    def timing_ms(self) -> tuple[float, float]:
+        """Median and 99th percentile of recent step times, in milliseconds."""
+        if not self._step_ms:
+            return (0.0, 0.0)
+        arr = np.fromiter(self._step_ms, dtype=np.float64)
+        return float(np.median(arr)), float(np.percentile(arr, 99))
+
+    def snapshot(self) -> MapSnapshot:
+        """The temporary map now: walls, centroids, pose, trajectory, version. O(map + trajectory)."""
+        segments = self._map.segments()
+        ids = self._map.ids
+        cents = np.vstack(self._centroids) if self._centroids else np.zeros((0, 2))
+        traj = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)
+        for arr in (segments, ids, cents, traj):
+            arr.setflags(write=False)
+        return MapSnapshot(self._version, self._stamp, segments, ids, cents, self.pose, traj)

@@ -1,0 +1,143 @@
+"""The scheduled part of the pipeline: noise removal -> clustering -> straight lines, on chunks of points.
+
+A :class:`Chunk` is what flows between stages: world-frame points with their segment (group) ids and, after
+clustering, the centroids with the group each belongs to. Every function here is pure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from shared.kernels import Lines
+from shared.types import FloatArray, IntArray
+
+__all__ = ["Chunk", "cluster", "concat", "extract_lines", "remove_noise"]
+
+
+@dataclass(frozen=True, slots=True)
+class Chunk:
+    """Points ``(N, 2)`` (metres, world frame) with group ids ``(N,)`` (-1: none) and optional centroids."""
+
+    points: FloatArray
+    groups: IntArray
+    centroids: FloatArray
+    centroid_groups: IntArray
+
+    @classmethod
+    def of(cls, points: FloatArray, groups: IntArray) -> Chunk:
+        """A chunk of points without centroids."""
+        return cls(points, groups, np.zeros((0, 2)), np.zeros(0, dtype=np.intp))
+
+
+def concat(chunks: list[Chunk]) -> Chunk:
+    """One chunk holding all the points and centroids of ``chunks``."""
+    if len(chunks) == 1:
+        return chunks[0]
+    return Chunk(
+        np.vstack([c.points for c in chunks]) if chunks else np.zeros((0, 2)),
+        np.concatenate([c.groups for c in chunks]) if chunks else np.zeros(0, dtype=np.intp),
+        np.vstack([c.centroids for c in chunks]) if chunks else np.zeros((0, 2)),
+        np.concatenate([c.centroid_groups for c in chunks]) if chunks else np.zeros(0, dtype=np.intp),
+    )
+
+
+def remove_noise(kernels: list[Any], chunk: Chunk) -> Chunk:
+    """Apply the noise-removal kernels in order (paper §3.2). Points a kernel adds (dilation) take the group
+    of the nearest kept point. O(N log N)."""
+    points, groups = chunk.points, chunk.groups
+    for kernel in kernels:
+        if len(points) == 0:
+            break
+        result = kernel.apply(points)
+        kept_groups = groups[result.keep]
+        if result.n_added:
+            kept_pts = points[result.keep]
+            added = result.points[len(kept_pts) :]
+            if len(kept_pts):
+                _, nearest = cKDTree(kept_pts).query(added)
+                add_groups = kept_groups[nearest]
+            else:
+                add_groups = np.full(len(added), -1, dtype=np.intp)
+            kept_groups = np.concatenate([kept_groups, add_groups])
+        points, groups = np.asarray(result.points), np.asarray(kept_groups)
+    return Chunk(points, groups, chunk.centroids, chunk.centroid_groups)
+
+
+def cluster(kernel: Any, chunk: Chunk) -> Chunk:
+    """Cluster the chunk's points (paper §3.3); each centroid joins the group most of its points are in."""
+    if len(chunk.points) == 0:
+        return chunk
+    result = kernel.apply(chunk.points)
+    k = result.n_clusters
+    labels = np.asarray(result.labels)
+    cgroups = np.full(k, -1, dtype=np.intp)
+    ok = (labels >= 0) & (chunk.groups >= 0)
+    if ok.any():
+        g = chunk.groups[ok]
+        uniq, g_idx = np.unique(g, return_inverse=True)
+        counts = np.zeros((k, len(uniq)), dtype=np.int64)
+        np.add.at(counts, (labels[ok], g_idx), 1)
+        has = counts.sum(axis=1) > 0
+        cgroups[has] = uniq[counts[has].argmax(axis=1)]
+    return Chunk(chunk.points, chunk.groups, np.asarray(result.centroids), cgroups)
+
+
+def _order_along_groups(points: FloatArray, groups: IntArray) -> IntArray:
+    """Indices sorting ``points`` by group, then by position along the group's principal axis."""
+    order = np.argsort(groups, kind="stable")
+    g_sorted = groups[order]
+    keys = np.zeros(len(points))
+    bounds = np.flatnonzero(np.diff(g_sorted)) + 1
+    for idx in np.split(order, bounds):
+        if len(idx) < 2:
+            continue
+        pts = points[idx]
+        centred = pts - pts.mean(axis=0)
+        _, _, vt = np.linalg.svd(centred, full_matrices=False)
+        keys[idx] = centred @ vt[0]
+    return np.lexsort((keys, groups))
+
+
+def _respan(lines: Lines, points: FloatArray, groups: IntArray, within_m: float) -> FloatArray:
+    """Stretch each line over the points of its group that lie within ``within_m`` of it."""
+    segs = np.array(lines.segments, copy=True)
+    for i in range(lines.n_lines):
+        pts = points[groups == lines.group[i]]
+        if len(pts) == 0:
+            continue
+        th, rho = lines.theta_rad[i], lines.rho_m[i]
+        n = np.array([np.cos(th), np.sin(th)])
+        d = np.array([-n[1], n[0]])
+        near = np.abs(pts @ n - rho) <= within_m
+        if not near.any():
+            continue
+        t = pts[near] @ d
+        base = rho * n
+        segs[i] = np.concatenate([base + d * t.min(), base + d * t.max()])
+    return segs
+
+
+def extract_lines(kernel: Any, chunk: Chunk, respan_within_m: float = 0.05) -> FloatArray:
+    """Straight-line segments ``(L, 4)`` from a chunk (paper §3.4, §4).
+
+    Kernels consuming centroids get them ordered along their group; their infinite lines are then spanned
+    over the group's points (SPEC §4: "a map segment is its span over the points it came from"), except
+    centroid joining, whose polyline is the map itself. Kernels consuming points get the points and groups.
+    """
+    if getattr(kernel, "consumes", "points") == "centroids":
+        keep = chunk.centroid_groups >= 0
+        cents, cgroups = chunk.centroids[keep], chunk.centroid_groups[keep]
+        if len(cents) == 0:
+            return np.zeros((0, 4))
+        order = _order_along_groups(cents, cgroups)
+        lines = kernel.apply(cents[order], cgroups[order])
+        if kernel.name == "centroid-join":
+            return np.asarray(lines.segments)
+        return _respan(lines, chunk.points, chunk.groups, respan_within_m)
+    if len(chunk.points) == 0:
+        return np.zeros((0, 4))
+    return np.asarray(kernel.apply(chunk.points, chunk.groups).segments)
