@@ -1,0 +1,164 @@
+"""The step loop: pose estimation, each mode's processing schedule, map output, reconfiguration, failures."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from typing import Any, ClassVar
+
+import numpy as np
+import pytest
+from numpy.typing import ArrayLike
+
+from shared.errors import LinemapError
+from shared.kernels import REGISTRY, KernelParams, NoiseRemovalKernel, NoiseResult, Stage, param
+from shared.kernels.results import freeze
+from shared.pipeline import KernelChoice, Mode, Pipeline, PipelineConfig, StageSchedule
+from shared.sim import RangeNoise, default_world, simulate_scan
+from shared.types import Pose2D, Scan, as_points
+
+
+class CountingParams(KernelParams):
+    fail: bool = param(False, description="raise on apply")
+
+
+class CountingNoise(NoiseRemovalKernel[CountingParams]):
+    """Keeps every point and counts how many it saw (test instrument)."""
+
+    name = "counting-test"
+    Params = CountingParams
+    seen: ClassVar[list[int]] = []
+
+    def apply(self, points: ArrayLike) -> NoiseResult:
+        pts = as_points(points)
+        if self.params.fail:
+            raise RuntimeError("boom")
+        CountingNoise.seen.append(len(pts))
+        keep = np.all(np.isfinite(pts), axis=1)
+        out = pts[keep].copy()
+        labels = np.zeros(len(out), dtype=np.intp)
+        freeze(keep, out, labels)
+        return NoiseResult(keep, out, labels)
+
+
+@pytest.fixture
+def counting() -> Iterator[type[CountingNoise]]:
+    REGISTRY.register(CountingNoise)
+    CountingNoise.seen.clear()
+    yield CountingNoise
+    REGISTRY.unregister(Stage.NOISE_REMOVAL, "counting-test", "1.0.0")
+
+
+def straight_run(n: int, turn_at: int | None = None, seed: int = 0) -> list[Scan]:
+    """Scans along the big room's length (true odometry); an in-place 90 deg turn at step ``turn_at``."""
+    world, rng = default_world(), np.random.default_rng(seed)
+    scans = []
+    heading = 0.0
+    for i in range(n):
+        if turn_at is not None and i >= turn_at:
+            heading = math.pi / 2
+        pose = Pose2D(2.0 + 0.04 * min(i, turn_at or i), 2.0, heading)
+        scans.append(simulate_scan(world, pose, rng, RangeNoise(outlier_rate=0.0), stamp_s=0.1 * i))
+    return scans
+
+
+def config(mode: Mode, **kw: Any) -> PipelineConfig:
+    return PipelineConfig(mode=mode, noise_removal=(KernelChoice(name="counting-test"),), **kw)
+
+
+def test_online_runs_every_stage_every_step(counting: type[CountingNoise]) -> None:
+    pipe = Pipeline(config(Mode.ONLINE))
+    scans = straight_run(5)
+    for scan in scans:
+        res = pipe.step(scan)
+        assert res.ran == (Stage.NOISE_REMOVAL, Stage.CLUSTERING, Stage.STRAIGHT_LINE)
+    assert len(counting.seen) == 5
+    assert sum(counting.seen) == sum(len(s.to_points()[0]) for s in scans), "each point processed once"
+
+
+def test_offline_batches_n_smax_steps(counting: type[CountingNoise]) -> None:
+    pipe = Pipeline(config(Mode.OFFLINE, n_smax=3))
+    ran = [pipe.step(s).ran for s in straight_run(7)]
+    assert [bool(r) for r in ran] == [False, False, True, False, False, True, False]
+    assert pipe.flush() == (Stage.NOISE_REMOVAL, Stage.CLUSTERING, Stage.STRAIGHT_LINE)
+    assert len(counting.seen) == 3
+    assert sum(counting.seen) == sum(len(s.to_points()[0]) for s in straight_run(7))
+
+
+def test_offline_flushes_early_on_heading_change(counting: type[CountingNoise]) -> None:
+    pipe = Pipeline(config(Mode.OFFLINE, n_smax=9, heading_flush_deg=15.0))
+    ran = [bool(pipe.step(s).ran) for s in straight_run(6, turn_at=2)]
+    assert ran[:3] == [False, False, True], "the turn at step 2 flushes the batch before N_smax"
+
+
+def test_mixed_mode_schedules_each_stage(counting: type[CountingNoise]) -> None:
+    cfg = config(
+        Mode.MIXED,
+        schedule={
+            Stage.NOISE_REMOVAL: StageSchedule(mode=Mode.ONLINE),
+            Stage.CLUSTERING: StageSchedule(mode=Mode.OFFLINE, n_smax=3),
+            Stage.STRAIGHT_LINE: StageSchedule(mode=Mode.ONLINE),
+        },
+    )
+    pipe = Pipeline(cfg)
+    ran = [pipe.step(s).ran for s in straight_run(6)]
+    assert ran[0] == ran[1] == (Stage.NOISE_REMOVAL,)
+    assert ran[2] == (Stage.NOISE_REMOVAL, Stage.CLUSTERING, Stage.STRAIGHT_LINE)
+    assert len(counting.seen) == 6
+
+
+def test_map_of_a_room_and_trajectory() -> None:
+    pipe = Pipeline(PipelineConfig())
+    scans = straight_run(30)
+    for scan in scans:
+        pipe.step(scan)
+    snap = pipe.snapshot()
+    assert snap.version == 30 and len(snap.trajectory) == 30
+    np.testing.assert_allclose(snap.trajectory[:, 0], [s.stamp_s for s in scans])
+    assert snap.pose.x_m == pytest.approx(2.0 + 0.04 * 29, abs=0.03)
+    # the long walls y = 0 and y = 4 are in the map
+    segs = snap.segments
+    horiz = np.abs(segs[:, 1] - segs[:, 3]) < 0.05
+    for y in (0.0, 4.0):
+        near = horiz & (np.abs(segs[:, 1] - y) < 0.05)
+        assert near.any(), f"wall y={y} missing"
+        assert (np.abs(segs[near, 2] - segs[near, 0])).max() > 2.0
+    assert not snap.segments.flags.writeable
+
+
+def test_icp_corrects_bad_odometry() -> None:
+    scans = straight_run(20)
+    drifted = [Scan(s.stamp_s, s.angle_min_rad, s.angle_increment_rad, s.range_min_m, s.range_max_m,
+                    s.ranges_m, odometry=Pose2D(2.0 + 0.05 * i, 2.0, 0.002 * i)) for i, s in enumerate(scans)]
+    with_icp = Pipeline(PipelineConfig())
+    without = Pipeline(PipelineConfig(scan_matching=None))
+    for s in drifted:
+        with_icp.step(s)
+        without.step(s)
+    true_x = 2.0 + 0.04 * 19
+    assert abs(with_icp.pose.x_m - true_x) < 0.05
+    assert abs(without.pose.x_m - true_x) > 0.15
+
+
+def test_reconfigure_validates_before_swapping() -> None:
+    pipe = Pipeline(PipelineConfig())
+    with pytest.raises(ValueError, match="epsilon_m"):
+        pipe.reconfigure(PipelineConfig(noise_removal=(KernelChoice(name="dbscan", params={"epsilon_m": -1}),)))
+    assert pipe.config == PipelineConfig()
+    pipe.reconfigure(PipelineConfig(mode=Mode.OFFLINE))
+    assert pipe.config.mode == Mode.OFFLINE
+
+
+def test_config_errors_name_the_field() -> None:
+    with pytest.raises(LinemapError, match="no kernel named 'nope'"):
+        PipelineConfig.parse({"clustering": {"name": "nope"}})
+    with pytest.raises(LinemapError, match="n_smax"):
+        PipelineConfig.parse({"n_smax": 0})
+    cfg = PipelineConfig(mode=Mode.MIXED, n_smax=4)
+    assert PipelineConfig.parse(cfg.model_dump(mode="json")) == cfg
+
+
+def test_failing_kernel_names_itself(counting: type[CountingNoise]) -> None:
+    pipe = Pipeline(PipelineConfig(noise_removal=(KernelChoice(name="counting-test", params={"fail": True}),)))
+    with pytest.raises(LinemapError, match=r"noise-removal/counting-test@1\.0\.0 failed .*RuntimeError: boom"):
+        pipe.step(straight_run(1)[0])

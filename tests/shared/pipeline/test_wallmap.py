@@ -1,0 +1,90 @@
+"""Map merging: collinear, overlapping pieces from successive steps become single walls."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from shared.pipeline import MergeTolerances, WallMap
+
+ALL = MergeTolerances(min_observations=1)
+
+
+def test_overlapping_collinear_pieces_fuse() -> None:
+    m = WallMap(ALL)
+    m.add_segments([[0.0, 0.0, 2.0, 0.0], [1.5, 0.01, 4.0, 0.01], [3.9, -0.01, 6.0, 0.0]])
+    segs = m.segments()
+    assert len(segs) == 1
+    x = sorted([segs[0, 0], segs[0, 2]])
+    assert abs(x[0] - 0.0) < 0.02 and abs(x[1] - 6.0) < 0.02
+    assert np.all(np.abs(segs[0, [1, 3]]) < 0.02)
+
+
+def test_small_gap_bridged_large_gap_not() -> None:
+    m = WallMap(ALL)
+    m.add_segments([[0, 0, 1, 0], [1.2, 0, 2, 0]])  # 20 cm gap <= 30 cm
+    assert len(m) == 1
+    m.add_segments([[3.0, 0, 4, 0]])  # 1 m gap
+    assert len(m) == 2
+
+
+def test_parallel_offset_and_crossing_walls_stay_apart() -> None:
+    m = WallMap(ALL)
+    m.add_segments([[0, 0, 2, 0], [0, 0.3, 2, 0.3], [1, -1, 1, 1]])
+    assert len(m) == 3
+
+
+def test_angle_tolerance() -> None:
+    m = WallMap(ALL)
+    m.add_segments([[0, 0, 2, 0]])
+    tilt = math.radians(10)
+    m.add_segments([[1, 0, 1 + 2 * math.cos(tilt), 2 * math.sin(tilt)]])
+    assert len(m) == 2
+
+
+def test_ids_are_stable_and_older_id_survives() -> None:
+    m = WallMap(ALL)
+    m.add_segments([[0, 0, 1, 0], [5, 0, 6, 0]])
+    assert list(m.ids) == [0, 1]
+    m.add_segments([[0.9, 0, 5.1, 0]])  # bridges both
+    assert list(m.ids) == [0]
+    assert sorted(m.removed) == [1, 2]
+
+
+def test_walls_need_evidence() -> None:
+    m = WallMap(MergeTolerances(min_observations=3))
+    m.add_segments([[0, 0, 2, 0]])
+    m.add_segments([[5, 5, 5.5, 5.2]])  # clutter, seen once
+    assert len(m.segments()) == 0
+    m.add_segments([[0.1, 0.01, 2.1, 0.01], [0.05, -0.01, 1.9, 0.0]])
+    assert len(m.segments()) == 1 and list(m.ids) == [0]
+
+
+def test_short_and_non_finite_segments_ignored() -> None:
+    m = WallMap(ALL)
+    m.add_segments([[0, 0, 0.01, 0], [np.nan, 0, 1, 1]])
+    assert len(m) == 0
+
+
+@settings(max_examples=50)
+@given(
+    st.floats(-10, 10), st.floats(-10, 10), st.floats(0, math.pi), st.integers(2, 12), st.randoms(use_true_random=False)
+)
+def test_pieces_of_one_wall_fuse_in_any_order(x: float, y: float, angle: float, n: int, rnd: object) -> None:
+    """A 6 m wall cut into overlapping pieces fuses into one wall, whatever the insertion order."""
+    d = np.array([math.cos(angle), math.sin(angle)])
+    starts = np.linspace(0.0, 5.0, n)
+    ends = np.minimum(starts + 5.0 / (n - 1) + 0.1, 6.0)
+    ends[-1] = 6.0
+    origin = np.array([x, y])
+    pieces = [np.concatenate([origin + d * s, origin + d * e]) for s, e in zip(starts, ends, strict=True)]
+    order = list(range(n))
+    rnd.shuffle(order)  # type: ignore[attr-defined]
+    m = WallMap(ALL)
+    m.add_segments(np.array([pieces[i] for i in order]))
+    assert len(m) == 1
+    seg = m.segments()[0]
+    assert abs(math.hypot(seg[2] - seg[0], seg[3] - seg[1]) - 6.0) < 1e-6
