@@ -24,6 +24,7 @@ import numpy as np
 from shared.errors import LinemapError
 from shared.kernels import Stage
 from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
+from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.snapshot import MapSnapshot
 from shared.pipeline.stages import Chunk, cluster, concat, extract_lines, remove_noise
 from shared.pipeline.wallmap import MergeTolerances, WallMap
@@ -47,6 +48,7 @@ class IcpGate:
     max_correction_rad: float = 0.35
     keyframe_m: float = 0.1
     keyframe_rad: float = 0.1
+    refine_to_map: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,6 +99,7 @@ class Pipeline:
         self._buffers: dict[Stage, _Buffer] = {s: _Buffer() for s in SCHEDULED}
         self._step_ms: deque[float] = deque(maxlen=timing_window)
         self.icp_rejections = 0
+        self.map_refinements = 0
 
     # ------------------------------------------------------------------ configuration
     @property
@@ -175,6 +178,16 @@ class Pipeline:
                 icp_used = True
             else:
                 self.icp_rejections += 1
+        if self._gate.refine_to_map and len(self._map):
+            fit = refine_to_walls(points, predicted @ self._offset, self._map.segments())
+            if fit is not None:
+                corr = (predicted @ self._offset).between(fit.pose)
+                if (
+                    math.hypot(corr.x_m, corr.y_m) <= self._gate.max_correction_m
+                    and abs(corr.theta_rad) <= self._gate.max_correction_rad
+                ):
+                    predicted = fit.pose @ self._offset.inverse()
+                    self.map_refinements += 1
         self._pose = predicted
         moved = self._key_pose.between(predicted) if self._key_pose is not None else Pose2D()
         if (

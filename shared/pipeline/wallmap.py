@@ -12,7 +12,7 @@ A merged wall is then checked against the others again, so chains of pieces fuse
 stable integer ids; when two walls fuse, the older id survives and the other is reported removed. A wall is
 shown (``segments``/``ids``) once ``min_observations`` segments have merged into it: clutter seen once
 stays out of the map, a wall seen from three steps is in.
-Complexity: O(W) per inserted segment for W walls (vectorised).
+Complexity: O(W) per inserted segment for W walls (compiled loop).
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shared.kernels._jit import njit
 from shared.types import FloatArray, IntArray
 
 __all__ = ["MergeTolerances", "WallMap"]
@@ -46,8 +47,8 @@ class WallMap:
         self._cos_tol = math.cos(math.radians(self.tol.angle_tol_deg))
         self._n = 0
         cap = 64
-        self._ids = np.zeros(cap, dtype=np.intp)
-        self._obs = np.zeros(cap, dtype=np.intp)  # segments merged into the wall
+        self._ids = np.zeros(cap, dtype=np.int64)
+        self._obs = np.zeros(cap, dtype=np.int64)  # segments merged into the wall
         self._w = np.zeros(cap)  # total length
         self._s1 = np.zeros((cap, 2))  # sum of w * mean
         self._s2 = np.zeros((cap, 3))  # sum of w * E[x x^T] as (xx, xy, yy)
@@ -81,35 +82,33 @@ class WallMap:
     # ------------------------------------------------------------------ updates
     def add_segments(self, segments: FloatArray) -> None:
         """Merge each segment ``[x0, y0, x1, y1]`` into the map (shorter than ``min_length_m`` ignored)."""
-        for seg in np.asarray(segments, dtype=np.float64).reshape(-1, 4):
-            if not np.all(np.isfinite(seg)):
-                continue
-            a, b = seg[:2], seg[2:]
-            length = float(np.hypot(*(b - a)))
-            if length < self.tol.min_length_m:
-                continue
-            idx = self._append(a, b, length)
-            self._settle(idx)
-
-    def _append(self, a: FloatArray, b: FloatArray, length: float) -> int:
-        if self._n == len(self._w):
+        segs = np.ascontiguousarray(np.asarray(segments, dtype=np.float64).reshape(-1, 4))
+        if len(segs) == 0:
+            return
+        while self._n + len(segs) > len(self._w):
             self._grow()
-        i = self._n
-        mean = 0.5 * (a + b)
-        d = (b - a) / length
-        cov = (length * length / 12.0) * np.outer(d, d)
-        second = cov + np.outer(mean, mean)
-        self._ids[i] = self._next_id
-        self._obs[i] = 1
-        self._next_id += 1
-        self._w[i] = length
-        self._s1[i] = length * mean
-        self._s2[i] = length * np.array([second[0, 0], second[0, 1], second[1, 1]])
-        self._c[i] = mean
-        self._d[i] = d
-        self._lo[i], self._hi[i] = -0.5 * length, 0.5 * length
-        self._n += 1
-        return i
+        removed = np.empty(len(segs) + self._n, dtype=np.intp)
+        t = self.tol
+        self._n, self._next_id, n_removed = _insert_all(
+            segs,
+            self._ids,
+            self._obs,
+            self._w,
+            self._s1,
+            self._s2,
+            self._c,
+            self._d,
+            self._lo,
+            self._hi,
+            self._n,
+            self._next_id,
+            self._cos_tol,
+            t.offset_tol_m,
+            t.gap_tol_m,
+            t.min_length_m,
+            removed,
+        )
+        self.removed.extend(int(r) for r in removed[:n_removed])
 
     def _grow(self) -> None:
         cap = 2 * len(self._w)
@@ -119,64 +118,138 @@ class WallMap:
             new[: len(old)] = old
             setattr(self, name, new)
 
-    def _candidates(self, i: int) -> IntArray:
-        """Walls that wall ``i`` should merge with."""
-        n = self._n
-        c, d = self._c[:n], self._d[:n]
-        ci, di = self._c[i], self._d[i]
-        ends_i = np.array([ci + di * self._lo[i], ci + di * self._hi[i]])
-        parallel = np.abs(d @ di) >= self._cos_tol
-        normal = np.column_stack([-d[:, 1], d[:, 0]])
-        # both ends of i close to each wall's line
-        rel = ends_i[:, None, :] - c[None, :, :]  # (2 ends, W walls, xy)
-        off = np.abs(np.einsum("kwj,wj->kw", rel, normal))
-        close = np.all(off <= self.tol.offset_tol_m, axis=0)
-        # overlap or small gap along each wall's direction
-        t = np.einsum("kwj,wj->kw", rel, d)
-        lo_i, hi_i = t.min(axis=0), t.max(axis=0)
-        gap = np.maximum(lo_i - self._hi[:n], self._lo[:n] - hi_i)
-        near = gap <= self.tol.gap_tol_m
-        ok = parallel & close & near
-        ok[i] = False
-        return np.flatnonzero(ok)
 
-    def _settle(self, i: int) -> None:
-        """Merge wall ``i`` with every wall it matches, repeatedly, until nothing matches."""
+@njit
+def _insert_all(
+    segs: FloatArray,
+    ids: IntArray,
+    obs: IntArray,
+    w: FloatArray,
+    s1: FloatArray,
+    s2: FloatArray,
+    c: FloatArray,
+    d: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    n: int,
+    next_id: int,
+    cos_tol: float,
+    offset_tol: float,
+    gap_tol: float,
+    min_length: float,
+    removed: IntArray,
+) -> tuple[int, int, int]:
+    """Insert and settle every segment; returns the new wall count, next id and number of removed ids."""
+    n_removed = 0
+    for k in range(segs.shape[0]):
+        x0, y0, x1, y1 = segs[k, 0], segs[k, 1], segs[k, 2], segs[k, 3]
+        if not (np.isfinite(x0) and np.isfinite(y0) and np.isfinite(x1) and np.isfinite(y1)):
+            continue
+        length = np.hypot(x1 - x0, y1 - y0)
+        if length < min_length:
+            continue
+        i = n
+        mx, my = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+        dx, dy = (x1 - x0) / length, (y1 - y0) / length
+        var = length * length / 12.0
+        ids[i] = next_id
+        obs[i] = 1
+        next_id += 1
+        w[i] = length
+        s1[i, 0], s1[i, 1] = length * mx, length * my
+        s2[i, 0] = length * (var * dx * dx + mx * mx)
+        s2[i, 1] = length * (var * dx * dy + mx * my)
+        s2[i, 2] = length * (var * dy * dy + my * my)
+        c[i, 0], c[i, 1] = mx, my
+        d[i, 0], d[i, 1] = dx, dy
+        lo[i], hi[i] = -0.5 * length, 0.5 * length
+        n += 1
         while True:
-            cand = self._candidates(i)
-            if cand.size == 0:
-                return
-            j = int(cand[0])
-            keep, drop = (i, j) if self._ids[i] < self._ids[j] else (j, i)
-            self._fuse(keep, drop)
-            i = keep - 1 if drop < keep else keep  # removing row `drop` shifts later rows down
+            j = _match(i, n, c, d, lo, hi, cos_tol, offset_tol, gap_tol)
+            if j < 0:
+                break
+            keep, drop = (i, j) if ids[i] < ids[j] else (j, i)
+            removed[n_removed] = ids[drop]
+            n_removed += 1
+            _fuse(keep, drop, obs, w, s1, s2, c, d, lo, hi)
+            for arr1 in (ids, obs):
+                arr1[drop : n - 1] = arr1[drop + 1 : n]
+            for arr2 in (w, lo, hi):
+                arr2[drop : n - 1] = arr2[drop + 1 : n]
+            s1[drop : n - 1] = s1[drop + 1 : n]
+            s2[drop : n - 1] = s2[drop + 1 : n]
+            c[drop : n - 1] = c[drop + 1 : n]
+            d[drop : n - 1] = d[drop + 1 : n]
+            n -= 1
+            i = keep - 1 if drop < keep else keep
+    return n, next_id, n_removed
 
-    def _fuse(self, keep: int, drop: int) -> None:
-        ends = []
-        for k in (keep, drop):
-            ends.append(self._c[k] + self._d[k] * self._lo[k])
-            ends.append(self._c[k] + self._d[k] * self._hi[k])
-        self._w[keep] += self._w[drop]
-        self._obs[keep] += self._obs[drop]
-        self._s1[keep] += self._s1[drop]
-        self._s2[keep] += self._s2[drop]
-        w = self._w[keep]
-        c = self._s1[keep] / w
-        sxx, sxy, syy = self._s2[keep] / w
-        cov = np.array([[sxx - c[0] * c[0], sxy - c[0] * c[1]], [sxy - c[0] * c[1], syy - c[1] * c[1]]])
-        _, vecs = np.linalg.eigh(cov)
-        d = vecs[:, 1]
-        if d @ self._d[keep] < 0:
-            d = -d
-        proj = (np.asarray(ends) - c) @ d
-        self._c[keep], self._d[keep] = c, d
-        self._lo[keep], self._hi[keep] = float(proj.min()), float(proj.max())
-        self.removed.append(int(self._ids[drop]))
-        self._remove(drop)
 
-    def _remove(self, k: int) -> None:
-        n = self._n
-        for name in ("_ids", "_obs", "_w", "_s1", "_s2", "_c", "_d", "_lo", "_hi"):
-            arr = getattr(self, name)
-            arr[k : n - 1] = arr[k + 1 : n]
-        self._n -= 1
+@njit
+def _match(
+    i: int,
+    n: int,
+    c: FloatArray,
+    d: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    cos_tol: float,
+    offset_tol: float,
+    gap_tol: float,
+) -> int:
+    """The first wall wall ``i`` should merge with (collinear, close, overlapping or a small gap), or -1."""
+    ax, ay = c[i, 0] + d[i, 0] * lo[i], c[i, 1] + d[i, 1] * lo[i]
+    bx, by = c[i, 0] + d[i, 0] * hi[i], c[i, 1] + d[i, 1] * hi[i]
+    for j in range(n):
+        if j == i or abs(d[j, 0] * d[i, 0] + d[j, 1] * d[i, 1]) < cos_tol:
+            continue
+        nx, ny = -d[j, 1], d[j, 0]
+        rax, ray, rbx, rby = ax - c[j, 0], ay - c[j, 1], bx - c[j, 0], by - c[j, 1]
+        if abs(rax * nx + ray * ny) > offset_tol or abs(rbx * nx + rby * ny) > offset_tol:
+            continue
+        ta, tb = rax * d[j, 0] + ray * d[j, 1], rbx * d[j, 0] + rby * d[j, 1]
+        gap = max(min(ta, tb) - hi[j], lo[j] - max(ta, tb))
+        if gap <= gap_tol:
+            return j
+    return -1
+
+
+@njit
+def _fuse(
+    keep: int,
+    drop: int,
+    obs: IntArray,
+    w: FloatArray,
+    s1: FloatArray,
+    s2: FloatArray,
+    c: FloatArray,
+    d: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+) -> None:
+    """Add wall ``drop``'s moments to wall ``keep`` and refit its line and extent (closed-form 2x2 PCA)."""
+    ends = np.empty((4, 2))
+    for r, k in enumerate((keep, drop)):
+        ends[2 * r, 0], ends[2 * r, 1] = c[k, 0] + d[k, 0] * lo[k], c[k, 1] + d[k, 1] * lo[k]
+        ends[2 * r + 1, 0], ends[2 * r + 1, 1] = c[k, 0] + d[k, 0] * hi[k], c[k, 1] + d[k, 1] * hi[k]
+    obs[keep] += obs[drop]
+    w[keep] += w[drop]
+    s1[keep, 0] += s1[drop, 0]
+    s1[keep, 1] += s1[drop, 1]
+    for q in range(3):
+        s2[keep, q] += s2[drop, q]
+    cx, cy = s1[keep, 0] / w[keep], s1[keep, 1] / w[keep]
+    sxx = s2[keep, 0] / w[keep] - cx * cx
+    sxy = s2[keep, 1] / w[keep] - cx * cy
+    syy = s2[keep, 2] / w[keep] - cy * cy
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # major axis of the 2x2 covariance
+    dx, dy = np.cos(phi), np.sin(phi)
+    if dx * d[keep, 0] + dy * d[keep, 1] < 0.0:
+        dx, dy = -dx, -dy
+    t_lo, t_hi = np.inf, -np.inf
+    for r in range(4):
+        t = (ends[r, 0] - cx) * dx + (ends[r, 1] - cy) * dy
+        t_lo, t_hi = min(t_lo, t), max(t_hi, t)
+    c[keep, 0], c[keep, 1] = cx, cy
+    d[keep, 0], d[keep, 1] = dx, dy
+    lo[keep], hi[keep] = t_lo, t_hi

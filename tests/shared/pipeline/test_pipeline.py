@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, KernelParams, NoiseRemovalKernel, NoiseResult, Stage, param
 from shared.kernels.results import freeze
-from shared.pipeline import KernelChoice, Mode, Pipeline, PipelineConfig, StageSchedule
+from shared.pipeline import IcpGate, KernelChoice, Mode, Pipeline, PipelineConfig, StageSchedule
 from shared.sim import RangeNoise, default_world, simulate_scan
 from shared.types import Pose2D, Scan, as_points
 
@@ -128,22 +128,38 @@ def test_map_of_a_room_and_trajectory() -> None:
 
 def test_icp_corrects_bad_odometry() -> None:
     scans = straight_run(20)
-    drifted = [Scan(s.stamp_s, s.angle_min_rad, s.angle_increment_rad, s.range_min_m, s.range_max_m,
-                    s.ranges_m, odometry=Pose2D(2.0 + 0.05 * i, 2.0, 0.002 * i)) for i, s in enumerate(scans)]
-    with_icp = Pipeline(PipelineConfig())
-    without = Pipeline(PipelineConfig(scan_matching=None))
+    drifted = [
+        Scan(
+            s.stamp_s,
+            s.angle_min_rad,
+            s.angle_increment_rad,
+            s.range_min_m,
+            s.range_max_m,
+            s.ranges_m,
+            odometry=Pose2D(2.0 + 0.05 * i, 2.0, 0.002 * i),
+        )
+        for i, s in enumerate(scans)
+    ]
+    with_icp = Pipeline(PipelineConfig(), icp_gate=IcpGate(refine_to_map=False))
+    map_only = Pipeline(PipelineConfig(scan_matching=None))
+    without = Pipeline(PipelineConfig(scan_matching=None), icp_gate=IcpGate(refine_to_map=False))
     for s in drifted:
         with_icp.step(s)
+        map_only.step(s)
         without.step(s)
     true_x = 2.0 + 0.04 * 19
-    assert abs(with_icp.pose.x_m - true_x) < 0.05
+    assert abs(with_icp.pose.x_m - true_x) < 0.05, "ICP against the keyframe corrects the odometry"
+    assert abs(map_only.pose.x_m - true_x) < 0.05, "refinement against the map's walls corrects it too"
+    assert map_only.map_refinements > 0
     assert abs(without.pose.x_m - true_x) > 0.15
 
 
 def test_reconfigure_validates_before_swapping() -> None:
     pipe = Pipeline(PipelineConfig())
     with pytest.raises(ValueError, match="epsilon_m"):
-        pipe.reconfigure(PipelineConfig(noise_removal=(KernelChoice(name="dbscan", params={"epsilon_m": -1}),)))
+        pipe.reconfigure(
+            PipelineConfig(noise_removal=(KernelChoice(name="dbscan", params={"epsilon_m": -1}),))
+        )
     assert pipe.config == PipelineConfig()
     pipe.reconfigure(PipelineConfig(mode=Mode.OFFLINE))
     assert pipe.config.mode == Mode.OFFLINE
@@ -159,6 +175,10 @@ def test_config_errors_name_the_field() -> None:
 
 
 def test_failing_kernel_names_itself(counting: type[CountingNoise]) -> None:
-    pipe = Pipeline(PipelineConfig(noise_removal=(KernelChoice(name="counting-test", params={"fail": True}),)))
-    with pytest.raises(LinemapError, match=r"noise-removal/counting-test@1\.0\.0 failed .*RuntimeError: boom"):
+    pipe = Pipeline(
+        PipelineConfig(noise_removal=(KernelChoice(name="counting-test", params={"fail": True}),))
+    )
+    with pytest.raises(
+        LinemapError, match=r"noise-removal/counting-test@1\.0\.0 failed .*RuntimeError: boom"
+    ):
         pipe.step(straight_run(1)[0])

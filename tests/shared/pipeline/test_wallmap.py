@@ -71,7 +71,11 @@ def test_short_and_non_finite_segments_ignored() -> None:
 
 @settings(max_examples=50)
 @given(
-    st.floats(-10, 10), st.floats(-10, 10), st.floats(0, math.pi), st.integers(2, 12), st.randoms(use_true_random=False)
+    st.floats(-10, 10),
+    st.floats(-10, 10),
+    st.floats(0, math.pi),
+    st.integers(2, 12),
+    st.randoms(use_true_random=False),
 )
 def test_pieces_of_one_wall_fuse_in_any_order(x: float, y: float, angle: float, n: int, rnd: object) -> None:
     """A 6 m wall cut into overlapping pieces fuses into one wall, whatever the insertion order."""

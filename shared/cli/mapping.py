@@ -1,0 +1,148 @@
+"""``linemap map``: turn a simulated world or a laser log into a line map (GeoJSON, SVG/PNG, trajectory CSV).
+
+The work is split so it can be tested without a terminal: :func:`open_source` resolves ``INPUT`` into a
+stream of scans plus what is known about it (laser offset, ground truth), :func:`map_scans` runs the
+pipeline over the stream, and :func:`write_outputs` writes the files.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+import tomllib
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import AbstractContextManager, nullcontext
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from shared.errors import LinemapError
+from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
+from shared.sim import World, default_world, load_world, simulate_run
+from shared.types import FloatArray, Pose2D, Scan
+
+__all__ = ["MapRun", "Source", "load_config", "map_scans", "open_source", "write_outputs"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class Source:
+    """An opened input: scans to stream, the laser's mounting offset, and ground truth when simulated."""
+
+    name: str
+    scans: Iterable[Scan]
+    laser_offset: Pose2D
+    total: int | None
+    world: World | None = None
+    true_trajectory: FloatArray | None = None
+    closer: AbstractContextManager[Any] | None = None
+
+
+def open_source(spec: str, *, log_format: str | None = None, seed: int = 0) -> Source:
+    """``sim`` (the default world), ``sim:WORLD_FILE`` (JSON/TOML walls) or a log path (CARMEN or .dat)."""
+    if spec == "sim" or spec.startswith("sim:"):
+        world = default_world() if spec == "sim" else load_world(Path(spec[4:]))
+        run = simulate_run(world, seed=seed)
+        return Source(f"simulated world '{world.name}'", run.scans, run.drive.laser_offset, len(run.scans),
+                      world, run.trajectory("true"))
+    from shared.io import open_log
+
+    reader = open_log(Path(spec), log_format)
+    return Source(f"{reader.info.format} log {Path(spec).name}", reader, reader.info.laser_offset, None,
+                  closer=reader)
+
+
+def load_config(path: Path | None) -> PipelineConfig:
+    """The pipeline configuration from a JSON or TOML file (``None``: the defaults)."""
+    if path is None:
+        return PipelineConfig()
+    suffix = path.suffix.lower()
+    if suffix == ".xml":
+        raise LinemapError(
+            f"{path}: XML control messages are not supported yet (they arrive with the server, issue 4); "
+            "give the configuration as a .json or .toml file with the fields of PipelineConfig"
+        )
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise LinemapError(f"cannot read configuration {path}: {exc.strerror or exc}") from None
+    try:
+        data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        raise LinemapError(f"{path}: not valid {'TOML' if suffix == '.toml' else 'JSON'}: {exc}") from None
+    if not isinstance(data, dict):
+        raise LinemapError(f"{path}: expected an object of configuration fields, got {type(data).__name__}")
+    return PipelineConfig.parse(data)
+
+
+@dataclass(frozen=True, slots=True)
+class MapRun:
+    """What a mapping run produced and how fast."""
+
+    snapshot: MapSnapshot
+    scans: int
+    seconds: float
+    icp_used: int
+    step_median_ms: float
+    step_p99_ms: float
+
+    @property
+    def scans_per_s(self) -> float:
+        """Throughput, reading included."""
+        return self.scans / self.seconds if self.seconds > 0 else float("inf")
+
+
+def map_scans(
+    source: Source,
+    config: PipelineConfig,
+    *,
+    limit: int | None = None,
+    on_step: Callable[[int], None] | None = None,
+) -> MapRun:
+    """Run the pipeline over every scan of ``source`` (at most ``limit``), then flush pending batches."""
+    pipeline = Pipeline(config, laser_offset=source.laser_offset)
+    count = icp = 0
+    start = time.perf_counter()
+    with source.closer or nullcontext():
+        scans: Iterator[Scan] = iter(source.scans)
+        for scan in scans:
+            if limit is not None and count >= limit:
+                break
+            result = pipeline.step(scan)
+            count += 1
+            icp += result.icp_used
+            if on_step is not None:
+                on_step(count)
+    pipeline.flush()
+    seconds = time.perf_counter() - start
+    median, p99 = pipeline.timing_ms()
+    return MapRun(pipeline.snapshot(), count, seconds, icp, median, p99)
+
+
+def write_outputs(
+    snapshot: MapSnapshot,
+    *,
+    geojson: Path | None,
+    svg: Path | None = None,
+    png: Path | None = None,
+    trajectory: Path | None = None,
+    walls: FloatArray | None = None,
+    title: str | None = None,
+) -> list[Path]:
+    """Write the requested files; returns the paths written."""
+    from shared.export import render_map, write_geojson, write_trajectory_csv
+
+    written: list[Path] = []
+    if geojson is not None:
+        write_geojson(geojson, snapshot)
+        written.append(geojson)
+    if trajectory is not None:
+        write_trajectory_csv(trajectory, snapshot.trajectory)
+        written.append(trajectory)
+    for picture in (svg, png):
+        if picture is not None:
+            render_map(snapshot, picture, walls=walls, title=title)
+            written.append(picture)
+    return written

@@ -1,0 +1,49 @@
+"""Scan-to-map refinement against known walls."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from shared.pipeline.localize import refine_to_walls
+from shared.sim import RangeNoise, default_world, simulate_scan
+from shared.types import Pose2D
+
+WORLD = default_world()
+TRUE = Pose2D(4.5, 2.0, math.pi)
+
+
+def scan_points(seed: int = 0) -> np.ndarray:
+    scan = simulate_scan(WORLD, TRUE, np.random.default_rng(seed), RangeNoise(outlier_rate=0.05))
+    return scan.to_points()[0]
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(-0.1, 0.1), st.floats(-0.1, 0.1), st.floats(-0.05, 0.05))
+def test_recovers_true_pose_from_a_perturbed_guess(dx: float, dy: float, dth: float) -> None:
+    guess = Pose2D(TRUE.x_m + dx, TRUE.y_m + dy, TRUE.theta_rad + dth)
+    fit = refine_to_walls(scan_points(), guess, WORLD.walls)
+    assert fit is not None
+    err = TRUE.between(fit.pose)
+    assert math.hypot(err.x_m, err.y_m) < 0.01 and abs(err.theta_rad) < math.radians(0.3)
+    assert fit.rmse_m < 0.03
+
+
+def test_corridor_keeps_the_along_wall_guess() -> None:
+    walls = np.array([[-10.0, -1.0, 10.0, -1.0], [-10.0, 1.0, 10.0, 1.0]])
+    x = np.linspace(-5, 5, 200)
+    pts = np.vstack([np.column_stack([x, np.full_like(x, -1.0)]), np.column_stack([x, np.full_like(x, 1.0)])])
+    guess = Pose2D(0.3, 0.05, 0.0)  # 30 cm along the corridor (unobservable), 5 cm across
+    fit = refine_to_walls(pts, guess, walls)
+    assert fit is not None
+    assert fit.pose.y_m == pytest.approx(0.0, abs=1e-3), "across the corridor: corrected"
+    assert fit.pose.x_m == pytest.approx(0.3, abs=1e-3), "along the corridor: left alone"
+
+
+def test_too_few_matches_gives_none() -> None:
+    assert refine_to_walls(scan_points(), Pose2D(50.0, 50.0, 0.0), WORLD.walls) is None
+    assert refine_to_walls(np.zeros((0, 2)), TRUE, WORLD.walls) is None
