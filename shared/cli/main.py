@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import sys
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -110,6 +111,72 @@ def bench_kernels(
             err_console.print(f"[red]error:[/red] cannot write {json_path}: {exc.strerror}")
             raise typer.Exit(2) from None
         err_console.print(f"figures written to {json_path}")
+
+
+@app.command("map")
+def map_cmd(
+    source: Annotated[
+        str, typer.Argument(help="sim, sim:WORLD_FILE, or a log (.clf/.log/.dat, optionally .gz).")
+    ] = "sim",
+    out: Annotated[Path, typer.Option("--out", help="GeoJSON map (segments, centroids, trajectory).")] = Path(
+        "map.geojson"
+    ),
+    svg: Annotated[Path | None, typer.Option(help="Also draw the map as SVG.")] = None,
+    png: Annotated[Path | None, typer.Option(help="Also draw the map as PNG.")] = None,
+    trajectory_out: Annotated[
+        Path | None, typer.Option("--trajectory-out", help="CSV of poses: stamp,x,y,theta.")
+    ] = None,
+    config: Annotated[Path | None, typer.Option(help="Pipeline configuration (.json or .toml).")] = None,
+    log_format: Annotated[
+        str | None, typer.Option("--format", help="carmen or breezyslam (default: detect).")
+    ] = None,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the simulated run.")] = 0,
+    limit: Annotated[int | None, typer.Option(min=1, help="Stop after this many scans.")] = None,
+) -> None:
+    """Map a simulated world or a laser log into straight walls; print the accuracy when truth is known."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from shared.cli.mapping import load_config, map_scans, open_source, write_outputs
+    from shared.cli.render import accuracy_table, run_summary
+
+    try:
+        cfg = load_config(config)
+        src = open_source(source, log_format=log_format, seed=seed)
+        columns = [
+            TextColumn("mapping {task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[rate]}"),
+            TimeElapsedColumn(),
+        ]
+        with Progress(*columns, console=err_console, transient=True) as progress:
+            task = progress.add_task(src.name, total=limit or src.total, rate="")
+            started = time.perf_counter()
+
+            def on_step(n: int) -> None:
+                if n % 25 == 0:
+                    rate = n / max(time.perf_counter() - started, 1e-9)
+                    progress.update(task, completed=n, rate=f"{rate:,.0f} scans/s")
+
+            run = map_scans(src, cfg, limit=limit, on_step=on_step)
+        walls = src.world.walls if src.world is not None else None
+        written = write_outputs(
+            run.snapshot,
+            geojson=out,
+            svg=svg,
+            png=png,
+            trajectory=trajectory_out,
+            walls=walls,
+            title=f"linemap: {src.name}",
+        )
+    except LinemapError as exc:
+        err_console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from None
+    console.print(run_summary(src.name, run))
+    if src.world is not None:
+        console.print(accuracy_table(run.snapshot, src.world, src.true_trajectory))
+    for path in written:
+        console.print(f"wrote {path}")
 
 
 def main() -> None:

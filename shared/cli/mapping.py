@@ -45,13 +45,20 @@ def open_source(spec: str, *, log_format: str | None = None, seed: int = 0) -> S
     if spec == "sim" or spec.startswith("sim:"):
         world = default_world() if spec == "sim" else load_world(Path(spec[4:]))
         run = simulate_run(world, seed=seed)
-        return Source(f"simulated world '{world.name}'", run.scans, run.drive.laser_offset, len(run.scans),
-                      world, run.trajectory("true"))
+        return Source(
+            f"simulated world '{world.name}'",
+            run.scans,
+            run.drive.laser_offset,
+            len(run.scans),
+            world,
+            run.trajectory("true"),
+        )
     from shared.io import open_log
 
     reader = open_log(Path(spec), log_format)
-    return Source(f"{reader.info.format} log {Path(spec).name}", reader, reader.info.laser_offset, None,
-                  closer=reader)
+    return Source(
+        f"{reader.info.format} log {Path(spec).name}", reader, reader.info.laser_offset, None, closer=reader
+    )
 
 
 def load_config(path: Path | None) -> PipelineConfig:

@@ -4,12 +4,26 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from rich.table import Table
 
 from shared.bench.kernels import BenchReport
+from shared.cli.mapping import MapRun
 from shared.kernels import KernelInfo
+from shared.pipeline import MapSnapshot
+from shared.sim import World
+from shared.types import FloatArray
 
-__all__ = ["TARGETS", "bench_markdown", "bench_tables", "kernel_markdown", "kernel_table", "param_rows"]
+__all__ = [
+    "TARGETS",
+    "accuracy_table",
+    "bench_markdown",
+    "bench_tables",
+    "kernel_markdown",
+    "kernel_table",
+    "param_rows",
+    "run_summary",
+]
 
 #: Targets from issue 2: online step median/p99 (ms) and speed-up over the library chain; offline batch.
 TARGETS: dict[str, Any] = {
@@ -126,3 +140,48 @@ def bench_tables(report: BenchReport) -> list[Table]:
         text = f"{value:+.4%}" if isinstance(value, float) else str(value)
         quality.add_row(name, text, str(q["target"]))
     return [timings, quality]
+
+
+def run_summary(name: str, run: MapRun) -> Table:
+    """One mapping run in figures."""
+    snap = run.snapshot
+    table = Table(title=f"map of {name}", show_header=False)
+    table.add_column("what")
+    table.add_column("value", justify="right")
+    length = float(
+        np.hypot(snap.segments[:, 2] - snap.segments[:, 0], snap.segments[:, 3] - snap.segments[:, 1]).sum()
+    )
+    rows = [
+        ("scans", f"{run.scans:,}"),
+        ("throughput (reading included)", f"{run.scans_per_s:,.0f} scans/s"),
+        ("step time median / p99", f"{run.step_median_ms:.2f} / {run.step_p99_ms:.2f} ms"),
+        ("scans corrected by ICP", f"{run.icp_used:,} ({100 * run.icp_used / max(run.scans, 1):.0f} %)"),
+        ("walls / total length", f"{len(snap.segments):,} / {length:,.1f} m"),
+        ("centroids", f"{len(snap.centroids):,}"),
+    ]
+    for what, value in rows:
+        table.add_row(what, value)
+    return table
+
+
+def accuracy_table(snapshot: MapSnapshot, world: World, true_trajectory: FloatArray | None) -> Table:
+    """Map accuracy against the simulated ground truth (SPEC §5)."""
+    from shared.metrics import line_accuracy
+
+    acc = line_accuracy(snapshot.segments, world.walls)
+    table = Table(title="accuracy against the ground truth")
+    for col in ("metric", "value", "target"):
+        table.add_column(col, justify="left" if col == "metric" else "right")
+    table.add_row("mean orthogonal error", f"{acc.mean_distance_m * 100:.2f} cm", "<= 2 cm")
+    table.add_row("95th percentile orthogonal error", f"{acc.p95_distance_m * 100:.2f} cm", "")
+    table.add_row("mean angle error", f"{acc.mean_angle_error_deg:.2f} deg", "")
+    table.add_row("completeness (walls within 5 cm)", f"{acc.completeness * 100:.1f} %", ">= 95 %")
+    table.add_row("spurious (map farther than 10 cm)", f"{acc.spurious_share * 100:.1f} %", "<= 3 %")
+    if (
+        true_trajectory is not None
+        and len(true_trajectory) == len(snapshot.trajectory)
+        and len(true_trajectory)
+    ):
+        err = np.hypot(*(true_trajectory[:, 1:3] - snapshot.trajectory[:, 1:3]).T)
+        table.add_row("pose error mean / max", f"{err.mean() * 100:.1f} / {err.max() * 100:.1f} cm", "")
+    return table
