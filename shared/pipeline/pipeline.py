@@ -98,6 +98,7 @@ class Pipeline:
         self._stamp = 0.0
         self._buffers: dict[Stage, _Buffer] = {s: _Buffer() for s in SCHEDULED}
         self._step_ms: deque[float] = deque(maxlen=timing_window)
+        self._by_k: dict[int, Any] = {}
         self.icp_rejections = 0
         self.map_refinements = 0
 
@@ -113,6 +114,7 @@ class Pipeline:
         the new schedule."""
         kernels: dict[Stage, list[Any]] = dict(config.build())
         self._config, self._kernels = config, kernels
+        self._by_k = {}
         log.info("pipeline reconfigured: mode=%s", config.mode)
 
     # ------------------------------------------------------------------ stepping
@@ -236,7 +238,7 @@ class Pipeline:
             if stage == Stage.NOISE_REMOVAL:
                 return remove_noise(kernels, batch)
             if stage == Stage.CLUSTERING:
-                out = cluster(kernels[0], batch)
+                out = cluster(kernels[0], batch, self._clusterer_with_k)
                 if len(out.centroids):
                     self._centroids.append(out.centroids)
                 return out
@@ -251,6 +253,14 @@ class Pipeline:
                 f"kernel {kernel.ident() if kernel else stage} failed on {len(batch.points)} points: "
                 f"{type(exc).__name__}: {exc}"
             ) from exc
+
+    def _clusterer_with_k(self, k: int) -> Any:
+        """The clustering kernel in force with ``n_clusters = k`` (cached per k until reconfigured)."""
+        cached = self._by_k.get(k)
+        if cached is None:
+            cached = self._kernels[Stage.CLUSTERING][0].with_params(n_clusters=k)
+            self._by_k[k] = cached
+        return cached
 
     # ------------------------------------------------------------------ the map
     @property

@@ -6,6 +6,7 @@ clustering, the centroids with the group each belongs to. Every function here is
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -67,10 +68,41 @@ def remove_noise(kernels: list[Any], chunk: Chunk) -> Chunk:
     return Chunk(points, groups, chunk.centroids, chunk.centroid_groups)
 
 
-def cluster(kernel: Any, chunk: Chunk) -> Chunk:
-    """Cluster the chunk's points (paper §3.3); each centroid joins the group most of its points are in."""
+def cluster(kernel: Any, chunk: Chunk, with_k: Callable[[int], Any] | None = None) -> Chunk:
+    """Cluster the chunk's points (paper §3.3) segment by segment, so no cluster straddles two walls.
+
+    The kernel's ``n_clusters`` is the batch's total: each segment gets a share proportional to its points
+    (at least one, at most its point count); ``with_k(k)`` returns the kernel with ``n_clusters = k``. A
+    segment with one cluster gets its mean (what k-means and FCM return for k = 1) without a kernel call.
+    Points in no segment are not clustered. Kernels without ``n_clusters`` cluster the batch as a whole.
+    """
     if len(chunk.points) == 0:
         return chunk
+    total = getattr(kernel.params, "n_clusters", None)
+    if total is None or with_k is None:
+        return _cluster_whole(kernel, chunk)
+    valid = chunk.groups >= 0
+    if not valid.any():
+        return chunk
+    uniq, inverse, counts = np.unique(chunk.groups[valid], return_inverse=True, return_counts=True)
+    shares = np.clip(np.rint(total * counts / counts.sum()).astype(np.intp), 1, counts)
+    order = np.argsort(inverse, kind="stable")
+    pts = chunk.points[valid][order]
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    cents: list[FloatArray] = []
+    cgroups: list[IntArray] = []
+    for g, k in enumerate(shares):
+        block = pts[bounds[g] : bounds[g + 1]]
+        if k == 1:
+            cents.append(block.mean(axis=0, keepdims=True))
+        else:
+            cents.append(np.asarray(with_k(int(k)).apply(block).centroids))
+        cgroups.append(np.full(len(cents[-1]), uniq[g], dtype=np.intp))
+    return Chunk(chunk.points, chunk.groups, np.vstack(cents), np.concatenate(cgroups))
+
+
+def _cluster_whole(kernel: Any, chunk: Chunk) -> Chunk:
+    """Cluster all points at once; each centroid joins the group most of its points are in."""
     result = kernel.apply(chunk.points)
     k = result.n_clusters
     labels = np.asarray(result.labels)

@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from shared.kernels._jit import njit
 from shared.types import FloatArray, IntArray
@@ -80,7 +81,7 @@ class WallMap:
         return np.hstack([a, b])
 
     # ------------------------------------------------------------------ updates
-    def add_segments(self, segments: FloatArray) -> None:
+    def add_segments(self, segments: ArrayLike) -> None:
         """Merge each segment ``[x0, y0, x1, y1]`` into the map (shorter than ``min_length_m`` ignored)."""
         segs = np.ascontiguousarray(np.asarray(segments, dtype=np.float64).reshape(-1, 4))
         if len(segs) == 0:

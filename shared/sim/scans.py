@@ -57,10 +57,13 @@ def simulate_scan(
     geometry: BeamGeometry = URG04LX,
     stamp_s: float = 0.0,
     laser_offset: Pose2D | None = None,
+    odometry: Pose2D | None = None,
 ) -> Scan:
     """One scan from a scanner at ``pose`` (robot pose composed with ``laser_offset``) in ``world``.
 
-    Walls beyond the range window give no return (NaN). Deterministic for a given ``rng`` state.
+    Walls beyond the range window give no return (NaN). The scan's ``odometry`` is ``odometry`` if given
+    (what the robot believes, e.g. integrated encoder ticks), else the true ``pose``. Deterministic for a
+    given ``rng`` state; O(beams x walls).
     """
     noise = noise or RangeNoise()
     sensor = pose @ laser_offset if laser_offset is not None else pose
@@ -74,4 +77,6 @@ def simulate_scan(
     clutter_high = np.maximum(np.where(finite, true, 1.0), geometry.range_min_m)
     ranges = np.where(clutter, rng.uniform(geometry.range_min_m, clutter_high), ranges)
     ranges = np.where((ranges >= geometry.range_min_m) & (ranges <= geometry.range_max_m), ranges, np.nan)
-    return Scan.from_geometry(geometry, ranges, stamp_s=stamp_s, odometry=pose)
+    return Scan.from_geometry(
+        geometry, ranges, stamp_s=stamp_s, odometry=pose if odometry is None else odometry
+    )

@@ -25,7 +25,7 @@ def test_overlapping_collinear_pieces_fuse() -> None:
 
 def test_small_gap_bridged_large_gap_not() -> None:
     m = WallMap(ALL)
-    m.add_segments([[0, 0, 1, 0], [1.2, 0, 2, 0]])  # 20 cm gap <= 30 cm
+    m.add_segments(np.array([[0, 0, 1, 0], [1.2, 0, 2, 0]], dtype=float))  # 20 cm gap <= 30 cm
     assert len(m) == 1
     m.add_segments([[3.0, 0, 4, 0]])  # 1 m gap
     assert len(m) == 2
@@ -33,7 +33,7 @@ def test_small_gap_bridged_large_gap_not() -> None:
 
 def test_parallel_offset_and_crossing_walls_stay_apart() -> None:
     m = WallMap(ALL)
-    m.add_segments([[0, 0, 2, 0], [0, 0.3, 2, 0.3], [1, -1, 1, 1]])
+    m.add_segments(np.array([[0, 0, 2, 0], [0, 0.3, 2, 0.3], [1, -1, 1, 1]], dtype=float))
     assert len(m) == 3
 
 

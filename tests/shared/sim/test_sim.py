@@ -6,8 +6,10 @@ import itertools
 import math
 
 import numpy as np
+import pytest
 
-from shared.sim import RangeNoise, default_path, default_world, simulate_scan
+from shared.errors import InvalidInputError
+from shared.sim import RangeNoise, World, default_path, default_world, simulate_scan
 from shared.sim.scans import raycast
 from shared.types import Pose2D
 
@@ -60,3 +62,13 @@ def test_default_world_and_path() -> None:
     assert len(path) == 50
     steps = [math.hypot(b.x_m - a.x_m, b.y_m - a.y_m) for a, b in itertools.pairwise(path)]
     assert max(steps) < 0.5
+
+
+def test_world_validates_area_and_knots() -> None:
+    walls = np.array([[0.0, 0.0, 1.0, 0.0]])
+    with pytest.raises(InvalidInputError, match="floor_area_m2"):
+        World(walls, 0.0)
+    with pytest.raises(InvalidInputError, match=r"knots has shape \(1, 2\)"):
+        World(walls, 1.0, knots=np.zeros((1, 2)))
+    world = World(walls, 1.0, knots=[[0.0, 0.5], [0.5, 0.5]])  # type: ignore[arg-type]
+    assert world.knots is not None and not world.knots.flags.writeable

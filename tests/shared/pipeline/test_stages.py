@@ -1,0 +1,57 @@
+"""The scheduled stages on chunks: segment-wise clustering, noise chains, centroid-based lines."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from shared.kernels import REGISTRY, Stage
+from shared.pipeline.stages import Chunk, cluster, extract_lines, remove_noise
+
+
+def two_walls() -> Chunk:
+    """An L corner: 200 points on y = 0 (group 0) and 100 on x = 0 (group 1), 1 mm noise."""
+    rng = np.random.default_rng(0)
+    a = np.column_stack([np.linspace(0.1, 4.0, 200), rng.normal(0, 0.001, 200)])
+    b = np.column_stack([rng.normal(0, 0.001, 100), np.linspace(0.1, 2.0, 100)])
+    return Chunk.of(np.vstack([a, b]), np.repeat(np.array([0, 1], dtype=np.intp), [200, 100]))
+
+
+def with_k(k: int) -> object:
+    return REGISTRY.create(Stage.CLUSTERING, "kmeans", {"n_clusters": k})
+
+
+def test_clusters_never_straddle_segments() -> None:
+    chunk = two_walls()
+    out = cluster(REGISTRY.create(Stage.CLUSTERING, "kmeans", {"n_clusters": 6}), chunk, with_k)
+    assert len(out.centroids) == 6
+    assert list(np.bincount(out.centroid_groups)) == [4, 2], "shares follow the point counts"
+    on_a = out.centroids[out.centroid_groups == 0]
+    on_b = out.centroids[out.centroid_groups == 1]
+    assert np.all(np.abs(on_a[:, 1]) < 0.01) and np.all(np.abs(on_b[:, 0]) < 0.01), "centroids lie on walls"
+
+
+def test_every_segment_gets_a_cluster_and_k1_is_the_mean() -> None:
+    chunk = two_walls()
+    out = cluster(REGISTRY.create(Stage.CLUSTERING, "fcm", {"n_clusters": 1}), chunk, with_k)
+    assert len(out.centroids) == 2
+    np.testing.assert_allclose(out.centroids[0], chunk.points[:200].mean(axis=0))
+
+
+def test_whole_batch_clustering_without_factory() -> None:
+    out = cluster(REGISTRY.create(Stage.CLUSTERING, "kmeans", {"n_clusters": 3}), two_walls())
+    assert len(out.centroids) == 3 and np.all(out.centroid_groups >= 0)
+
+
+def test_svd_lines_from_centroids_span_the_points() -> None:
+    chunk = cluster(REGISTRY.create(Stage.CLUSTERING, "kmeans", {"n_clusters": 6}), two_walls(), with_k)
+    segs = extract_lines(REGISTRY.create(Stage.STRAIGHT_LINE, "svd"), chunk)
+    assert len(segs) == 2
+    lengths = np.sort(np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]))
+    np.testing.assert_allclose(lengths, [1.9, 3.9], atol=0.02)
+
+
+def test_dilation_points_inherit_the_nearest_group() -> None:
+    chunk = two_walls()
+    out = remove_noise([REGISTRY.create(Stage.NOISE_REMOVAL, "dilation")], chunk)
+    assert len(out.points) > len(chunk.points)
+    assert len(out.groups) == len(out.points) and np.all(out.groups >= 0)
