@@ -22,9 +22,10 @@ from typing import Any
 import numpy as np
 
 from shared.errors import LinemapError
-from shared.kernels import Stage
+from shared.kernels import REGISTRY, Stage
 from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
 from shared.pipeline.localize import refine_to_walls
+from shared.pipeline.regroup import regroup
 from shared.pipeline.snapshot import MapSnapshot
 from shared.pipeline.stages import Chunk, cluster, concat, extract_lines, remove_noise
 from shared.pipeline.wallmap import MergeTolerances, WallMap
@@ -90,6 +91,10 @@ class Pipeline:
         self._offset = laser_offset or Pose2D()
         self._gate = icp_gate or IcpGate()
         self._map = WallMap(merge)
+        # Localisation keeps its own line map, built every step whatever the schedule (offline batches
+        # would leave the pose uncorrected for N_smax steps): the configured stages make the map shown.
+        self._loc_map = WallMap(merge)
+        self._loc_lines: Any = REGISTRY.create(Stage.STRAIGHT_LINE, "hough-cluster", {"min_points": 8})
         self._centroids: list[FloatArray] = []
         self._trajectory: list[tuple[float, float, float, float]] = []
         self._pose: Pose2D | None = None
@@ -133,6 +138,8 @@ class Pipeline:
         labels = np.asarray(seg.labels)
         groups = np.where(labels >= 0, labels + self._next_group, -1).astype(np.intp)
         self._next_group += seg.n_segments
+        if self._gate.refine_to_map and len(world):
+            self._loc_map.add_segments(self._loc_lines.apply(world, groups).segments)
         self._stamp = scan.stamp_s
         self._trajectory.append((scan.stamp_s, self._pose.x_m, self._pose.y_m, self._pose.theta_rad))
         ran = self._feed(Chunk.of(world, groups), final=False)
@@ -183,8 +190,8 @@ class Pipeline:
                 icp_used = True
             else:
                 self.icp_rejections += 1
-        if self._gate.refine_to_map and len(self._map):
-            fit = refine_to_walls(points, predicted @ self._offset, self._map.segments())
+        if self._gate.refine_to_map and len(self._loc_map):
+            fit = refine_to_walls(points, predicted @ self._offset, self._loc_map.segments())
             if fit is not None:
                 corr = (predicted @ self._offset).between(fit.pose)
                 if (
@@ -241,12 +248,20 @@ class Pipeline:
             if stage == Stage.NOISE_REMOVAL:
                 return remove_noise(kernels, batch)
             if stage == Stage.CLUSTERING:
+                if batch.steps > 1:  # an offline batch: one group per wall, not per scan
+                    batch = Chunk(
+                        batch.points,
+                        regroup(batch.points, batch.groups),
+                        batch.centroids,
+                        batch.centroid_groups,
+                        batch.steps,
+                    )
                 out = cluster(kernels[0], batch, self._clusterer_with_k)
                 if len(out.centroids):
                     self._centroids.append(out.centroids)
                 return out
             segments = extract_lines(kernels[0], batch)
-            self._map.add_segments(segments)
+            self._map.add_segments(segments, observations=batch.steps)
             return None
         except LinemapError:
             raise

@@ -21,16 +21,18 @@ __all__ = ["Chunk", "cluster", "concat", "extract_lines", "remove_noise"]
 
 @dataclass(frozen=True, slots=True)
 class Chunk:
-    """Points ``(N, 2)`` (metres, world frame) with group ids ``(N,)`` (-1: none) and optional centroids."""
+    """Points ``(N, 2)`` (metres, world frame) with group ids ``(N,)`` (-1: none), optional centroids, and
+    the number of scan steps the chunk holds (the evidence its walls carry)."""
 
     points: FloatArray
     groups: IntArray
     centroids: FloatArray
     centroid_groups: IntArray
+    steps: int = 1
 
     @classmethod
     def of(cls, points: FloatArray, groups: IntArray) -> Chunk:
-        """A chunk of points without centroids."""
+        """A chunk of one step's points without centroids."""
         return cls(points, groups, np.zeros((0, 2)), np.zeros(0, dtype=np.intp))
 
 
@@ -43,6 +45,7 @@ def concat(chunks: list[Chunk]) -> Chunk:
         np.concatenate([c.groups for c in chunks]) if chunks else np.zeros(0, dtype=np.intp),
         np.vstack([c.centroids for c in chunks]) if chunks else np.zeros((0, 2)),
         np.concatenate([c.centroid_groups for c in chunks]) if chunks else np.zeros(0, dtype=np.intp),
+        sum(c.steps for c in chunks),
     )
 
 
@@ -65,16 +68,17 @@ def remove_noise(kernels: list[Any], chunk: Chunk) -> Chunk:
                 add_groups = np.full(len(added), -1, dtype=np.intp)
             kept_groups = np.concatenate([kept_groups, add_groups])
         points, groups = np.asarray(result.points), np.asarray(kept_groups)
-    return Chunk(points, groups, chunk.centroids, chunk.centroid_groups)
+    return Chunk(points, groups, chunk.centroids, chunk.centroid_groups, chunk.steps)
 
 
 def cluster(kernel: Any, chunk: Chunk, with_k: Callable[[int], Any] | None = None) -> Chunk:
     """Cluster the chunk's points (paper §3.3) segment by segment, so no cluster straddles two walls.
 
     The kernel's ``n_clusters`` is the batch's total: each segment gets a share proportional to its points
-    (at least one, at most its point count); ``with_k(k)`` returns the kernel with ``n_clusters = k``. A
-    segment with one cluster gets its mean (what k-means and FCM return for k = 1) without a kernel call.
-    Points in no segment are not clustered. Kernels without ``n_clusters`` cluster the batch as a whole.
+    (at most its point count; a segment too small for even half a cluster gets none, unless no segment
+    would get any); ``with_k(k)`` returns the kernel with ``n_clusters = k``. A segment with one cluster
+    gets its mean (what k-means and FCM return for k = 1) without a kernel call. Points in no segment are
+    not clustered. Kernels without ``n_clusters`` cluster the batch as a whole.
     """
     if len(chunk.points) == 0:
         return chunk
@@ -85,20 +89,26 @@ def cluster(kernel: Any, chunk: Chunk, with_k: Callable[[int], Any] | None = Non
     if not valid.any():
         return chunk
     uniq, inverse, counts = np.unique(chunk.groups[valid], return_inverse=True, return_counts=True)
-    shares = np.clip(np.rint(total * counts / counts.sum()).astype(np.intp), 1, counts)
+    shares = np.minimum(np.rint(total * counts / counts.sum()).astype(np.intp), counts)
+    if not shares.any():
+        shares = np.ones_like(counts)
     order = np.argsort(inverse, kind="stable")
     pts = chunk.points[valid][order]
     bounds = np.concatenate([[0], np.cumsum(counts)])
     cents: list[FloatArray] = []
     cgroups: list[IntArray] = []
     for g, k in enumerate(shares):
+        if k == 0:
+            continue
         block = pts[bounds[g] : bounds[g + 1]]
         if k == 1:
             cents.append(block.mean(axis=0, keepdims=True))
         else:
             cents.append(np.asarray(with_k(int(k)).apply(block).centroids))
         cgroups.append(np.full(len(cents[-1]), uniq[g], dtype=np.intp))
-    return Chunk(chunk.points, chunk.groups, np.vstack(cents), np.concatenate(cgroups))
+    if not cents:
+        return chunk
+    return Chunk(chunk.points, chunk.groups, np.vstack(cents), np.concatenate(cgroups), chunk.steps)
 
 
 def _cluster_whole(kernel: Any, chunk: Chunk) -> Chunk:
@@ -115,7 +125,7 @@ def _cluster_whole(kernel: Any, chunk: Chunk) -> Chunk:
         np.add.at(counts, (labels[ok], g_idx), 1)
         has = counts.sum(axis=1) > 0
         cgroups[has] = uniq[counts[has].argmax(axis=1)]
-    return Chunk(chunk.points, chunk.groups, np.asarray(result.centroids), cgroups)
+    return Chunk(chunk.points, chunk.groups, np.asarray(result.centroids), cgroups, chunk.steps)
 
 
 def _order_along_groups(points: FloatArray, groups: IntArray) -> IntArray:

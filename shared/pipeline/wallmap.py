@@ -81,8 +81,12 @@ class WallMap:
         return np.hstack([a, b])
 
     # ------------------------------------------------------------------ updates
-    def add_segments(self, segments: ArrayLike) -> None:
-        """Merge each segment ``[x0, y0, x1, y1]`` into the map (shorter than ``min_length_m`` ignored)."""
+    def add_segments(self, segments: ArrayLike, observations: int = 1) -> None:
+        """Merge each segment ``[x0, y0, x1, y1]`` into the map (shorter than ``min_length_m`` ignored).
+
+        ``observations`` is the evidence each segment carries: 1 for a segment from one step, the number
+        of steps for a segment extracted from an offline batch.
+        """
         segs = np.ascontiguousarray(np.asarray(segments, dtype=np.float64).reshape(-1, 4))
         if len(segs) == 0:
             return
@@ -107,6 +111,7 @@ class WallMap:
             t.offset_tol_m,
             t.gap_tol_m,
             t.min_length_m,
+            max(int(observations), 1),
             removed,
         )
         self.removed.extend(int(r) for r in removed[:n_removed])
@@ -138,6 +143,7 @@ def _insert_all(
     offset_tol: float,
     gap_tol: float,
     min_length: float,
+    observations: int,
     removed: IntArray,
 ) -> tuple[int, int, int]:
     """Insert and settle every segment; returns the new wall count, next id and number of removed ids."""
@@ -154,7 +160,7 @@ def _insert_all(
         dx, dy = (x1 - x0) / length, (y1 - y0) / length
         var = length * length / 12.0
         ids[i] = next_id
-        obs[i] = 1
+        obs[i] = observations
         next_id += 1
         w[i] = length
         s1[i, 0], s1[i, 1] = length * mx, length * my

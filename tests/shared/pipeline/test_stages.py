@@ -30,11 +30,13 @@ def test_clusters_never_straddle_segments() -> None:
     assert np.all(np.abs(on_a[:, 1]) < 0.01) and np.all(np.abs(on_b[:, 0]) < 0.01), "centroids lie on walls"
 
 
-def test_every_segment_gets_a_cluster_and_k1_is_the_mean() -> None:
+def test_small_budgets_go_to_the_big_segments_and_k1_is_the_mean() -> None:
     chunk = two_walls()
     out = cluster(REGISTRY.create(Stage.CLUSTERING, "fcm", {"n_clusters": 1}), chunk, with_k)
-    assert len(out.centroids) == 2
+    assert len(out.centroids) == 1 and list(out.centroid_groups) == [0], "1/3 of a cluster rounds to none"
     np.testing.assert_allclose(out.centroids[0], chunk.points[:200].mean(axis=0))
+    out = cluster(REGISTRY.create(Stage.CLUSTERING, "fcm", {"n_clusters": 2}), chunk, with_k)
+    assert sorted(out.centroid_groups) == [0, 1]
 
 
 def test_whole_batch_clustering_without_factory() -> None:
@@ -55,3 +57,19 @@ def test_dilation_points_inherit_the_nearest_group() -> None:
     out = remove_noise([REGISTRY.create(Stage.NOISE_REMOVAL, "dilation")], chunk)
     assert len(out.points) > len(chunk.points)
     assert len(out.groups) == len(out.points) and np.all(out.groups >= 0)
+
+
+def test_regroup_unites_one_wall_seen_from_several_scans() -> None:
+    from shared.pipeline.regroup import regroup
+
+    rng = np.random.default_rng(1)
+    pieces, groups = [], []
+    for scan in range(4):  # four scans each see the wall y = 0 (a piece) and the wall x = 0
+        x = np.linspace(0.2 + 0.3 * scan, 2.0 + 0.3 * scan, 50)
+        pieces.append(np.column_stack([x, rng.normal(0, 0.005, 50)]))
+        y = np.linspace(0.2, 1.5, 30)
+        pieces.append(np.column_stack([rng.normal(0, 0.005, 30), y]))
+        groups += [np.full(50, 2 * scan), np.full(30, 2 * scan + 1)]
+    new = regroup(np.vstack(pieces), np.concatenate(groups).astype(np.intp))
+    assert len(np.unique(new)) == 2
+    assert len(np.unique(new[np.concatenate(groups) % 2 == 0])) == 1
