@@ -7,8 +7,8 @@ NUMBA_STAMP := $(VENV)/.numba-cache-stamp
 
 .PHONY: demo test install lint typecheck pytest bench clean
 
-demo: install $(NUMBA_STAMP)  ## the main job (for now: the kernel benchmark on simulated URG-04LX data)
-	$(BIN)/linemap bench kernels
+demo: install $(NUMBA_STAMP)  ## the main job: map the simulated world, draw it, print the accuracy
+	$(BIN)/linemap map sim --out map.geojson --svg map.svg --png map.png --trajectory-out trajectory.csv
 
 test: install lint typecheck pytest  ## ruff, mypy and pytest in a fresh or updated virtual environment
 
@@ -37,9 +37,9 @@ pytest: install $(NUMBA_STAMP)
 	$(BIN)/python -m pytest -q -p no:cacheprovider; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing" >&2; exit 1; fi; exit $$rc
 
-bench: install  ## kernel benchmark with JSON output
+bench: install $(NUMBA_STAMP)  ## kernel benchmark with JSON output
 	$(BIN)/linemap bench kernels --json bench-kernels.json
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache bench-kernels.json
+	rm -rf $(VENV) .mypy_cache .ruff_cache bench-kernels.json map.geojson map.svg map.png trajectory.csv
 	find shared -name '*.nbi' -delete -o -name '*.nbc' -delete

@@ -179,6 +179,33 @@ def map_cmd(
         console.print(f"wrote {path}")
 
 
+@app.command("eval")
+def eval_cmd(
+    map_path: Annotated[Path, typer.Argument(help="The GeoJSON map written by `linemap map`.")],
+    walls: Annotated[
+        str | None, typer.Option(help="Ground-truth walls: 'sim' (the default world) or a world file.")
+    ] = None,
+    trajectory: Annotated[Path | None, typer.Option(help="Trajectory CSV from `linemap map`.")] = None,
+    relations: Annotated[Path | None, typer.Option(help="Kümmerle et al. .relations file.")] = None,
+    json_path: Annotated[Path | None, typer.Option("--json", help="Also write the figures as JSON.")] = None,
+) -> None:
+    """Measure a map (SPEC §5): line accuracy and area error against true walls, relation error."""
+    from shared.cli.evaluate import evaluate
+    from shared.cli.render import evaluation_table
+
+    try:
+        figures = evaluate(map_path, walls=walls, trajectory=trajectory, relations=relations)
+        if json_path is not None:
+            json_path.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
+    except LinemapError as exc:
+        err_console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from None
+    except OSError as exc:
+        err_console.print(f"[red]error:[/red] cannot write {json_path}: {exc.strerror}")
+        raise typer.Exit(2) from None
+    console.print(evaluation_table(figures))
+
+
 def main() -> None:
     """Entry point for ``python -m shared.cli.main``."""
     app()

@@ -19,6 +19,7 @@ __all__ = [
     "accuracy_table",
     "bench_markdown",
     "bench_tables",
+    "evaluation_table",
     "kernel_markdown",
     "kernel_table",
     "param_rows",
@@ -177,6 +178,14 @@ def accuracy_table(snapshot: MapSnapshot, world: World, true_trajectory: FloatAr
     table.add_row("mean angle error", f"{acc.mean_angle_error_deg:.2f} deg", "")
     table.add_row("completeness (walls within 5 cm)", f"{acc.completeness * 100:.1f} %", ">= 95 %")
     table.add_row("spurious (map farther than 10 cm)", f"{acc.spurious_share * 100:.1f} %", "<= 3 %")
+    if len(snapshot.trajectory):
+        from shared.metrics import MapLeakError, area_error_pct
+
+        try:
+            area = area_error_pct(snapshot.segments, world.floor_area_m2, snapshot.trajectory[:, 1:3])
+            table.add_row("area error (paper Table 3)", f"{area:.2f} %", "")
+        except MapLeakError:
+            table.add_row("area error (paper Table 3)", "map not closed", "")
     if (
         true_trajectory is not None
         and len(true_trajectory) == len(snapshot.trajectory)
@@ -184,4 +193,33 @@ def accuracy_table(snapshot: MapSnapshot, world: World, true_trajectory: FloatAr
     ):
         err = np.hypot(*(true_trajectory[:, 1:3] - snapshot.trajectory[:, 1:3]).T)
         table.add_row("pose error mean / max", f"{err.mean() * 100:.1f} / {err.max() * 100:.1f} cm", "")
+    return table
+
+
+def evaluation_table(figures: dict[str, Any]) -> Table:
+    """The figures of ``linemap eval``."""
+    table = Table(title=f"evaluation of {figures['map']} ({figures['segments']} segments)")
+    table.add_column("measure")
+    table.add_column("value", justify="right")
+    acc = figures.get("line_accuracy")
+    if acc:
+        table.add_row(
+            "mean / p95 orthogonal error",
+            f"{acc['mean_distance_m'] * 100:.2f} / {acc['p95_distance_m'] * 100:.2f} cm",
+        )
+        table.add_row("mean angle error", f"{acc['mean_angle_error_deg']:.2f} deg")
+        table.add_row("completeness (within 5 cm)", f"{acc['completeness'] * 100:.1f} %")
+        table.add_row("spurious (beyond 10 cm)", f"{acc['spurious_share'] * 100:.1f} %")
+    if "area_error_pct" in figures:
+        value = figures["area_error_pct"]
+        table.add_row("area error", "map not closed" if value is None else f"{value:.2f} %")
+    rel = figures.get("relation_error")
+    if rel:
+        table.add_row(
+            "relation error, translation", f"{rel['trans_mean_m']:.3f} +- {rel['trans_std_m']:.3f} m"
+        )
+        table.add_row(
+            "relation error, rotation", f"{rel['rot_mean_deg']:.2f} +- {rel['rot_std_deg']:.2f} deg"
+        )
+        table.add_row("relations used / unmatched", f"{rel['used']} / {rel['unmatched']}")
     return table
