@@ -16,10 +16,10 @@ from shared.kernels import REGISTRY
 ROOT = Path(__file__).resolve().parents[3]
 
 
-def linemap(*args: str) -> subprocess.CompletedProcess[str]:
+def linemap(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     exe = shutil.which("linemap", path=str(Path(sys.executable).parent))
     assert exe is not None, "the linemap console script is installed next to the interpreter"
-    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=600, check=False)
+    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=600, check=False, cwd=cwd)
 
 
 def test_kernels_json_lists_every_kernel_with_schema() -> None:
