@@ -9,13 +9,15 @@ but always the first connected neighbour on each side (so sparse far returns sti
 ``max_side`` per side.
 
 The line of a point is the total-least-squares (PCA) line of its window: the normal is the eigenvector of
-the smallest eigenvalue of the window's 2x2 scatter and the offset ``c = n . mean``. A fit is accepted when
+the smallest eigenvalue of the window's 2x2 scatter and the offset ``c = n . mean``; windows are index
+ranges, so their moments come from prefix sums in O(1). A fit is accepted when
 ``sqrt(lambda_min / lambda_max) <= max_ratio`` (the RMS distance to the line is at most that share of the
-RMS spread along it). The symmetric window is tried first; when it fails (a corner or an edge) the better
-of the one-sided windows (the point and its left, or its right, neighbours) is used. A point with fewer
-than 3 points in every window, or no acceptable fit, gets no line (``valid`` False): it is isolated.
+RMS spread along it). Of the symmetric window and the two one-sided ones (the point and its left, or its
+right, neighbours) the fit with the smallest ratio is used: on a straight wall that is the symmetric one
+(twice the spread for the same residual), next to a corner the side on the point's own wall. A point with
+fewer than 3 points in every window, or no acceptable fit, gets no line (``valid`` False): it is isolated.
 
-Complexity: O(M * max_side).
+Complexity: O(M * max_side) for the windows, O(M) for the fits.
 """
 
 from __future__ import annotations
@@ -35,50 +37,60 @@ def _connected(ref: FloatArray, lambda_rad: float, sigma_m: float) -> BoolArray:
     """``out[i]``: points ``i`` and ``i + 1`` of ``ref`` ``(M, 2)`` lie on one surface (ABD test)."""
     m = ref.shape[0]
     out = np.zeros(max(m - 1, 0), dtype=np.bool_)
+    sl = math.sin(lambda_rad)
+    cl = math.cos(lambda_rad)
     for i in range(m - 1):
         ax = ref[i, 0]
         ay = ref[i, 1]
         bx = ref[i + 1, 0]
         by = ref[i + 1, 1]
-        dphi = abs(math.atan2(ax * by - ay * bx, ax * bx + ay * by))
-        gap = math.hypot(bx - ax, by - ay)
-        if dphi >= lambda_rad:
+        ra = math.sqrt(ax * ax + ay * ay)
+        rb = math.sqrt(bx * bx + by * by)
+        gap = math.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
+        if ra * rb == 0.0:
             out[i] = gap <= 3.0 * sigma_m
             continue
-        r = min(math.hypot(ax, ay), math.hypot(bx, by))
-        out[i] = gap <= r * math.sin(dphi) / math.sin(lambda_rad - dphi) + 3.0 * sigma_m
+        # sin and cos of the angle dphi between the bearings; sin(lambda - dphi) from the angle sum rule
+        sd = abs(ax * by - ay * bx) / (ra * rb)
+        cd = (ax * bx + ay * by) / (ra * rb)
+        den = sl * cd - cl * sd
+        if den <= 0.0:  # dphi >= lambda: only noise-close points join
+            out[i] = gap <= 3.0 * sigma_m
+        else:
+            out[i] = gap <= min(ra, rb) * sd / den + 3.0 * sigma_m
     return out
 
 
 @njit
-def _fit(ref: FloatArray, lo: int, hi: int) -> tuple[float, float, float, float]:
-    """PCA line of ``ref[lo..hi]`` (inclusive): ``(nx, ny, c, ratio)``; ratio inf when degenerate."""
+def _fit(cum: FloatArray, lo: int, hi: int) -> tuple[float, float, float, float]:
+    """PCA line of points ``lo..hi`` (inclusive) from the prefix sums ``cum`` of ``(x, y, xx, yy, xy)``
+    (coordinates relative to ``cum``'s origin): ``(nx, ny, c, ratio)``; ratio inf when degenerate."""
     n = hi - lo + 1
-    mx = 0.0
-    my = 0.0
-    for k in range(lo, hi + 1):
-        mx += ref[k, 0]
-        my += ref[k, 1]
-    mx /= n
-    my /= n
-    sxx = 0.0
-    syy = 0.0
-    sxy = 0.0
-    for k in range(lo, hi + 1):
-        dx = ref[k, 0] - mx
-        dy = ref[k, 1] - my
-        sxx += dx * dx
-        syy += dy * dy
-        sxy += dx * dy
+    sx = cum[hi + 1, 0] - cum[lo, 0]
+    sy = cum[hi + 1, 1] - cum[lo, 1]
+    mx = sx / n
+    my = sy / n
+    sxx = max(cum[hi + 1, 2] - cum[lo, 2] - sx * mx, 0.0)
+    syy = max(cum[hi + 1, 3] - cum[lo, 3] - sy * my, 0.0)
+    sxy = cum[hi + 1, 4] - cum[lo, 4] - sx * my
     half = 0.5 * (sxx + syy)
     root = math.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
     lmax = half + root
     lmin = max(half - root, 0.0)
     if not lmax > 0.0:
         return 0.0, 0.0, 0.0, math.inf
-    phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # direction of the line
-    nx = -math.sin(phi)
-    ny = math.cos(phi)
+    # eigenvector of lmin: the better conditioned of the two rows of (S - lmin I)
+    if sxx >= syy:
+        nx = sxy
+        ny = lmin - sxx
+    else:
+        nx = lmin - syy
+        ny = sxy
+    norm = math.sqrt(nx * nx + ny * ny)
+    if norm == 0.0:  # isotropic scatter: no line
+        return 0.0, 0.0, 0.0, math.inf
+    nx /= norm
+    ny /= norm
     return nx, ny, nx * mx + ny * my, math.sqrt(lmin / lmax)
 
 
@@ -93,6 +105,23 @@ def _local_lines(
     offsets = np.zeros(m, dtype=np.float64)
     valid = np.zeros(m, dtype=np.bool_)
     conn = _connected(ref, lambda_rad, sigma_m)
+    # prefix sums of the moments, about the centroid for precision
+    ox = 0.0
+    oy = 0.0
+    for i in range(m):
+        ox += ref[i, 0]
+        oy += ref[i, 1]
+    ox /= max(m, 1)
+    oy /= max(m, 1)
+    cum = np.zeros((m + 1, 5), dtype=np.float64)
+    for i in range(m):
+        x = ref[i, 0] - ox
+        y = ref[i, 1] - oy
+        cum[i + 1, 0] = cum[i, 0] + x
+        cum[i + 1, 1] = cum[i, 1] + y
+        cum[i + 1, 2] = cum[i, 2] + x * x
+        cum[i + 1, 3] = cum[i, 3] + y * y
+        cum[i + 1, 4] = cum[i, 4] + x * y
     r2 = radius_m * radius_m
     for i in range(m):
         lo = i
@@ -114,16 +143,18 @@ def _local_lines(
         bny = 0.0
         bc = 0.0
         if hi - lo >= 2:
-            bnx, bny, bc, best = _fit(ref, lo, hi)
-        if best > max_ratio:  # a corner or an edge: try the sides
+            bnx, bny, bc, best = _fit(cum, lo, hi)
+        # the one-sided fits win only where they are straighter (a corner); on a straight noisy wall the
+        # symmetric fit spreads twice as far for the same residual, so its ratio is about half theirs
+        if best > 0.0:
             for a, b in ((lo, i), (i, hi)):
                 if b - a >= 2:
-                    nx, ny, c, ratio = _fit(ref, a, b)
+                    nx, ny, c, ratio = _fit(cum, a, b)
                     if ratio < best:
                         bnx, bny, bc, best = nx, ny, c, ratio
         if best <= max_ratio:
             normals[i, 0] = bnx
             normals[i, 1] = bny
-            offsets[i] = bc
+            offsets[i] = bc + bnx * ox + bny * oy  # back from the centroid origin
             valid[i] = True
     return normals, offsets, valid

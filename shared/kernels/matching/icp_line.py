@@ -3,25 +3,31 @@
 Point-to-point ICP (:mod:`shared.kernels.matching.icp`) pulls each current point onto a reference *point*,
 so the beam spacing of the reference becomes a bias; point-to-line ICP instead minimises the distance of
 each current point to the reference surface through its nearest reference point. It converges in a few
-Gauss-Newton steps and stays accurate on sparse far walls.
+Gauss-Newton steps and stays accurate on sparse far walls, but its basin of convergence is narrower (a
+point may slide along a wrong line), so a coarse point-to-point phase comes first.
 
 1. Reference lines (:mod:`shared.kernels.matching._local_lines`): every reference point gets the
    total-least-squares line of its scan-order neighbours on the same surface (ABD breakpoint test, within
-   ``normal_radius_m`` but always the first neighbour on each side); corners use a one-sided fit;
+   ``normal_radius_m`` but always the first neighbour on each side); next to corners a one-sided fit;
    isolated points and poor fits get no line.
-2. Each iteration maps the current points with the estimate, pairs each one with its exact nearest
-   reference point within ``max_correspondence_m`` (the compiled grid of
-   :mod:`shared.kernels.matching._grid`) and skips pairs whose reference point has no line. The residual
-   of a pair is its signed distance to the line, ``r = n . (R p + t) - c``.
-3. Trimming: only the best ``trim_ratio`` share of the pairs (smallest ``|r|``) take part in the step.
-4. The step ``(dx, dy, dtheta)``, applied on the left of the estimate, solves the linearised least squares
-   ``sum (r + n_x dx + n_y dy + (n x p') dtheta)^2`` through its 3x3 normal equations, in the scaled
-   unknowns ``(dx, dy, s dtheta)`` with ``s`` the RMS radius of the pairs. Directions of the normal matrix
-   whose eigenvalue is below ``degeneracy_ratio`` times the largest get no update: along a featureless
-   corridor the estimate stays at the initial guess instead of drifting on noise.
-5. Two phases like ``icp``: once the step falls below ten times the tolerances with
-   ``max_correspondence_m``, the search radius drops to ``refine_correspondence_m`` (if smaller) until the
-   step falls below ``tolerance_m`` and ``tolerance_rad`` (``converged``); ``max_iterations`` bounds both.
+2. Each iteration maps the current points with the estimate and pairs each one with its exact nearest
+   reference point within the search radius (the compiled grid of :mod:`shared.kernels.matching._grid`).
+3. Trimming: only the best ``trim_ratio`` share of the pairs (smallest residuals) take part in the step.
+4. Point-to-point phase: search radius ``max_correspondence_m``, every other current point of a large
+   scan, residual = distance to the partner, closed-form rigid alignment (2D Kabsch). It ends when the
+   estimate moves less than ``50 x tolerance_m`` and ``50 x tolerance_rad`` (5 mm, 5 mrad by default).
+5. Point-to-line phase: search radius ``refine_correspondence_m``, all current points, pairs whose
+   reference point has no line are skipped; residual = signed distance to the line,
+   ``r = n . (R p + t) - c``. The step ``(dx, dy, dtheta)``, applied on the left of the estimate,
+   solves the linearised least squares ``sum (r + n_x dx + n_y dy + (n x p') dtheta)^2`` through its 3x3
+   normal equations, in the unknowns ``(dx, dy, s dtheta)`` with ``s`` the RMS radius of the pairs.
+   Directions of the normal matrix whose eigenvalue is below ``degeneracy_ratio`` times the largest get no
+   update: along a featureless corridor the estimate stays at the guess instead of drifting on noise.
+   ``converged`` once the estimate moves less than ``tolerance_m`` and ``tolerance_rad``.
+6. Either phase also ends when the estimate returns to within the tolerances of one of the last
+   ``_HISTORY`` estimates: a limit cycle of the correspondences (pairs flipping between two reference
+   points), which otherwise burns the iterations moving back and forth by a millimetre.
+   ``max_iterations`` bounds both phases together.
 
 Conventions and edge cases (as ``icp``):
 
@@ -29,14 +35,15 @@ Conventions and edge cases (as ``icp``):
   ``initial`` (default identity) is the first estimate. The reference must be in its scanner's frame and
   in beam order (the lines come from scan neighbours); the current points may be in any order.
 * Non-finite rows are ignored. At most ``max_points`` current points are used (even stride).
-* ``rmse_m`` is the RMS point-to-line distance of the pairs that took part in the last step, under the
-  returned pose; ``inlier_ratio`` the share of the used current points that had a pair (within the search
-  radius of the last phase, reference line known) in the last iteration, before trimming.
+* ``rmse_m`` is the RMS residual (point-to-line distance; point-to-point if the first phase ran out of
+  iterations) of the pairs that took part in the last step, under the returned pose; ``inlier_ratio`` the
+  share of the used current points that had a pair in the last iteration (within its search radius, with
+  a reference line in the second phase), before trimming.
 * Fewer than 3 pairs at any iteration: ``initial`` is returned with ``converged=False``, ``rmse_m=inf``
   and ``inlier_ratio=0``.
 
-Complexity: O(M * max_side) for the lines and the grid, then O(K N' log N') for K iterations over
-N' = min(N, max_points) points (the log from trimming).
+Complexity: O(M * max_side) for the lines, O(M + cells) for the grid, then O(K N') for K iterations over
+N' = min(N, max_points) points (each query visits a few cells; trimming is a linear-time selection).
 """
 
 from __future__ import annotations
@@ -50,6 +57,7 @@ from shared.kernels._jit import njit
 from shared.kernels.base import ScanMatchingKernel
 from shared.kernels.matching._grid import _MAX_CELLS_PER_AXIS, _grid_build, _grid_nearest
 from shared.kernels.matching._local_lines import _local_lines
+from shared.kernels.matching._solve import _line_step, _point_align
 from shared.kernels.params import KernelParams, param
 from shared.kernels.registry import register
 from shared.kernels.results import Match
@@ -59,10 +67,12 @@ __all__ = ["IcpLine", "IcpLineParams"]
 
 #: grid cell side of the nearest-neighbour search relative to the correspondence radius (speed only)
 _CELL_PER_RADIUS = 0.25
-#: the first (wide) phase stops at this multiple of the tolerances
-_COARSE_TOLERANCE = 10.0
+#: the point-to-point phase stops at this multiple of the tolerances
+_COARSE_TOLERANCE = 50.0
 #: most scan neighbours per side in a reference point's line fit (speed bound; the radius decides)
 _MAX_SIDE = 8
+#: the point-to-point phase thins the current scan to every other point when it keeps at least this many
+_POINT_PHASE_MIN = 100
 #: estimates remembered to detect a limit cycle of the correspondences
 _HISTORY = 4
 
@@ -83,8 +93,8 @@ class IcpLineParams(KernelParams):
     )
     refine_correspondence_m: float = param(
         0.25,
-        description="Search radius of the second phase, once converged coarsely with max_correspondence_m "
-        "(no second phase when >= max_correspondence_m)",
+        description="Search radius of the point-to-line phase (the point-to-point phase uses "
+        "max_correspondence_m)",
         unit="m",
         gt=0.0,
         le=10.0,
@@ -141,30 +151,11 @@ class IcpLineParams(KernelParams):
         le=1.0,
     )
     max_points: int = param(
-        400,
+        300,
         description="Most current-scan points used (even stride over the scan); bounds the time per step",
         ge=3,
         le=1_000_000,
     )
-
-
-@njit
-def _step(h: FloatArray, g: FloatArray, degeneracy: float) -> tuple[float, float, float]:
-    """Solve ``h d = -g`` (3x3 symmetric) over the eigen-directions stronger than ``degeneracy`` x max."""
-    w, v = np.linalg.eigh(h)
-    top = w[2]
-    d0 = 0.0
-    d1 = 0.0
-    d2 = 0.0
-    if not top > 0.0:
-        return d0, d1, d2
-    for k in range(3):
-        if w[k] > degeneracy * top and w[k] > 0.0:
-            a = -(v[0, k] * g[0] + v[1, k] * g[1] + v[2, k] * g[2]) / w[k]
-            d0 += a * v[0, k]
-            d1 += a * v[1, k]
-            d2 += a * v[2, k]
-    return d0, d1, d2
 
 
 @njit
@@ -175,7 +166,7 @@ def _plicp(
     y: float,
     theta: float,
     max_d: float,
-    fine_d: float,
+    line_d: float,
     trim: float,
     tol_m: float,
     tol_rad: float,
@@ -185,23 +176,28 @@ def _plicp(
     lambda_rad: float,
     sigma_m: float,
     max_ratio: float,
-) -> tuple[float, float, float, int, bool, int, int, float]:
-    """The point-to-line ICP loop. Returns ``(x, y, theta, n_iter, converged, pairs, used, sse)``: ``pairs``
-    had a line within reach in the last iteration (``< 3`` means failure), ``used`` took part in the step."""
+) -> tuple[float, float, float, int, bool, int, int, int, float]:
+    """The ICP loop: point-to-point within ``max_d`` until coarsely converged, then point-to-line within
+    ``line_d``. Returns ``(x, y, theta, n_iter, converged, queried, pairs, used, sse)``: of the ``queried``
+    current points of the last iteration, ``pairs`` had a partner (``< 3`` means failure) and ``used`` took
+    part in its step; ``sse`` is their sum of squared residuals under the returned pose."""
     normals, offsets, valid = _local_lines(reference, radius_m, _MAX_SIDE, lambda_rad, sigma_m, max_ratio)
     sorted_xy, order, start, x0, y0, h, nx, ny = _grid_build(reference, max_d * _CELL_PER_RADIUS,
                                                                _MAX_CELLS_PER_AXIS)
     n = current.shape[0]
-    line = np.empty(n, dtype=np.intp)
+    pair = np.empty(n, dtype=np.intp)
     res = np.empty(n, dtype=np.float64)
+    px = np.empty(n, dtype=np.float64)
+    py = np.empty(n, dtype=np.float64)
     absr = np.empty(n, dtype=np.float64)
-    hm = np.empty((3, 3), dtype=np.float64)
-    gv = np.empty(3, dtype=np.float64)
-    # the last _HISTORY estimates: returning to one of them is a correspondence limit cycle
+    # the estimates before the last _HISTORY steps: returning to one of them is a limit cycle of the pairs
     hist = np.full((_HISTORY, 3), np.inf)
+    lines = False  # the point-to-point phase comes first
+    search = max_d
     converged = False
     pairs = 0
     used = 0
+    queried = n
     cut = math.inf
     it = 0
     while it < max_iter:
@@ -209,64 +205,54 @@ def _plicp(
         c = math.cos(theta)
         s = math.sin(theta)
         pairs = 0
-        for i in range(n):
+        r2 = 0.0
+        # the coarse point-to-point phase uses every other point of a large scan (speed)
+        stride = 1 if lines or n < 2 * _POINT_PHASE_MIN else 2
+        queried = (n + stride - 1) // stride
+        pair[:] = -1
+        for i in range(0, n, stride):
             qx = c * current[i, 0] - s * current[i, 1] + x
             qy = s * current[i, 0] + c * current[i, 1] + y
-            j, _ = _grid_nearest(sorted_xy, order, start, x0, y0, h, nx, ny, qx, qy, max_d)
-            if j >= 0 and valid[j]:
-                line[i] = j
-                res[i] = normals[j, 0] * qx + normals[j, 1] * qy - offsets[j]
-                absr[pairs] = abs(res[i])
-                pairs += 1
-            else:
-                line[i] = -1
+            j, d2 = _grid_nearest(sorted_xy, order, start, x0, y0, h, nx, ny, qx, qy, search)
+            if j < 0 or (lines and not valid[j]):
+                continue
+            pair[i] = j
+            px[i] = qx
+            py[i] = qy
+            res[i] = normals[j, 0] * qx + normals[j, 1] * qy - offsets[j] if lines else math.sqrt(d2)
+            absr[pairs] = abs(res[i])
+            r2 += qx * qx + qy * qy
+            pairs += 1
         if pairs < 3:
-            return x, y, theta, it, False, pairs, 0, math.inf
-        keep = max(3, min(pairs, int(math.ceil(trim * pairs))))
-        cut = np.sort(absr[:pairs])[keep - 1] if keep < pairs else math.inf
-        # RMS radius of the pairs: scales the rotation column to metres
-        r2 = 0.0
+            return x, y, theta, it, False, queried, pairs, 0, math.inf
+        keep = max(3, math.ceil(trim * pairs))
+        cut = np.partition(absr[:pairs], keep - 1)[keep - 1] if keep < pairs else math.inf
         used = 0
         for i in range(n):
-            if line[i] >= 0 and abs(res[i]) <= cut:
-                qx = c * current[i, 0] - s * current[i, 1] + x
-                qy = s * current[i, 0] + c * current[i, 1] + y
-                r2 += qx * qx + qy * qy
+            if pair[i] >= 0 and abs(res[i]) <= cut:
                 used += 1
-        scale = max(math.sqrt(r2 / used), 1e-3)
-        hm[:] = 0.0
-        gv[:] = 0.0
-        for i in range(n):
-            j = line[i]
-            if j >= 0 and abs(res[i]) <= cut:
-                qx = c * current[i, 0] - s * current[i, 1] + x
-                qy = s * current[i, 0] + c * current[i, 1] + y
-                jac0 = normals[j, 0]
-                jac1 = normals[j, 1]
-                jac2 = (normals[j, 1] * qx - normals[j, 0] * qy) / scale
-                for a, ja in ((0, jac0), (1, jac1), (2, jac2)):
-                    hm[a, 0] += ja * jac0
-                    hm[a, 1] += ja * jac1
-                    hm[a, 2] += ja * jac2
-                    gv[a] += ja * res[i]
-        dx, dy, ds = _step(hm, gv, degeneracy)
-        dth = ds / scale
-        cd = math.cos(dth)
-        sd = math.sin(dth)
         hist[it % _HISTORY, 0] = x
         hist[it % _HISTORY, 1] = y
         hist[it % _HISTORY, 2] = theta
-        x, y = cd * x - sd * y + dx, sd * x + cd * y + dy
-        theta = theta + dth
-        coarse = fine_d < max_d
-        f = _COARSE_TOLERANCE if coarse else 1.0
+        if lines:
+            # the rotation unknown is scaled by the RMS radius of the pairs to a length
+            scale = max(math.sqrt(r2 / pairs), 1e-3)
+            dx, dy, dth = _line_step(px, py, normals, pair, res, cut, scale, degeneracy)
+            cd = math.cos(dth)
+            sd = math.sin(dth)
+            x, y = cd * x - sd * y + dx, sd * x + cd * y + dy
+            theta = theta + dth
+        else:
+            x, y, theta = _point_align(current, reference, pair, res, cut)
+        f = 1.0 if lines else _COARSE_TOLERANCE
         done = False
         for k in range(_HISTORY):
             d_rad = abs((theta - hist[k, 2] + math.pi) % (2.0 * math.pi) - math.pi)
             if math.hypot(x - hist[k, 0], y - hist[k, 1]) < f * tol_m and d_rad < f * tol_rad:
                 done = True
-        if done and coarse:
-            max_d = fine_d  # converged coarsely: go on with the tighter search radius
+        if done and not lines:
+            lines = True  # coarsely aligned: go on point-to-line
+            search = line_d
             hist[:] = np.inf
         elif done:
             converged = True
@@ -275,13 +261,16 @@ def _plicp(
     s = math.sin(theta)
     sse = 0.0
     for i in range(n):
-        j = line[i]
+        j = pair[i]
         if j >= 0 and abs(res[i]) <= cut:
             qx = c * current[i, 0] - s * current[i, 1] + x
             qy = s * current[i, 0] + c * current[i, 1] + y
-            d = normals[j, 0] * qx + normals[j, 1] * qy - offsets[j]
-            sse += d * d
-    return x, y, theta, it, converged, pairs, used, sse
+            if lines:
+                d = normals[j, 0] * qx + normals[j, 1] * qy - offsets[j]
+                sse += d * d
+            else:
+                sse += (qx - reference[j, 0]) ** 2 + (qy - reference[j, 1]) ** 2
+    return x, y, theta, it, converged, queried, pairs, used, sse
 
 
 def _finite(points: ArrayLike, name: str) -> FloatArray:
@@ -310,7 +299,7 @@ class IcpLine(ScanMatchingKernel[IcpLineParams]):
             return failed
         if cur.shape[0] > p.max_points:
             cur = np.ascontiguousarray(cur[(np.arange(p.max_points) * cur.shape[0]) // p.max_points])
-        x, y, theta, n_iter, converged, pairs, used, sse = _plicp(
+        x, y, theta, n_iter, converged, queried, pairs, used, sse = _plicp(
             np.ascontiguousarray(ref),
             np.ascontiguousarray(cur),
             start.x_m,
@@ -333,7 +322,7 @@ class IcpLine(ScanMatchingKernel[IcpLineParams]):
         return Match(
             pose=Pose2D(x, y, theta),
             rmse_m=math.sqrt(sse / used),
-            inlier_ratio=pairs / cur.shape[0],
+            inlier_ratio=pairs / queried,
             n_iter=n_iter,
             converged=converged,
         )
