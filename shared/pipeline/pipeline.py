@@ -250,7 +250,7 @@ class Pipeline:
                 if not buf.chunks:
                     buf.heading0 = self._pose.theta_rad if self._pose is not None else 0.0
                 buf.chunks.append(chunk)
-                buf.steps += 1
+                buf.steps += chunk.steps
             if not self._ready(stage, buf, final):
                 chunk = None
                 continue
@@ -267,9 +267,13 @@ class Pipeline:
                 return remove_noise(kernels, batch)
             if stage == Stage.CLUSTERING:
                 if batch.steps > 1:  # an offline batch: one group per wall, not per scan
+                    walls = regroup(batch.points, batch.groups)
+                    walls = np.where(walls >= 0, walls + self._next_group, -1)  # ids stay unique
+                    if (walls >= 0).any():
+                        self._next_group = int(walls.max()) + 1
                     batch = Chunk(
                         batch.points,
-                        regroup(batch.points, batch.groups),
+                        walls,
                         batch.centroids,
                         batch.centroid_groups,
                         batch.steps,

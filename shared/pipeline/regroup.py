@@ -27,8 +27,11 @@ def regroup(
     offset_tol_m: float = 0.08,
     gap_tol_m: float = 0.3,
     min_points: int = 3,
+    max_rms_m: float = 0.03,
 ) -> IntArray:
-    """New group ids (``-1`` kept) uniting the groups that lie on one wall. Ids are ``0..G'-1``."""
+    """New group ids uniting the groups that lie on one wall. Ids are ``0..G'-1``; ``-1`` for points in no
+    group or in a group that is not straight (RMS distance to its own line above ``max_rms_m``: a piece
+    around a corner the per-scan split missed, which would otherwise draw a line across the room)."""
     valid = groups >= 0
     out = np.full(len(groups), -1, dtype=np.intp)
     if not valid.any():
@@ -50,9 +53,17 @@ def regroup(
     hi = np.full(g, -np.inf)
     np.minimum.at(lo, inv, t)
     np.maximum.at(hi, inv, t)
-    ok = n >= min_points
+    half_trace = 0.5 * (sxx + syy)
+    minor = half_trace - np.sqrt((0.5 * (sxx - syy)) ** 2 + sxy * sxy)  # smaller eigenvalue: residual var
+    straight = np.sqrt(np.maximum(minor, 0.0)) <= max_rms_m
+    ok = (n >= min_points) & straight
     roots = _unite(mx, my, ux, uy, lo, hi, ok, math.cos(math.radians(angle_tol_deg)), offset_tol_m, gap_tol_m)
-    _, compact = np.unique(roots, return_inverse=True)
+    roots = np.where(straight, roots, -1)
+    kept = roots >= 0
+    compact = np.full(g, -1, dtype=np.intp)
+    if kept.any():
+        _, compact_kept = np.unique(roots[kept], return_inverse=True)
+        compact[kept] = compact_kept
     out[valid] = compact[inv]
     return out
 

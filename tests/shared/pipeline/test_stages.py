@@ -73,3 +73,18 @@ def test_regroup_unites_one_wall_seen_from_several_scans() -> None:
     new = regroup(np.vstack(pieces), np.concatenate(groups).astype(np.intp))
     assert len(np.unique(new)) == 2
     assert len(np.unique(new[np.concatenate(groups) % 2 == 0])) == 1
+
+
+def test_regroup_drops_groups_that_are_not_straight() -> None:
+    from shared.pipeline.regroup import regroup
+
+    corner = np.vstack(
+        [
+            np.column_stack([np.linspace(0, 1, 40), np.zeros(40)]),
+            np.column_stack([np.zeros(40), np.linspace(0, 1, 40)]),
+        ]
+    )
+    wall = np.column_stack([np.linspace(0, 2, 50), np.full(50, 3.0)])
+    new = regroup(np.vstack([corner, wall]), np.repeat(np.array([0, 1], dtype=np.intp), [80, 50]))
+    assert np.all(new[:80] == -1), "a piece around a corner is no wall"
+    assert np.all(new[80:] == 0)
