@@ -113,6 +113,48 @@ def bench_kernels(
         err_console.print(f"figures written to {json_path}")
 
 
+@bench_app.command("area")
+def bench_area(seed: Annotated[int, typer.Option(min=0, help="Seed of the simulated run.")] = 0) -> None:
+    """The paper's Table 3: area error for CJ/HT/SVD x k-means/FCM x 50/60/70 clusters, simulated world."""
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+    from rich.table import Table
+
+    from shared.bench.table3 import run_table3
+
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    ) as progress:
+        task = progress.add_task("simulating", total=None)
+        rows = run_table3(seed, progress=lambda label: progress.update(task, description=f"mapping: {label}"))
+    table = Table(title="area error of the map, simulated world (paper Table 3 beside)")
+    for col in (
+        "clustering",
+        "lines",
+        "clusters",
+        "area error %",
+        "paper %",
+        "mean error cm",
+        "completeness %",
+    ):
+        table.add_column(col, justify="left" if col in ("clustering", "lines") else "right")
+    for r in rows:
+        area = "not closed" if r.area_error_pct is None else f"{r.area_error_pct:.2f}"
+        table.add_row(
+            r.clustering,
+            r.lines,
+            str(r.clusters),
+            area,
+            f"{r.paper_pct:.3f}",
+            f"{r.mean_error_m * 100:.1f}",
+            f"{r.completeness * 100:.0f}",
+        )
+    console.print(table)
+
+
 @app.command("map")
 def map_cmd(
     source: Annotated[

@@ -278,7 +278,9 @@ class Pipeline:
                         batch.centroid_groups,
                         batch.steps,
                     )
-                out = cluster(kernels[0], batch, self._clusterer_with_k)
+                line_kernel = self._kernels[Stage.STRAIGHT_LINE][0]
+                needs_two = getattr(line_kernel, "consumes", "points") == "centroids"
+                out = cluster(kernels[0], batch, self._clusterer_with_k, min_per_wall=2 if needs_two else 0)
                 if len(out.centroids):
                     self._centroids.append(out.centroids)
                 return out

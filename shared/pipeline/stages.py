@@ -71,14 +71,23 @@ def remove_noise(kernels: list[Any], chunk: Chunk) -> Chunk:
     return Chunk(points, groups, chunk.centroids, chunk.centroid_groups, chunk.steps)
 
 
-def cluster(kernel: Any, chunk: Chunk, with_k: Callable[[int], Any] | None = None) -> Chunk:
+def cluster(
+    kernel: Any,
+    chunk: Chunk,
+    with_k: Callable[[int], Any] | None = None,
+    *,
+    min_per_wall: int = 0,
+    wall_points: int = 30,
+) -> Chunk:
     """Cluster the chunk's points (paper §3.3) segment by segment, so no cluster straddles two walls.
 
     The kernel's ``n_clusters`` is the batch's total: each segment gets a share proportional to its points
     (at most its point count; a segment too small for even half a cluster gets none, unless no segment
     would get any); ``with_k(k)`` returns the kernel with ``n_clusters = k``. A segment with one cluster
     gets its mean (what k-means and FCM return for k = 1) without a kernel call. Points in no segment are
-    not clustered. Kernels without ``n_clusters`` cluster the batch as a whole.
+    not clustered. Kernels without ``n_clusters`` cluster the batch as a whole. ``min_per_wall`` raises the
+    share of every segment of at least ``wall_points`` points to that many clusters (2 lets a line through
+    the centroids: the total then exceeds ``n_clusters`` when the budget is spread thin).
     """
     if len(chunk.points) == 0:
         return chunk
@@ -90,6 +99,8 @@ def cluster(kernel: Any, chunk: Chunk, with_k: Callable[[int], Any] | None = Non
         return chunk
     uniq, inverse, counts = np.unique(chunk.groups[valid], return_inverse=True, return_counts=True)
     shares = np.minimum(np.rint(total * counts / counts.sum()).astype(np.intp), counts)
+    if min_per_wall > 0:  # every wall-sized segment gets enough clusters for a line through them
+        shares = np.where(counts >= wall_points, np.maximum(shares, min(min_per_wall, wall_points)), shares)
     if not shares.any():
         shares = np.ones_like(counts)
     order = np.argsort(inverse, kind="stable")
