@@ -56,7 +56,9 @@ def sample_segments(segments: FloatArray, spacing_m: float) -> tuple[FloatArray,
     if not spacing_m > 0.0:
         raise MetricInputError(f"sample spacing = {spacing_m!r} m: expected a positive length")
     length = segment_lengths(segments)
-    n = np.where(length > 0.0, np.ceil(length / spacing_m), 0).astype(np.intp)
+    # the 1e-9 keeps a length that is an exact multiple of the spacing from flipping to one more piece on
+    # a rounding error (the same map translated must sample the same way)
+    n = np.where(length > 0.0, np.ceil(length / spacing_m - 1e-9), 0).astype(np.intp)
     owner = np.repeat(np.arange(len(segments), dtype=np.intp), n)
     start = np.cumsum(n) - n
     k = np.arange(int(n.sum()), dtype=np.intp) - np.repeat(start, n)
@@ -116,7 +118,7 @@ def spaced_points(segments: FloatArray, spacing_m: float) -> tuple[FloatArray, I
     ``spacing_m / 2`` of one of its points (the search-index sampling). O(total length / spacing).
     """
     length = segment_lengths(segments)
-    n = np.maximum(1, np.ceil(length / spacing_m)).astype(np.intp) + 1
+    n = np.maximum(1, np.ceil(length / spacing_m - 1e-9)).astype(np.intp) + 1
     owner = np.repeat(np.arange(len(segments), dtype=np.intp), n)
     start = np.cumsum(n) - n
     k = np.arange(int(n.sum()), dtype=np.intp) - np.repeat(start, n)

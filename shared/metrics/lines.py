@@ -25,6 +25,8 @@ from shared.types import FloatArray
 
 __all__ = ["LineAccuracy", "line_accuracy", "undirected_angle_diff"]
 
+_SLACK_M = 1e-9
+
 
 @dataclass(frozen=True, slots=True)
 class LineAccuracy:
@@ -106,7 +108,9 @@ def line_accuracy(
 
     # completeness: wall samples -> nearest map segment (only "within complete_within_m" matters)
     wall_pts, _, wall_w = sample_segments(true, sample_m)
-    near = within_distance(wall_pts, segs, complete_within_m)
+    # thresholds carry 1 nm of slack: a sample exactly at the threshold must not flip on a rounding error
+    # (the same map translated must score the same)
+    near = within_distance(wall_pts, segs, complete_within_m + _SLACK_M)
     completeness = float(wall_w[near].sum() / wall_w.sum())
 
     nan = math.nan
@@ -119,7 +123,7 @@ def line_accuracy(
     total = float(map_w.sum())
     mean_d = float(np.dot(dist, map_w) / total)
     p95 = _weighted_quantile(dist, map_w, 0.95)
-    spurious = float(map_w[dist > spurious_beyond_m].sum() / total)
+    spurious = float(map_w[dist > spurious_beyond_m + _SLACK_M].sum() / total)
 
     # angle: each map segment vs the wall nearest to its midpoint
     mid = 0.5 * (segs[:, :2] + segs[:, 2:])
