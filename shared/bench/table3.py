@@ -53,12 +53,18 @@ class Table3Row:
     paper_pct: float
 
 
-def run_table3(seed: int = 0, progress: Callable[[str], None] | None = None) -> list[Table3Row]:
-    """Map the default simulated world once per configuration (18 runs)."""
+def run_table3(
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+    only: list[tuple[str, str, int]] | None = None,
+) -> list[Table3Row]:
+    """Map the default simulated world once per configuration (18 runs, or the ``only`` ones)."""
     world = default_world()
     run = simulate_run(world, seed=seed)
     rows: list[Table3Row] = []
     for (clustering, lines, k), paper in PAPER_TABLE3.items():
+        if only is not None and (clustering, lines, k) not in only:
+            continue
         if progress is not None:
             progress(f"{clustering} / {lines} / {k} clusters")
         cfg = PipelineConfig(

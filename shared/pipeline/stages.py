@@ -174,12 +174,43 @@ def _respan(lines: Lines, points: FloatArray, groups: IntArray, within_m: float)
     return segs
 
 
+def _extend_polylines(
+    lines: Lines, points: FloatArray, groups: IntArray, within_m: float, max_extension_m: float = 1.0
+) -> FloatArray:
+    """Stretch the free ends of each group's polyline along their piece over the group's points beyond."""
+    segs = np.array(lines.segments, copy=True)
+    for g in np.unique(lines.group):
+        idx = np.flatnonzero(lines.group == g)
+        pts = points[groups == g]
+        if len(pts) == 0:
+            continue
+        ends = segs[idx].reshape(-1, 2)  # 2 end points per piece
+        key = np.round(ends, 9)
+        _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        free = counts[inverse.reshape(-1)] == 1
+        for e in np.flatnonzero(free):
+            piece, side = idx[e // 2], e % 2
+            tip, base = segs[piece, 2 * side : 2 * side + 2], segs[piece, 2 - 2 * side : 4 - 2 * side]
+            length = float(np.hypot(*(tip - base)))
+            if length == 0.0:
+                continue
+            u = (tip - base) / length
+            rel = pts - tip
+            along = rel @ u
+            off = np.abs(rel[:, 0] * u[1] - rel[:, 1] * u[0])
+            reach = along[(off <= within_m) & (along > 0.0)]
+            if reach.size:
+                segs[piece, 2 * side : 2 * side + 2] = tip + u * min(float(reach.max()), max_extension_m)
+    return segs
+
+
 def extract_lines(kernel: Any, chunk: Chunk, respan_within_m: float = 0.05) -> FloatArray:
     """Straight-line segments ``(L, 4)`` from a chunk (paper §3.4, §4).
 
     Kernels consuming centroids get them ordered along their group; their infinite lines are then spanned
-    over the group's points (SPEC §4: "a map segment is its span over the points it came from"), except
-    centroid joining, whose polyline is the map itself. Kernels consuming points get the points and groups.
+    over the group's points (SPEC §4: "a map segment is its span over the points it came from"); centroid
+    joining keeps its polyline but stretches the polyline's two end pieces over the points beyond the end
+    centroids, so a wall reaches its corners. Kernels consuming points get the points and groups.
     """
     if getattr(kernel, "consumes", "points") == "centroids":
         keep = chunk.centroid_groups >= 0
@@ -189,7 +220,7 @@ def extract_lines(kernel: Any, chunk: Chunk, respan_within_m: float = 0.05) -> F
         order = _order_along_groups(cents, cgroups)
         lines = kernel.apply(cents[order], cgroups[order])
         if kernel.name == "centroid-join":
-            return np.asarray(lines.segments)
+            return _extend_polylines(lines, chunk.points, chunk.groups, respan_within_m)
         return _respan(lines, chunk.points, chunk.groups, respan_within_m)
     if len(chunk.points) == 0:
         return np.zeros((0, 4))

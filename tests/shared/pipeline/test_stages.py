@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from shared.kernels import REGISTRY, Stage
 from shared.pipeline.stages import Chunk, cluster, extract_lines, remove_noise
@@ -88,3 +89,11 @@ def test_regroup_drops_groups_that_are_not_straight() -> None:
     new = regroup(np.vstack([corner, wall]), np.repeat(np.array([0, 1], dtype=np.intp), [80, 50]))
     assert np.all(new[:80] == -1), "a piece around a corner is no wall"
     assert np.all(new[80:] == 0)
+
+
+def test_centroid_join_reaches_the_ends_of_its_wall() -> None:
+    chunk = cluster(REGISTRY.create(Stage.CLUSTERING, "kmeans", {"n_clusters": 6}), two_walls(), with_k)
+    segs = extract_lines(REGISTRY.create(Stage.STRAIGHT_LINE, "centroid-join"), chunk)
+    on_a = segs[np.abs(segs[:, 1]) < 0.01]
+    xs = np.concatenate([on_a[:, 0], on_a[:, 2]])
+    assert xs.min() == pytest.approx(0.1, abs=0.01) and xs.max() == pytest.approx(4.0, abs=0.01)
