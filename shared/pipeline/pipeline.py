@@ -56,6 +56,7 @@ class IcpGate:
     max_correction_m: float = 0.1
     max_correction_rad: float = 0.05
     correction_ratio: float = 0.0
+    refine_range_m: float = 1000.0
     strong_inlier_ratio: float = 2.0  # > 1: off
     strong_rmse_m: float = 0.03
     strong_max_m: float = 0.5
@@ -221,8 +222,9 @@ class Pipeline:
         self._steps += 1
         local = self._loc_maps[((self._steps - 1) // k + 1) % 2]  # the one not restarted last
         if self._gate.refine_to_map and len(local):
-            fit = refine_to_walls(points, predicted @ self._offset, local.segments())
-            if fit is not None and fit.matched >= self._gate.refine_min_share * len(points):
+            near = points[np.einsum("ij,ij->i", points, points) <= self._gate.refine_range_m**2]
+            fit = refine_to_walls(near, predicted @ self._offset, local.segments())
+            if fit is not None and fit.matched >= self._gate.refine_min_share * len(near):
                 corr = (predicted @ self._offset).between(fit.pose)
                 if self._plausible(corr, delta):
                     predicted = fit.pose @ self._offset.inverse()
