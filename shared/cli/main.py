@@ -178,9 +178,10 @@ def map_cmd(
     """Map a simulated world or a laser log into straight walls; print the accuracy when truth is known."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from shared.cli.mapping import load_config, map_scans, open_source, write_outputs
+    from shared.cli.mapping import MappingStoppedError, load_config, map_scans, open_source, write_outputs
     from shared.cli.render import accuracy_table, run_summary
 
+    stopped: MappingStoppedError | None = None
     try:
         cfg = load_config(config)
         src = open_source(source, log_format=log_format, seed=seed)
@@ -200,7 +201,10 @@ def map_cmd(
                     rate = n / max(time.perf_counter() - started, 1e-9)
                     progress.update(task, completed=n, rate=f"{rate:,.0f} scans/s")
 
-            run = map_scans(src, cfg, limit=limit, on_step=on_step)
+            try:
+                run = map_scans(src, cfg, limit=limit, on_step=on_step)
+            except MappingStoppedError as stop:
+                run, stopped = stop.run, stop
         walls = src.world.walls if src.world is not None else None
         written = write_outputs(
             run.snapshot,
@@ -219,6 +223,9 @@ def map_cmd(
         console.print(accuracy_table(run.snapshot, src.world, src.true_trajectory))
     for path in written:
         console.print(f"wrote {path}")
+    if stopped is not None:
+        err_console.print(f"[red]error:[/red] {stopped}")
+        raise typer.Exit(2)
 
 
 @app.command("eval")

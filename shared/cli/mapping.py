@@ -22,7 +22,15 @@ from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
 from shared.sim import World, default_world, load_world, simulate_run
 from shared.types import FloatArray, Pose2D, Scan
 
-__all__ = ["MapRun", "Source", "load_config", "map_scans", "open_source", "write_outputs"]
+__all__ = [
+    "MapRun",
+    "MappingStoppedError",
+    "Source",
+    "load_config",
+    "map_scans",
+    "open_source",
+    "write_outputs",
+]
 
 log = logging.getLogger(__name__)
 
@@ -108,14 +116,24 @@ def map_scans(
     limit: int | None = None,
     on_step: Callable[[int], None] | None = None,
 ) -> MapRun:
-    """Run the pipeline over every scan of ``source`` (at most ``limit``), then flush pending batches."""
+    """Run the pipeline over every scan of ``source`` (at most ``limit``), then flush pending batches.
+
+    A malformed record part-way through a log stops the run but loses nothing: :class:`MappingStoppedError`
+    carries the map of the scans read before it.
+    """
     pipeline = Pipeline(config, laser_offset=source.laser_offset)
     count = icp = 0
     start = time.perf_counter()
+    failure: LinemapError | None = None
     with source.closer or nullcontext():
         scans: Iterator[Scan] = iter(source.scans)
-        for scan in scans:
-            if limit is not None and count >= limit:
+        while limit is None or count < limit:
+            try:
+                scan = next(scans)
+            except StopIteration:
+                break
+            except LinemapError as exc:  # a broken record: keep what was mapped so far
+                failure = exc
                 break
             result = pipeline.step(scan)
             count += 1
@@ -127,7 +145,19 @@ def map_scans(
     pipeline.flush()
     seconds = time.perf_counter() - start
     median, p99 = pipeline.timing_ms()
-    return MapRun(pipeline.snapshot(), count, seconds, icp, median, p99)
+    run = MapRun(pipeline.snapshot(), count, seconds, icp, median, p99)
+    if failure is not None:
+        raise MappingStoppedError(failure, run)
+    return run
+
+
+class MappingStoppedError(LinemapError):
+    """The input broke part-way; ``run`` holds the map of the scans read before the bad record."""
+
+    def __init__(self, cause: LinemapError, run: MapRun) -> None:
+        super().__init__(f"{cause} (stopped after {run.scans} good scans; their map is kept)")
+        self.cause = cause
+        self.run = run
 
 
 def write_outputs(

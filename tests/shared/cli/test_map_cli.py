@@ -73,3 +73,23 @@ def test_bad_json_config_names_the_field(tmp_path: Path) -> None:
     cfg.write_text(json.dumps({"mode": "sideways"}))
     run = linemap("map", "sim", "--limit", "5", "--config", str(cfg), "--out", str(tmp_path / "m.geojson"))
     assert run.returncode == 2 and "mode" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_broken_log_keeps_the_map_of_the_good_scans(tmp_path: Path) -> None:
+    from shared.io import write_carmen
+    from shared.sim import default_world, simulate_run
+
+    run = simulate_run(default_world(), seed=3)
+    log = tmp_path / "run.clf"
+    write_carmen(log, run.scans[:60], laser_offset=run.drive.laser_offset)
+    lines = log.read_text().splitlines()
+    laser_lines = [i for i, line in enumerate(lines) if line.startswith(("FLASER", "ROBOTLASER1"))]
+    bad = laser_lines[40]
+    lines[bad] = lines[bad].split()[0] + " 3 1.0 2.0"
+    log.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "m.geojson"
+    result = linemap("map", str(log), "--out", str(out))
+    assert result.returncode == 2
+    message = " ".join(result.stderr.split())
+    assert f"line {bad + 1}" in message and "40 good scans" in message
+    assert json.loads(out.read_text())["type"] == "FeatureCollection", "the partial map is written"
