@@ -45,6 +45,7 @@ from numpy.typing import ArrayLike
 from shared.kernels._jit import njit
 from shared.kernels.base import ScanMatchingKernel
 from shared.kernels.matching._grid import _MAX_CELLS_PER_AXIS, _grid_build, _grid_nearest
+from shared.kernels.matching._solve import _point_align
 from shared.kernels.params import KernelParams, param
 from shared.kernels.registry import register
 from shared.kernels.results import Match
@@ -101,39 +102,13 @@ def _align(current: FloatArray, reference: FloatArray, nearest: IntArray) -> tup
     Returns ``(theta, tx, ty, pairs)``; with fewer than 3 pairs the transform is meaningless (all zeros).
     """
     n = 0
-    pxm = 0.0
-    pym = 0.0
-    qxm = 0.0
-    qym = 0.0
     for i in range(current.shape[0]):
-        j = nearest[i]
-        if j >= 0:
+        if nearest[i] >= 0:
             n += 1
-            pxm += current[i, 0]
-            pym += current[i, 1]
-            qxm += reference[j, 0]
-            qym += reference[j, 1]
     if n < 3:
         return 0.0, 0.0, 0.0, n
-    pxm /= n
-    pym /= n
-    qxm /= n
-    qym /= n
-    dot = 0.0
-    cross = 0.0
-    for i in range(current.shape[0]):
-        j = nearest[i]
-        if j >= 0:
-            px = current[i, 0] - pxm
-            py = current[i, 1] - pym
-            qx = reference[j, 0] - qxm
-            qy = reference[j, 1] - qym
-            dot += px * qx + py * qy
-            cross += px * qy - py * qx
-    theta = math.atan2(cross, dot)
-    c = math.cos(theta)
-    s = math.sin(theta)
-    return theta, qxm - (c * pxm - s * pym), qym - (s * pxm + c * pym), n
+    tx, ty, theta = _point_align(current, reference, nearest, np.zeros(current.shape[0]), np.inf)
+    return theta, tx, ty, n
 
 
 @njit
