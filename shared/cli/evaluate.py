@@ -22,7 +22,14 @@ def evaluate(
     """Every measure the inputs allow: line accuracy and area error need ``walls`` (area error also the
     trajectory, to know which side of the walls is inside); relation error needs trajectory and relations."""
     from shared.export import read_geojson_segments, read_trajectory_csv
-    from shared.metrics import MapLeakError, area_error_pct, line_accuracy, read_relations, relation_error
+    from shared.metrics import (
+        MapLeakError,
+        MetricError,
+        area_error_pct,
+        line_accuracy,
+        read_relations,
+        relation_error,
+    )
 
     if walls is None and relations is None:
         raise LinemapError("nothing to measure against: give --walls (ground truth) and/or --relations")
@@ -41,7 +48,7 @@ def evaluate(
         if poses is not None:
             try:
                 figures["area_error_pct"] = area_error_pct(segments, world.floor_area_m2, poses[:, :2])
-            except MapLeakError as exc:
+            except (MapLeakError, MetricError) as exc:
                 figures["area_error_pct"] = None
                 figures["area_error_note"] = str(exc)
     if relations is not None and stamps is not None and poses is not None:

@@ -219,6 +219,11 @@ def map_cmd(
         err_console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(2) from None
     console.print(run_summary(src.name, run))
+    if run.scans and len(run.snapshot.segments) == 0:
+        err_console.print(
+            "[yellow]warning:[/yellow] the map has no walls. Erosion and opening on single scans remove "
+            "every point (a scan is one point thick): use them in offline mode, or DBSCAN online."
+        )
     if src.world is not None:
         console.print(accuracy_table(run.snapshot, src.world, src.true_trajectory))
     for path in written:
@@ -256,8 +261,17 @@ def eval_cmd(
 
 
 def main() -> None:
-    """Entry point for ``python -m shared.cli.main``."""
-    app()
+    """Entry point of the ``linemap`` command: an unexpected failure prints one line, not a traceback (run
+    with ``--verbose`` to log it in full)."""
+    try:
+        app()
+    except Exception as exc:  # the last line of defence; expected errors are handled per command
+        logging.getLogger(__name__).debug("unexpected failure", exc_info=True)
+        err_console.print(
+            f"[red]internal error:[/red] {type(exc).__name__}: {exc} "
+            "(this is a bug in linemap: please report it with the command you ran; --verbose shows details)"
+        )
+        raise SystemExit(3) from None
 
 
 if __name__ == "__main__":

@@ -70,19 +70,27 @@ def open_source(spec: str, *, log_format: str | None = None, seed: int = 0) -> S
 
 
 def load_config(path: Path | None) -> PipelineConfig:
-    """The pipeline configuration from a JSON or TOML file (``None``: the defaults)."""
+    """The pipeline configuration from an XML control message (paper Listing 1, SPEC §6) or a JSON or
+    TOML file of :class:`PipelineConfig` fields (``None``: the defaults). A control message sets what it
+    mentions on top of the defaults."""
     if path is None:
         return PipelineConfig()
     suffix = path.suffix.lower()
-    if suffix == ".xml":
-        raise LinemapError(
-            f"{path}: XML control messages are not supported yet (they arrive with the server, issue 4); "
-            "give the configuration as a .json or .toml file with the fields of PipelineConfig"
-        )
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as exc:
         raise LinemapError(f"cannot read configuration {path}: {exc.strerror or exc}") from None
+    if suffix == ".xml":
+        from shared.control import ControlMessageError, parse_message, to_config
+
+        try:
+            return to_config(parse_message(raw), PipelineConfig())
+        except ControlMessageError as exc:
+            raise LinemapError(f"{path}: {exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise LinemapError(f"{path}: not UTF-8 text") from None
     try:
         data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:

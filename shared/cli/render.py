@@ -179,13 +179,15 @@ def accuracy_table(snapshot: MapSnapshot, world: World, true_trajectory: FloatAr
     table.add_row("completeness (walls within 5 cm)", f"{acc.completeness * 100:.1f} %", ">= 95 %")
     table.add_row("spurious (map farther than 10 cm)", f"{acc.spurious_share * 100:.1f} %", "<= 3 %")
     if len(snapshot.trajectory):
-        from shared.metrics import MapLeakError, area_error_pct
+        from shared.metrics import MapLeakError, MetricError, area_error_pct
 
         try:
             area = area_error_pct(snapshot.segments, world.floor_area_m2, snapshot.trajectory[:, 1:3])
             table.add_row("area error (paper Table 3)", f"{area:.2f} %", "")
         except MapLeakError:
             table.add_row("area error (paper Table 3)", "map not closed", "")
+        except MetricError as exc:
+            table.add_row("area error (paper Table 3)", str(exc), "")
     if (
         true_trajectory is not None
         and len(true_trajectory) == len(snapshot.trajectory)

@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from shared.errors import KernelParameterError, LinemapError, UnknownKernelError
 from shared.kernels import REGISTRY, Kernel, Stage
 
-__all__ = ["KernelChoice", "Mode", "PipelineConfig", "StageSchedule"]
+__all__ = ["SCHEDULED", "KernelChoice", "Mode", "PipelineConfig", "StageSchedule"]
 
 
 class Mode(StrEnum):

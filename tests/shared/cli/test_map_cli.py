@@ -55,7 +55,7 @@ def test_map_real_urg_log(tmp_path: Path) -> None:
     ("args", "message"),
     [
         (["map", "no/such/log.clf"], "not found"),
-        (["map", "sim", "--config", "control.xml"], "XML control messages are not supported yet"),
+        (["map", "sim", "--config", "control.xml"], "control.xml"),
         (["map", "sim:missing-world.toml"], "missing-world.toml"),
         (["eval", "missing.geojson", "--walls", "sim"], "missing.geojson"),
         (["eval", "x.geojson"], "nothing to measure against"),
@@ -93,3 +93,12 @@ def test_broken_log_keeps_the_map_of_the_good_scans(tmp_path: Path) -> None:
     message = " ".join(result.stderr.split())
     assert f"line {bad + 1}" in message and "40 good scans" in message
     assert json.loads(out.read_text())["type"] == "FeatureCollection", "the partial map is written"
+
+
+def test_listing1_as_config(tmp_path: Path) -> None:
+    listing = ROOT / "tests" / "shared" / "control" / "fixtures" / "listing1.xml"
+    run = linemap(
+        "map", "sim", "--limit", "30", "--config", str(listing), "--out", str(tmp_path / "m.geojson")
+    )
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "m.geojson").exists()
