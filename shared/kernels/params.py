@@ -36,13 +36,20 @@ def param(
     le: float | None = None,
     lt: float | None = None,
     paper: str | None = None,
+    choices: list[str] | None = None,
 ) -> Any:
-    """Declare one kernel parameter: default, unit (``"m"``, ``"rad"``, ``"deg"``, ``None``), range, doc."""
+    """Declare one kernel parameter: default, unit (``"m"``, ``"rad"``, ``"deg"``, ``None``), range, doc.
+
+    ``choices`` lists the accepted spellings of a text parameter (published as the schema's ``enum``, so a
+    dashboard can offer them; the model's own validator still does the checking).
+    """
     extra: dict[str, Any] = {}
     if unit is not None:
         extra["unit"] = unit
     if paper is not None:
         extra["paper"] = paper
+    if choices is not None:
+        extra["enum"] = list(choices)
     return Field(
         default, description=description, ge=ge, gt=gt, le=le, lt=lt, json_schema_extra=extra or None
     )

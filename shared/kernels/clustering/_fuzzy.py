@@ -42,7 +42,12 @@ _MAX_STEP = 8.0
 
 @njit
 def _pass(
-    pts: FloatArray, cx: FloatArray, cy: FloatArray, fuzzifier: float, u: FloatArray, fx: FloatArray,
+    pts: FloatArray,
+    cx: FloatArray,
+    cy: FloatArray,
+    fuzzifier: float,
+    u: FloatArray,
+    fx: FloatArray,
     fy: FloatArray,
 ) -> tuple[float, float]:
     """Memberships ``u`` (eq. 26) of centres ``(cx, cy)``, their eq. 26 centres into ``(fx, fy)``.

@@ -58,8 +58,14 @@ def _half_gaps(centres: FloatArray, m: int, gap: FloatArray) -> None:
 
 @njit
 def _lloyd(
-    pts: FloatArray, centres: FloatArray, m: int, max_iter: int, tol2: float, labels: IntArray,
-    upper: FloatArray, lower: FloatArray,
+    pts: FloatArray,
+    centres: FloatArray,
+    m: int,
+    max_iter: int,
+    tol2: float,
+    labels: IntArray,
+    upper: FloatArray,
+    lower: FloatArray,
 ) -> tuple[float, int]:
     """Lloyd iterations on ``centres[:m]`` in place, accelerated with Hamerly's bounds; returns (eq. 24, its).
 

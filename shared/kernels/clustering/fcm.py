@@ -32,12 +32,23 @@ __all__ = ["FuzzyCMeans", "FuzzyCMeansParams"]
 class FuzzyCMeansParams(KernelParams):
     """Parameters of :class:`FuzzyCMeans`."""
 
-    n_clusters: int = param(2, description="Number of clusters C (the message's cluster-no)", ge=1, le=1000,
-                            paper="§3.3, Listing 1")
-    fuzzifier: float = param(2.0, description="Fuzzifier m of eq. 25-26 (near 1 = hard, larger = fuzzier)",
-                             gt=1.0, le=10.0, paper="§3.3 eq. 25")
-    tolerance: float = param(0.005, description="Stop when no membership changes by this much (nu)", gt=0.0,
-                             lt=1.0, paper="§3.3")
+    n_clusters: int = param(
+        2,
+        description="Number of clusters C (the message's cluster-no)",
+        ge=1,
+        le=1000,
+        paper="§3.3, Listing 1",
+    )
+    fuzzifier: float = param(
+        2.0,
+        description="Fuzzifier m of eq. 25-26 (near 1 = hard, larger = fuzzier)",
+        gt=1.0,
+        le=10.0,
+        paper="§3.3 eq. 25",
+    )
+    tolerance: float = param(
+        0.005, description="Stop when no membership changes by this much (nu)", gt=0.0, lt=1.0, paper="§3.3"
+    )
     max_iterations: int = param(300, description="Maximum membership/centre updates", ge=1, le=10000)
     seed: int = param(0, description="Seed of numpy.random.default_rng for the k-means++ start", ge=0)
 

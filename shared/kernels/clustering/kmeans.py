@@ -30,13 +30,20 @@ __all__ = ["KMeans", "KMeansParams"]
 class KMeansParams(KernelParams):
     """Parameters of :class:`KMeans`."""
 
-    n_clusters: int = param(2, description="Number of clusters k (the message's cluster-no)", ge=1, le=1000,
-                            paper="§3.3, Listing 1")
+    n_clusters: int = param(
+        2,
+        description="Number of clusters k (the message's cluster-no)",
+        ge=1,
+        le=1000,
+        paper="§3.3, Listing 1",
+    )
     max_iterations: int = param(300, description="Maximum Lloyd iterations per restart", ge=1, le=10000)
-    tolerance_m: float = param(1e-4, description="Stop when no centroid moves farther than this", unit="m",
-                               ge=0.0, le=1.0)
-    n_init: int = param(10, description="Most k-means++ restarts; the lowest eq. 24 objective is kept", ge=1,
-                        le=100)
+    tolerance_m: float = param(
+        1e-4, description="Stop when no centroid moves farther than this", unit="m", ge=0.0, le=1.0
+    )
+    n_init: int = param(
+        10, description="Most k-means++ restarts; the lowest eq. 24 objective is kept", ge=1, le=100
+    )
     seed: int = param(0, description="Seed of numpy.random.default_rng for the k-means++ draws", ge=0)
 
 

@@ -27,8 +27,12 @@ class CentroidJoinParams(KernelParams):
     """Parameters of :class:`CentroidJoin`."""
 
     max_gap_m: float = param(
-        3.0, description="Consecutive points farther apart than this are not joined", unit="m", gt=0.0,
-        le=1000.0, paper="§3.4",
+        3.0,
+        description="Consecutive points farther apart than this are not joined",
+        unit="m",
+        gt=0.0,
+        le=1000.0,
+        paper="§3.4",
     )
 
 

@@ -50,22 +50,38 @@ class HoughParams(KernelParams):
     """Parameters of :class:`Hough`; the defaults suit cluster centroids (a line needs two of them)."""
 
     theta_resolution_deg: float = param(
-        1.0, description="Accumulator theta cell size over [0, 180) deg", unit="deg", ge=0.05, le=10.0,
+        1.0,
+        description="Accumulator theta cell size over [0, 180) deg",
+        unit="deg",
+        ge=0.05,
+        le=10.0,
         paper="§3.4.2 Algorithm 1",
     )
     rho_resolution_m: float = param(
-        0.02, description="Accumulator rho cell size; also the inlier distance of a found line", unit="m",
-        ge=0.001, le=1.0, paper="§3.4.2 Algorithm 1",
+        0.02,
+        description="Accumulator rho cell size; also the inlier distance of a found line",
+        unit="m",
+        ge=0.001,
+        le=1.0,
+        paper="§3.4.2 Algorithm 1",
     )
     min_points: int = param(
-        2, description="Look for another line in a group while at least this many points remain",
-        ge=2, le=100_000,
+        2,
+        description="Look for another line in a group while at least this many points remain",
+        ge=2,
+        le=100_000,
     )
     min_votes: int = param(
-        2, description="A peak needs at least this many votes to become a line", ge=1, le=100_000,
+        2,
+        description="A peak needs at least this many votes to become a line",
+        ge=1,
+        le=100_000,
     )
     max_lines_per_group: int = param(
-        10, description="At most this many lines per group", ge=1, le=1000,
+        10,
+        description="At most this many lines per group",
+        ge=1,
+        le=1000,
     )
 
 
@@ -146,7 +162,13 @@ class Hough(StraightLineKernel[HoughParams]):
         grouped = group_points(points, groups)
         cos_t, sin_t = theta_grid(p.theta_resolution_deg)
         rho, theta, line_group, line_of = _hough_lines(
-            grouped.points, grouped.starts, cos_t, sin_t, p.rho_resolution_m, p.min_points, p.min_votes,
+            grouped.points,
+            grouped.starts,
+            cos_t,
+            sin_t,
+            p.rho_resolution_m,
+            p.min_points,
+            p.min_votes,
             p.max_lines_per_group,
         )
         point_idx = np.flatnonzero(line_of >= 0)

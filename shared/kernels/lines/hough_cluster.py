@@ -53,26 +53,46 @@ class HoughClusterParams(KernelParams):
     """Parameters of :class:`HoughCluster`; the defaults suit raw URG-04LX points in segments."""
 
     theta_resolution_deg: float = param(
-        1.0, description="Accumulator theta cell size over [0, 180) deg", unit="deg", ge=0.05, le=10.0,
+        1.0,
+        description="Accumulator theta cell size over [0, 180) deg",
+        unit="deg",
+        ge=0.05,
+        le=10.0,
         paper="§4 Algorithm 2",
     )
     rho_resolution_m: float = param(
-        0.02, description="Accumulator rho cell size", unit="m", ge=0.001, le=1.0, paper="§4 Algorithm 2",
+        0.02,
+        description="Accumulator rho cell size",
+        unit="m",
+        ge=0.001,
+        le=1.0,
+        paper="§4 Algorithm 2",
     )
     delta: int = param(
-        1, description="Cells with at least (highest vote - delta) votes are clustered", ge=0, le=2,
+        1,
+        description="Cells with at least (highest vote - delta) votes are clustered",
+        ge=0,
+        le=2,
         paper="§4 eq. 35",
     )
     min_votes: int = param(
-        2, description="Clustered cells need at least this many votes (a 1-vote cell fits any line through "
-        "one point)", ge=1, le=100_000,
+        2,
+        description="Clustered cells need at least this many votes (a 1-vote cell fits any line through "
+        "one point)",
+        ge=1,
+        le=100_000,
     )
     min_points: int = param(
-        2, description="Groups with fewer points give no line", ge=2, le=100_000,
+        2,
+        description="Groups with fewer points give no line",
+        ge=2,
+        le=100_000,
     )
     span_factor: float = param(
-        3.0, description="Points within span_factor x rho_resolution_m of the line define its segment",
-        ge=0.5, le=100.0,
+        3.0,
+        description="Points within span_factor x rho_resolution_m of the line define its segment",
+        ge=0.5,
+        le=100.0,
     )
 
 
@@ -149,7 +169,13 @@ class HoughCluster(StraightLineKernel[HoughClusterParams]):
         grouped = group_points(points, groups)
         cos_t, sin_t = theta_grid(p.theta_resolution_deg)
         rho, theta, found = _cluster_lines(
-            grouped.points, grouped.starts, cos_t, sin_t, p.rho_resolution_m, p.delta, p.min_votes,
+            grouped.points,
+            grouped.starts,
+            cos_t,
+            sin_t,
+            p.rho_resolution_m,
+            p.delta,
+            p.min_votes,
             p.min_points,
         )
         line_of_group = np.cumsum(found) - 1
@@ -157,6 +183,11 @@ class HoughCluster(StraightLineKernel[HoughClusterParams]):
         line_idx = line_of_group[grouped.group_index[point_idx]]
         line_group = np.flatnonzero(found)
         return build_lines(
-            grouped, point_idx, line_idx, rho[found], theta[found], line_group,
+            grouped,
+            point_idx,
+            line_idx,
+            rho[found],
+            theta[found],
+            line_group,
             tolerance_m=p.span_factor * p.rho_resolution_m,
         )

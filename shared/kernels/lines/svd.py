@@ -33,7 +33,11 @@ class SvdParams(KernelParams):
     """Parameters of :class:`Svd`."""
 
     min_points: int = param(
-        2, description="Groups with fewer points give no line", ge=2, le=100_000, paper="§3.4.1",
+        2,
+        description="Groups with fewer points give no line",
+        ge=2,
+        le=100_000,
+        paper="§3.4.1",
     )
 
 

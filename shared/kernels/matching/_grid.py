@@ -142,8 +142,9 @@ def _grid_nearest(
 
 
 @njit
-def _nearest_all(ref: FloatArray, queries: FloatArray, max_d: float, cell_m: float,
-                 max_cells: int) -> tuple[IntArray, FloatArray]:
+def _nearest_all(
+    ref: FloatArray, queries: FloatArray, max_d: float, cell_m: float, max_cells: int
+) -> tuple[IntArray, FloatArray]:
     sorted_xy, order, start, x0, y0, h, nx, ny = _grid_build(ref, cell_m, max_cells)
     n = queries.shape[0]
     idx = np.empty(n, dtype=np.intp)
@@ -173,8 +174,13 @@ def nearest_within(
     if keep.size == 0 or not ok.any():
         return idx, dist
     cell = max_distance_m / 4.0 if cell_m is None else cell_m
-    j, d = _nearest_all(np.ascontiguousarray(ref[keep]), np.ascontiguousarray(q[ok]), float(max_distance_m),
-                        float(cell), _MAX_CELLS_PER_AXIS)
+    j, d = _nearest_all(
+        np.ascontiguousarray(ref[keep]),
+        np.ascontiguousarray(q[ok]),
+        float(max_distance_m),
+        float(cell),
+        _MAX_CELLS_PER_AXIS,
+    )
     idx[ok] = np.where(j >= 0, keep[np.maximum(j, 0)], -1)
     dist[ok] = d
     return idx, dist

@@ -112,8 +112,9 @@ def _align(current: FloatArray, reference: FloatArray, nearest: IntArray) -> tup
 
 
 @njit
-def _sse(current: FloatArray, reference: FloatArray, nearest: IntArray, c: float, s: float, tx: float,
-         ty: float) -> float:
+def _sse(
+    current: FloatArray, reference: FloatArray, nearest: IntArray, c: float, s: float, tx: float, ty: float
+) -> float:
     """Sum of squared distances of the pairs ``nearest[i] >= 0`` under the transform ``(c, s, tx, ty)``."""
     total = 0.0
     for i in range(current.shape[0]):
@@ -157,8 +158,9 @@ def _icp(
         for i in range(n):
             px = current[i, 0]
             py = current[i, 1]
-            j, _ = _grid_nearest(sorted_xy, order, start, x0, y0, h, nx, ny, c * px - s * py + x,
-                                 s * px + c * py + y, max_d)
+            j, _ = _grid_nearest(
+                sorted_xy, order, start, x0, y0, h, nx, ny, c * px - s * py + x, s * px + c * py + y, max_d
+            )
             nearest[i] = j
         new_theta, new_x, new_y, pairs = _align(current, reference, nearest)
         if pairs < 3:

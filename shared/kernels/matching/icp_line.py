@@ -182,8 +182,9 @@ def _plicp(
     current points of the last iteration, ``pairs`` had a partner (``< 3`` means failure) and ``used`` took
     part in its step; ``sse`` is their sum of squared residuals under the returned pose."""
     normals, offsets, valid = _local_lines(reference, radius_m, _MAX_SIDE, lambda_rad, sigma_m, max_ratio)
-    sorted_xy, order, start, x0, y0, h, nx, ny = _grid_build(reference, max_d * _CELL_PER_RADIUS,
-                                                               _MAX_CELLS_PER_AXIS)
+    sorted_xy, order, start, x0, y0, h, nx, ny = _grid_build(
+        reference, max_d * _CELL_PER_RADIUS, _MAX_CELLS_PER_AXIS
+    )
     n = current.shape[0]
     pair = np.empty(n, dtype=np.intp)
     res = np.empty(n, dtype=np.float64)

@@ -41,12 +41,20 @@ class DbscanParams(KernelParams):
     """Parameters of :class:`Dbscan` (paper §3.2.1, Listing 1: ``epsilon`` 5 cm)."""
 
     epsilon_m: float = param(
-        0.05, description="Neighbourhood radius epsilon (distance <= epsilon counts)", unit="m",
-        ge=1e-4, le=10.0, paper="§3.2.1, Listing 1",
+        0.05,
+        description="Neighbourhood radius epsilon (distance <= epsilon counts)",
+        unit="m",
+        ge=1e-4,
+        le=10.0,
+        paper="§3.2.1, Listing 1",
     )
     min_points: int = param(
-        3, description="MinPts: neighbours within epsilon, the point itself included, that make a core point "
-        "(scikit-learn's min_samples)", ge=1, le=1000, paper="§3.2.1",
+        3,
+        description="MinPts: neighbours within epsilon, the point itself included, that make a core point "
+        "(scikit-learn's min_samples)",
+        ge=1,
+        le=1000,
+        paper="§3.2.1",
     )
 
 

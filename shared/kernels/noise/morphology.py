@@ -57,15 +57,25 @@ class MorphologyParams(KernelParams):
     """
 
     element: str = param(
-        "PLUSx4", description="Structuring element of Table 2: DENSEx3, PLUSx4, PLUSx8 or STARx8 "
-        "(case-insensitive); ignored when psi is given", paper="§3.2.2, Table 2, Fig. 10",
+        "PLUSx4",
+        description="Structuring element of Table 2: DENSEx3, PLUSx4, PLUSx8 or STARx8 "
+        "(case-insensitive); ignored when psi is given",
+        paper="§3.2.2, Table 2, Fig. 10",
+        choices=list(ELEMENTS),
     )
     psi: tuple[PsiLength, PsiLength, PsiLength] | None = param(
-        None, description="Explicit element vector (psi_H, psi_V, psi_C) of arm lengths in cells, 0..5; "
-        "overrides element", paper="§3.2.2, eq. 17",
+        None,
+        description="Explicit element vector (psi_H, psi_V, psi_C) of arm lengths in cells, 0..5; "
+        "overrides element",
+        paper="§3.2.2, eq. 17",
     )
     cell_size_m: float = param(
-        0.02, description="Side of a square occupancy-grid cell", unit="m", ge=0.001, le=1.0, paper="§3.2.2",
+        0.02,
+        description="Side of a square occupancy-grid cell",
+        unit="m",
+        ge=0.001,
+        le=1.0,
+        paper="§3.2.2",
     )
 
     @field_validator("element", mode="before")
@@ -136,9 +146,9 @@ def _dilation_cells(
     return all_x[m:].copy(), all_y[m:].copy()
 
 
-def _prepare(points: ArrayLike, cell_size_m: float) -> tuple[
-    FloatArray, BoolArray, FloatArray, Int64Array, Int64Array, Int64Array, Int64Array
-]:
+def _prepare(
+    points: ArrayLike, cell_size_m: float
+) -> tuple[FloatArray, BoolArray, FloatArray, Int64Array, Int64Array, Int64Array, Int64Array]:
     """``(points, finite mask, finite points, cell per finite point, ucx, ucy, table)``. O(N) expected."""
     pts = as_points(points)
     finite = np.asarray(np.isfinite(pts).all(axis=1), dtype=np.bool_)
@@ -148,8 +158,9 @@ def _prepare(points: ArrayLike, cell_size_m: float) -> tuple[
     return pts, finite, fp, cell, ucx, ucy, table
 
 
-def _result(pts: FloatArray, finite: BoolArray, fp: FloatArray, keep_f: BoolArray,
-            added: FloatArray | None = None) -> NoiseResult:
+def _result(
+    pts: FloatArray, finite: BoolArray, fp: FloatArray, keep_f: BoolArray, added: FloatArray | None = None
+) -> NoiseResult:
     """Result keeping the finite points ``fp[keep_f]`` (in input order), then the ``added`` points."""
     keep = np.zeros(pts.shape[0], dtype=np.bool_)
     keep[finite] = keep_f

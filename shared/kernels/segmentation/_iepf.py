@@ -82,7 +82,12 @@ def _straight(
 
 @njit
 def _merge(
-    x: FloatArray, y: FloatArray, r: FloatArray, members: IntArray, pieces: IntArray, n_pieces: int,
+    x: FloatArray,
+    y: FloatArray,
+    r: FloatArray,
+    members: IntArray,
+    pieces: IntArray,
+    n_pieces: int,
     thr: FloatArray,
 ) -> int:
     """Join neighbouring pieces left to right while their union is straight; returns the new count."""
@@ -121,8 +126,15 @@ def _sse(sums: FloatArray, a: int, b: int) -> float:
 
 @njit
 def _refine(
-    x: FloatArray, y: FloatArray, r: FloatArray, members: IntArray, count: int, pieces: IntArray,
-    n_pieces: int, thr: FloatArray, sums: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    r: FloatArray,
+    members: IntArray,
+    count: int,
+    pieces: IntArray,
+    n_pieces: int,
+    thr: FloatArray,
+    sums: FloatArray,
 ) -> None:
     """Move each boundary between two pieces that stay apart to the best two-line split of their union."""
     x0 = x[members[0]]
@@ -196,4 +208,3 @@ def split_merge(
         _refine(x, y, r, members, count, pieces, n_pieces, thr, sums)
         n_pieces = _merge(x, y, r, members, pieces, n_pieces, thr)
     return n_pieces
-

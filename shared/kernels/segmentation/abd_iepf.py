@@ -117,8 +117,9 @@ class AbdIepfParams(KernelParams):
 
 
 @njit
-def _joins(x: FloatArray, y: FloatArray, r: FloatArray, phi: FloatArray, a: int, b: int, lam: float,
-           sigma_r: float) -> bool:
+def _joins(
+    x: FloatArray, y: FloatArray, r: FloatArray, phi: FloatArray, a: int, b: int, lam: float, sigma_r: float
+) -> bool:
     """ABD test (eq. 14-15): does point ``b`` continue the piece ending at point ``a``?"""
     dphi = abs(phi[b] - phi[a])
     if lam <= dphi:
@@ -193,8 +194,9 @@ def _abd_iepf(
             count += 1
             j = join + 1
         else:  # breakpoint: finish the chunk, start a new one at j
-            next_label = _label_chunk(x, y, r, members, count, thr, min_points, labels, next_label, pieces,
-                                      stack, sums)
+            next_label = _label_chunk(
+                x, y, r, members, count, thr, min_points, labels, next_label, pieces, stack, sums
+            )
             members[0] = j
             count = 1
             j += 1
@@ -219,8 +221,9 @@ class AbdIepf(SegmentationKernel[AbdIepfParams]):
         x = np.ascontiguousarray(points[:, 0])
         y = np.ascontiguousarray(points[:, 1])
         thr = np.array([3.0 * p.sigma_r0_m, p.epsilon_a, p.r0_m, p.split_max_m])
-        labels = _abd_iepf(x, y, ranges, phi, math.radians(p.lambda_deg), p.sigma_r_m, p.max_skip, thr,
-                           p.min_points)
+        labels = _abd_iepf(
+            x, y, ranges, phi, math.radians(p.lambda_deg), p.sigma_r_m, p.max_skip, thr, p.min_points
+        )
         beam_index = np.asarray(beam_index, dtype=np.intp)
         freeze(points, beam_index, labels)
         return Segments(points=points, beam_index=beam_index, labels=labels)

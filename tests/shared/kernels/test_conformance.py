@@ -282,6 +282,8 @@ def _violations(prop: dict[str, Any]) -> list[Any]:
         out.append(prop["exclusiveMaximum"])
     if kind in ("number", "integer"):
         out.append("not-a-number")
+    if "enum" in prop:
+        out.append("not-one-of-the-choices")
     return out
 
 
