@@ -12,6 +12,8 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from server.cli import server_app
+from shared.cli.keys import keys_app
 from shared.errors import LinemapError
 
 __all__ = ["app"]
@@ -25,6 +27,8 @@ app = typer.Typer(
 )
 bench_app = typer.Typer(help="Benchmarks (figures, not tests).", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
+app.add_typer(keys_app, name="keys")
+app.add_typer(server_app, name="server")
 
 # Wide enough for the benchmark table when the output goes to a file or a pipe (rich assumes 80 columns).
 console = Console(width=None if sys.stdout.isatty() else 160)
@@ -265,6 +269,9 @@ def main() -> None:
     with ``--verbose`` to log it in full)."""
     try:
         app()
+    except LinemapError as exc:  # expected errors of commands that let them through
+        err_console.print(f"[red]error:[/red] {exc}")
+        raise SystemExit(2) from None
     except Exception as exc:  # the last line of defence; expected errors are handled per command
         logging.getLogger(__name__).debug("unexpected failure", exc_info=True)
         err_console.print(

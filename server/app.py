@@ -1,0 +1,178 @@
+"""The FastAPI application: routers under ``/api/v1``, error translation, the request-size limit.
+
+``create_app(settings)`` migrates the database to the newest schema (Alembic) unless told not to, and
+returns the app; ``linemap server`` serves it with uvicorn.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from server.database import Database
+from server.deps import AppState
+from server.errors import ServerError
+from server.migrate import upgrade
+from server.routers import auth, kernels, maps, messages, meta, robots
+from server.settings import Settings
+
+__all__ = ["API_PREFIX", "create_app"]
+
+log = logging.getLogger(__name__)
+API_PREFIX = "/api/v1"
+
+
+def create_app(settings: Settings | None = None, *, migrate: bool = True) -> FastAPI:
+    """The server application on ``settings.database_url`` (migrated to head first when ``migrate``)."""
+    settings = settings or Settings()
+    db = Database(settings.database_url)
+    if migrate:
+        upgrade(db.engine)
+    state = AppState(settings=settings, db=db)
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        yield
+        db.dispose()
+
+    app = FastAPI(
+        title="linemap server",
+        summary="Kernels, robots, control messages and live line maps (SPEC §7).",
+        version="1",
+        lifespan=lifespan,
+    )
+    app.state.linemap = state
+    app.add_exception_handler(ServerError, _server_error)
+    app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(HTTPException, _http_error)
+    app.add_exception_handler(Exception, _unexpected_error)
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    app.include_router(meta.router)
+    for module in (meta, auth, robots, messages, kernels, maps):
+        router = module.api_router if module is meta else module.router
+        app.include_router(router, prefix=API_PREFIX)
+    app.include_router(kernels.keys_router, prefix=API_PREFIX)
+    return app
+
+
+async def _server_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ServerError)
+    body: dict[str, Any] = {"error": exc.code, "detail": exc.detail, **exc.extra}
+    headers = {"WWW-Authenticate": "Bearer"} if exc.status == 401 else None
+    return JSONResponse(body, status_code=exc.status, headers=headers)
+
+
+_CODES = {
+    400: "bad_request",
+    401: "unauthenticated",
+    403: "forbidden",
+    404: "not_found",
+    405: "method_not_allowed",
+    413: "too_large",
+    415: "unsupported_media_type",
+}
+
+
+async def _http_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, HTTPException)
+    if isinstance(exc, _TooLarge):
+        limit = _request.app.state.linemap.settings.max_body_bytes
+        detail = f"request body of {exc.size}+ bytes; the limit is {limit}"
+    else:
+        detail = str(exc.detail)
+    return JSONResponse(
+        {"error": _CODES.get(exc.status_code, "http_error"), "detail": detail},
+        status_code=exc.status_code,
+        headers=exc.headers,
+    )
+
+
+async def _validation_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    problems = []
+    for err in exc.errors():
+        where = ".".join(str(p) for p in err.get("loc", ()) if p != "body")
+        problems.append(f"{where}: {err.get('msg', 'invalid')}")
+    return JSONResponse(
+        {"error": "invalid", "detail": "; ".join(problems), "errors": _jsonable(exc.errors())},
+        status_code=422,
+    )
+
+
+def _jsonable(errors: Any) -> list[dict[str, Any]]:
+    return [
+        {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))}
+        for e in errors
+    ]
+
+
+async def _unexpected_error(request: Request, exc: Exception) -> JSONResponse:
+    log.exception("unexpected error on %s %s", request.method, request.url.path)
+    return JSONResponse(
+        {"error": "internal", "detail": f"internal server error ({type(exc).__name__}); see the server log"},
+        status_code=500,
+    )
+
+
+class BodyLimit:
+    """Refuse request bodies above ``max_bytes`` with 413, by Content-Length or while streaming."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        declared = dict(scope["headers"]).get(b"content-length")
+        if declared is not None and declared.isdigit() and int(declared) > self.max_bytes:
+            await self._refuse(send, int(declared))
+            return
+        seen = 0
+        started = False
+
+        async def limited_receive() -> Message:
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > self.max_bytes:
+                    raise _TooLarge(seen)
+            return message
+
+        async def tracking_send(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, limited_receive, tracking_send)
+        except _TooLarge as exc:
+            if not started:
+                await self._refuse(send, exc.size)
+
+    async def _refuse(self, send: Send, size: int) -> None:
+        body = JSONResponse(
+            {"error": "too_large", "detail": f"request body of {size}+ bytes; the limit is {self.max_bytes}"},
+            status_code=413,
+        )
+        await send({"type": "http.response.start", "status": 413, "headers": body.raw_headers})
+        await send({"type": "http.response.body", "body": body.body})
+
+
+class _TooLarge(HTTPException):
+    """Raised from ``receive`` mid-body; an HTTPException so FastAPI's body parsing passes it through."""
+
+    def __init__(self, size: int) -> None:
+        super().__init__(413, f"request body of {size}+ bytes is over the limit")
+        self.size = size

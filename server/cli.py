@@ -1,0 +1,73 @@
+"""``linemap server``: migrate the database, make the first operator token, serve the API with uvicorn."""
+
+from __future__ import annotations
+
+import logging
+from typing import Annotated
+
+import typer
+
+from server.settings import DEFAULT_DATABASE_URL
+
+__all__ = ["server_app"]
+
+log = logging.getLogger(__name__)
+
+server_app = typer.Typer(
+    help="The linemap server: REST API for robots, control messages, kernels and live maps.",
+    invoke_without_command=True,
+)
+token_app = typer.Typer(help="Operator tokens.", no_args_is_help=True)
+server_app.add_typer(token_app, name="token")
+
+DbOption = Annotated[
+    str,
+    typer.Option(
+        "--db",
+        envvar="LINEMAP_DATABASE_URL",
+        help="SQLAlchemy URL or SQLite file path (PostgreSQL: postgresql://user@host/db).",
+    ),
+]
+
+
+@server_app.callback()
+def serve(
+    ctx: typer.Context,
+    db: DbOption = DEFAULT_DATABASE_URL,
+    host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="TCP port.")] = 8000,
+) -> None:
+    """Serve the API (migrating the database first). Prints the first operator token once, on first start."""
+    if ctx.invoked_subcommand is not None:
+        ctx.obj = db
+        return
+    import uvicorn
+
+    from server.app import create_app
+    from server.bootstrap import ensure_admin_token
+    from server.settings import Settings
+
+    settings = Settings(database_url=db)
+    app = create_app(settings)
+    token = ensure_admin_token(app.state.linemap.db)
+    base = f"http://{host}:{port}"
+    typer.echo(f"linemap server on {base}  (API docs: {base}/docs, database: {app.state.linemap.db.url})")
+    if token is not None:
+        typer.echo(f"First start: operator token 'admin' (shown once, keep it): {token}")
+    uvicorn.run(app, host=host, port=port, log_level="warning", timeout_graceful_shutdown=5)
+
+
+@token_app.command("create")
+def token_create(
+    ctx: typer.Context,
+    name: Annotated[str, typer.Option(help="Who the token is for.")] = "operator",
+) -> None:
+    """Create an operator token and print it (shown once)."""
+    from server.bootstrap import create_token
+    from server.database import Database
+    from server.migrate import upgrade
+
+    db = Database(ctx.obj or DEFAULT_DATABASE_URL)
+    upgrade(db.engine)
+    typer.echo(create_token(db, name))
+    db.dispose()

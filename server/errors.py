@@ -1,0 +1,87 @@
+"""The server's error hierarchy: every error raised on purpose derives from :class:`ServerError`.
+
+Each carries the HTTP status and a short machine-readable ``code``; :mod:`server.app` turns them into JSON
+``{"error": code, "detail": message, ...extra}`` responses, so a client never sees a traceback.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from shared.errors import LinemapError
+
+__all__ = [
+    "AuthError",
+    "ConflictError",
+    "ForbiddenError",
+    "GoneError",
+    "InvalidRequestError",
+    "NotFoundError",
+    "ServerError",
+    "TooLargeError",
+    "UnavailableError",
+]
+
+
+class ServerError(LinemapError):
+    """Root of the server's errors: ``status`` is the HTTP status, ``extra`` goes into the JSON body."""
+
+    status = 500
+    code = "server_error"
+
+    def __init__(self, detail: str, **extra: Any) -> None:
+        super().__init__(detail)
+        self.detail = detail
+        self.extra = extra
+
+
+class InvalidRequestError(ServerError):
+    """The request is well-formed HTTP but its content is wrong (bad XML, bad signature, bad field)."""
+
+    status = 422
+    code = "invalid"
+
+
+class AuthError(ServerError):
+    """No credential, or one the server does not know (401)."""
+
+    status = 401
+    code = "unauthenticated"
+
+
+class ForbiddenError(ServerError):
+    """A valid credential that does not reach this resource (403)."""
+
+    status = 403
+    code = "forbidden"
+
+
+class NotFoundError(ServerError):
+    status = 404
+    code = "not_found"
+
+
+class ConflictError(ServerError):
+    """The request contradicts stored state (immutable kernel version, stale map base version)."""
+
+    status = 409
+    code = "conflict"
+
+
+class GoneError(ServerError):
+    """The resource existed and was deleted (a deleted kernel version)."""
+
+    status = 410
+    code = "gone"
+
+
+class TooLargeError(ServerError):
+    status = 413
+    code = "too_large"
+
+
+class UnavailableError(ServerError):
+    """A dependency of the server (its database) does not answer (503)."""
+
+    status = 503
+    code = "unavailable"

@@ -1,0 +1,114 @@
+"""Operator credentials: browser sessions (cookie), operator tokens, who-am-I, and the audit log."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request, Response, status
+from sqlalchemy import select
+from sqlalchemy.orm import Session as DbSession
+
+from server.audit import record
+from server.deps import SESSION_COOKIE, OperatorDep, PrincipalDep, StateDep
+from server.errors import AuthError, NotFoundError
+from server.models import AuditEntry, OperatorToken, Session, utcnow
+from server.schemas import AuditOut, LoginIn, TokenCreate, TokenCreated, WhoAmI
+from server.security import OPERATOR_PREFIX, SESSION_PREFIX, hash_token, new_token
+
+__all__ = ["create_operator_token", "router"]
+
+router = APIRouter(tags=["auth"])
+
+
+def create_operator_token(db_session: DbSession, name: str) -> tuple[int, str]:
+    """Add an operator token in the caller's transaction; returns (id, token)."""
+    token = new_token(OPERATOR_PREFIX)
+    row = OperatorToken(name=name, token_hash=hash_token(token))
+    db_session.add(row)
+    db_session.flush()
+    return row.id, token
+
+
+@router.post("/session", response_model=WhoAmI)
+def login(body: LoginIn, response: Response, state: StateDep) -> WhoAmI:
+    """Exchange an operator token for a session cookie (HttpOnly, SameSite=Strict) for the dashboard."""
+    who = state.lookup(body.token) if body.token.startswith(OPERATOR_PREFIX) else None
+    if who is None or who.kind != "operator":
+        raise AuthError("not a valid operator token")
+    sid = new_token(SESSION_PREFIX)
+    with state.db.session() as s:
+        s.add(
+            Session(
+                token_hash=hash_token(sid), operator_id=who.id, expires_at=utcnow() + state.session_expiry()
+            )
+        )
+        record(s, who, "session.login", f"operator:{who.id}")
+    response.set_cookie(
+        SESSION_COOKIE,
+        sid,
+        max_age=int(state.settings.session_ttl_s),
+        httponly=True,
+        samesite="strict",
+        secure=state.settings.secure_cookies,
+        path="/",
+    )
+    return WhoAmI(kind=who.kind, id=who.id, name=who.name)
+
+
+@router.delete("/session", status_code=status.HTTP_204_NO_CONTENT)
+def logout(request: Request, response: Response, state: StateDep) -> None:
+    sid = request.cookies.get(SESSION_COOKIE)
+    if sid:
+        with state.db.session() as s:
+            row = s.scalars(select(Session).where(Session.token_hash == hash_token(sid))).first()
+            if row is not None:
+                s.delete(row)
+        state.forget_credentials()
+    response.delete_cookie(SESSION_COOKIE, path="/")
+
+
+@router.get("/whoami", response_model=WhoAmI)
+def whoami(who: PrincipalDep) -> WhoAmI:
+    return WhoAmI(kind=who.kind, id=who.id, name=who.name)
+
+
+@router.post("/tokens", status_code=status.HTTP_201_CREATED, response_model=TokenCreated)
+def create_token(body: TokenCreate, who: OperatorDep, state: StateDep) -> TokenCreated:
+    """A new operator token, shown once."""
+    with state.db.session() as s:
+        tid, token = create_operator_token(s, body.name)
+        record(s, who, "token.create", f"operator:{tid}", name=body.name)
+    return TokenCreated(id=tid, name=body.name, token=token)
+
+
+@router.delete("/tokens/{token_id}", status_code=status.HTTP_204_NO_CONTENT)
+def revoke_token(token_id: int, who: OperatorDep, state: StateDep) -> None:
+    """Revoke an operator token (and the sessions opened with it)."""
+    with state.db.session() as s:
+        row = s.get(OperatorToken, token_id)
+        if row is None:
+            raise NotFoundError(f"no operator token {token_id}")
+        if row.revoked_at is None:
+            row.revoked_at = utcnow()
+            record(s, who, "token.revoke", f"operator:{token_id}", name=row.name)
+    state.forget_credentials()
+
+
+@router.get("/audit", response_model=list[AuditOut])
+def audit_log(
+    who: OperatorDep,
+    state: StateDep,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    before: Annotated[
+        int | None, Query(ge=1, description="Only entries with id below this (paging).")
+    ] = None,
+) -> list[AuditOut]:
+    """Operator actions, newest first."""
+    q = select(AuditEntry).order_by(AuditEntry.id.desc()).limit(limit)
+    if before is not None:
+        q = q.where(AuditEntry.id < before)
+    with state.db.read() as s:
+        return [
+            AuditOut(id=e.id, at=e.at, actor=e.actor, action=e.action, target=e.target, detail=e.detail)
+            for e in s.scalars(q)
+        ]

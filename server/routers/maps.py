@@ -1,0 +1,135 @@
+"""``/robots/{id}/maps``: the robot uploads temporary maps; operators read the latest or stream them (SSE).
+
+Stream events (``text/event-stream``): ``snapshot`` (the whole map, :class:`server.schemas.MapOut`) first
+and whenever the subscriber must resynchronise, then one ``delta`` per upload, carrying ``version``,
+``base_version``, changed ``segments``, ``removed`` ids, ``centroids``, ``pose`` and new ``trajectory``
+rows. Each event's ``id`` is the map version. A comment line every 15 s keeps proxies from closing it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Header, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import StreamingResponse
+
+from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access
+from server.hub import OVERFLOW
+from server.mapstore import apply_upload, map_version, read_map
+from server.schemas import MapOut, MapUpload, MapUploadOut
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/robots/{robot_id}/maps", tags=["maps"])
+RobotAccess = Annotated[Principal, Depends(robot_access)]
+KEEPALIVE_S = 15.0
+
+
+def _apply(
+    state: AppState, robot_id: int, up: MapUpload, key: str
+) -> tuple[MapUploadOut, dict[str, Any] | None]:
+    with state.db.session() as s:
+        applied = apply_upload(s, robot_id, up, key)
+    return applied.out, applied.event
+
+
+@router.post("", response_model=MapUploadOut)
+async def upload_map(
+    robot_id: int,
+    body: MapUpload,
+    who: RobotSelf,
+    state: StateDep,
+    idempotency_key: Annotated[
+        str | None,
+        Header(
+            max_length=100, description="Makes a retried upload a no-op; defaults to 'version-<version>'."
+        ),
+    ] = None,
+) -> MapUploadOut:
+    """Upload a snapshot (``base_version`` null) or a delta; 409 with ``current_version`` if the delta's base
+    is not the server's version (send a snapshot then)."""
+    key = idempotency_key or f"version-{body.version}"
+    out, event = await run_in_threadpool(_apply, state, robot_id, body, key)
+    if event is not None:
+        state.hub.publish(f"maps:{robot_id}", event)
+    return out
+
+
+def _read(state: AppState, robot_id: int, tail: int | None) -> MapOut:
+    with state.db.read() as s:
+        return read_map(s, robot_id, tail)
+
+
+def _version(state: AppState, robot_id: int) -> int:
+    with state.db.read() as s:
+        return map_version(s, robot_id)
+
+
+@router.get("/latest", response_model=MapOut)
+async def latest_map(
+    robot_id: int,
+    who: RobotAccess,
+    state: StateDep,
+    trajectory: Annotated[int | None, Query(ge=0, description="Only the last N trajectory poses.")] = None,
+) -> MapOut:
+    """The whole current map (version 0 and empty before the first upload)."""
+    return await run_in_threadpool(_read, state, robot_id, trajectory)
+
+
+def _sse(event: str, data: Any, version: int) -> bytes:
+    return f"event: {event}\nid: {version}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
+
+
+@router.get(
+    "/stream", response_class=StreamingResponse, responses={200: {"content": {"text/event-stream": {}}}}
+)
+async def stream_map(
+    robot_id: int,
+    request: Request,
+    who: RobotAccess,
+    state: StateDep,
+    trajectory: Annotated[
+        int | None, Query(ge=0, description="Trajectory poses in snapshots (last N).")
+    ] = None,
+) -> StreamingResponse:
+    """Server-sent events: a ``snapshot``, then a ``delta`` per upload (see the module docstring)."""
+    await run_in_threadpool(_version, state, robot_id)  # 404 before the stream starts
+
+    async def events() -> AsyncIterator[bytes]:
+        loop = asyncio.get_running_loop()
+        recheck = state.settings.poll_recheck_s
+        with state.hub.subscribe(f"maps:{robot_id}") as queue:
+            snap = await run_in_threadpool(_read, state, robot_id, trajectory)
+            yield _sse("snapshot", snap.model_dump(), snap.version)
+            last, quiet_since = snap.version, loop.time()
+            while True:
+                try:
+                    item = await asyncio.wait_for(queue.get(), timeout=recheck)
+                except TimeoutError:
+                    if await request.is_disconnected():
+                        return
+                    if await run_in_threadpool(_version, state, robot_id) != last:  # another process wrote
+                        item = OVERFLOW
+                    elif loop.time() - quiet_since >= KEEPALIVE_S:
+                        quiet_since = loop.time()
+                        yield b": keepalive\n\n"
+                        continue
+                    else:
+                        continue
+                if item is not OVERFLOW and item["version"] <= last:
+                    continue
+                if item is OVERFLOW or (item["kind"] == "delta" and item["base_version"] != last):
+                    snap = await run_in_threadpool(_read, state, robot_id, trajectory)
+                    yield _sse("snapshot", snap.model_dump(), snap.version)
+                    last = snap.version
+                else:
+                    yield _sse(item["kind"], item, item["version"])
+                    last = item["version"]
+                quiet_since = loop.time()
+
+    headers = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
+    return StreamingResponse(events(), media_type="text/event-stream", headers=headers)

@@ -1,0 +1,202 @@
+"""``/robots/{id}/messages``: operators queue XML control messages; the robot long-polls and acknowledges.
+
+A message is validated with the shared parser before it is queued (422 with the parser's reason and the
+element otherwise); kernel operations must name a kernel version the server holds, with its sha256. Each
+robot's messages are numbered 1, 2, ... in the order they were queued; the robot asks for those after the
+last one it applied, so a message is delivered in order and, with the robot's own record of applied
+numbers, applied once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Query, Request, status
+from fastapi.concurrency import run_in_threadpool
+from sqlalchemy import select, update
+from sqlalchemy.orm import Session
+
+from server.audit import record
+from server.deps import AppState, OperatorDep, Principal, RobotSelf, StateDep, robot_access
+from server.errors import ConflictError, InvalidRequestError, NotFoundError, TooLargeError
+from server.models import KernelArtifact, Message, Robot, utcnow
+from server.routers.robots import get_robot
+from server.schemas import AckIn, MessageList, MessageOut
+from shared.control import (
+    MAX_MESSAGE_BYTES,
+    ControlMessage,
+    ControlMessageError,
+    OperationKind,
+    parse_message,
+)
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/robots/{robot_id}/messages", tags=["messages"])
+
+XML_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {"application/xml": {"schema": {"type": "string"}, "example": "<control>...</control>"}},
+    }
+}
+
+
+def _out(m: Message) -> dict[str, object]:
+    return {
+        "seq": m.seq,
+        "xml": m.xml,
+        "created_at": m.created_at,
+        "created_by": m.created_by,
+        "status": m.status,
+        "reason": m.reason,
+        "acked_at": m.acked_at,
+    }
+
+
+def _check_operations(s: Session, msg: ControlMessage) -> None:
+    for op in msg.operations:
+        if op.kind not in (OperationKind.INSTALL, OperationKind.UPDATE):
+            continue
+        art = s.scalars(
+            select(KernelArtifact).where(KernelArtifact.name == op.name, KernelArtifact.version == op.version)
+        ).first()
+        where = f"line {op.line} " if op.line else ""
+        if art is None or art.deleted_at is not None:
+            state = "was deleted" if art is not None else "is not on the server"
+            raise InvalidRequestError(
+                f"{where}<{op.kind.value}>: kernel {op.name} {op.version} {state}; upload it first",
+                element=f"<{op.kind.value}>",
+                line=op.line,
+            )
+        if op.sha256 is not None and op.sha256 != art.sha256:
+            raise InvalidRequestError(
+                f"{where}<{op.kind.value}>: sha256 {op.sha256} does not match the server's kernel "
+                f"{op.name} {op.version} (sha256 {art.sha256})",
+                element=f"<{op.kind.value}>",
+                line=op.line,
+            )
+        if art.stage != op.stage.value:
+            raise InvalidRequestError(
+                f"{where}<{op.kind.value}>: kernel {op.name} {op.version} is a {art.stage} kernel, "
+                f"not {op.stage.value}",
+                element=f"<{op.kind.value}>",
+                line=op.line,
+            )
+
+
+def _queue(
+    state: AppState, robot_id: int, xml: str, msg: ControlMessage, who: Principal
+) -> dict[str, object]:
+    with state.db.session() as s:
+        _check_operations(s, msg)
+        seq = s.execute(
+            update(Robot)
+            .where(Robot.id == robot_id)
+            .values(last_seq=Robot.last_seq + 1)
+            .returning(Robot.last_seq)
+        ).scalar_one_or_none()
+        if seq is None:
+            raise NotFoundError(f"no robot with id {robot_id}")
+        m = Message(robot_id=robot_id, seq=seq, xml=xml, created_by=who.actor, status="queued")
+        s.add(m)
+        s.flush()
+        record(s, who, "message.post", f"robot:{robot_id}", seq=seq, bytes=len(xml.encode()))
+        return _out(m)
+
+
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=MessageOut, openapi_extra=XML_BODY)
+async def post_message(
+    robot_id: int, request: Request, who: OperatorDep, state: StateDep
+) -> dict[str, object]:
+    """Queue a control message (XML body, SPEC §6); 422 names the element and the reason if it is rejected."""
+    body = await request.body()
+    if len(body) > MAX_MESSAGE_BYTES:
+        raise TooLargeError(f"control message of {len(body)} bytes; the limit is {MAX_MESSAGE_BYTES}")
+    try:
+        msg = parse_message(body)
+    except ControlMessageError as exc:
+        raise InvalidRequestError(str(exc), element=exc.element, line=exc.line, reason=exc.reason) from None
+    try:
+        xml = body.decode("utf-8")
+    except UnicodeDecodeError:
+        # The parser accepted another declared encoding: keep the document as text the robot can re-parse.
+        xml = body.decode("latin-1")
+    out = await run_in_threadpool(_queue, state, robot_id, xml, msg, who)
+    state.hub.publish(f"messages:{robot_id}", out["seq"])
+    return out
+
+
+def _read(state: AppState, robot_id: int, after: int, limit: int) -> dict[str, object]:
+    with state.db.read() as s:
+        robot = get_robot(s, robot_id)
+        rows = s.scalars(
+            select(Message)
+            .where(Message.robot_id == robot_id, Message.seq > after)
+            .order_by(Message.seq)
+            .limit(limit)
+        )
+        return {"messages": [_out(m) for m in rows], "last_seq": robot.last_seq}
+
+
+@router.get("", response_model=MessageList)
+async def list_messages(
+    robot_id: int,
+    request: Request,
+    who: Annotated[Principal, Depends(robot_access)],
+    state: StateDep,
+    after: Annotated[int, Query(ge=0, description="Return messages with seq above this.")] = 0,
+    wait: Annotated[float, Query(ge=0, description="Long-poll: wait up to this many seconds.")] = 0.0,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+) -> dict[str, object]:
+    """Messages after ``after`` in order; with ``wait`` > 0 the call returns as soon as one is queued
+    (long-poll; at most the server's ``long_poll_max_s``), or with an empty list when the wait is over."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + min(wait, state.settings.long_poll_max_s)
+    recheck = state.settings.poll_recheck_s
+    with state.hub.subscribe(f"messages:{robot_id}") as queue:
+        while True:
+            out = await run_in_threadpool(_read, state, robot_id, after, limit)
+            remaining = deadline - loop.time()
+            if out["messages"] or remaining <= 0 or await request.is_disconnected():
+                return out
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(queue.get(), timeout=min(remaining, recheck))
+
+
+@router.get("/{seq}", response_model=MessageOut)
+def read_message(
+    robot_id: int, seq: int, who: Annotated[Principal, Depends(robot_access)], state: StateDep
+) -> dict[str, object]:
+    with state.db.read() as s:
+        m = s.scalars(select(Message).where(Message.robot_id == robot_id, Message.seq == seq)).first()
+        if m is None:
+            raise NotFoundError(f"robot {robot_id} has no message {seq}")
+        return _out(m)
+
+
+def _ack(state: AppState, robot_id: int, seq: int, outcome: str, reason: str | None) -> dict[str, object]:
+    with state.db.session() as s:
+        m = s.scalars(select(Message).where(Message.robot_id == robot_id, Message.seq == seq)).first()
+        if m is None:
+            raise NotFoundError(f"robot {robot_id} has no message {seq}")
+        if m.status != "queued":
+            if m.status == outcome:
+                return _out(m)  # a retried acknowledgement
+            raise ConflictError(
+                f"message {seq} was acknowledged as {m.status} already; cannot change it to {outcome}"
+            )
+        m.status, m.reason, m.acked_at = outcome, reason, utcnow()
+        return _out(m)
+
+
+@router.post("/{seq}/ack", response_model=MessageOut)
+async def acknowledge(
+    robot_id: int, seq: int, body: AckIn, who: RobotSelf, state: StateDep
+) -> dict[str, object]:
+    """The robot reports what became of message ``seq``: applied, or rejected with the reason."""
+    out = await run_in_threadpool(_ack, state, robot_id, seq, body.outcome, body.reason)
+    state.hub.publish(f"acks:{robot_id}", out)
+    return out

@@ -1,0 +1,97 @@
+"""``/robots``: register robots (operator), list them with their state, delete them."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, status
+from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from server.audit import record
+from server.deps import AppState, OperatorDep, Principal, StateDep, robot_access
+from server.errors import ConflictError, NotFoundError
+from server.models import Message, Robot, utcnow
+from server.schemas import RobotCreate, RobotCreated, RobotOut
+from server.security import ROBOT_PREFIX, hash_token, new_token
+
+__all__ = ["get_robot", "router"]
+
+router = APIRouter(prefix="/robots", tags=["robots"])
+
+
+def get_robot(s: Session, robot_id: int) -> Robot:
+    robot = s.get(Robot, robot_id)
+    if robot is None:
+        raise NotFoundError(f"no robot with id {robot_id}")
+    return robot
+
+
+def _out(state: AppState, robot: Robot, pending: int) -> RobotOut:
+    window = timedelta(seconds=state.settings.online_window_s)
+    online = robot.last_seen_at is not None and utcnow() - robot.last_seen_at <= window
+    return RobotOut(
+        id=robot.id,
+        name=robot.name,
+        created_at=robot.created_at,
+        last_seen_at=robot.last_seen_at,
+        online=online,
+        mode=robot.mode,
+        active_kernels=robot.active_kernels,
+        step_ms=robot.step_ms,
+        map_version=robot.map_version,
+        last_seq=robot.last_seq,
+        pending_messages=pending,
+    )
+
+
+def _pending(s: Session, robot_ids: list[int]) -> dict[int, int]:
+    rows = s.execute(
+        select(Message.robot_id, func.count())
+        .where(Message.robot_id.in_(robot_ids), Message.status == "queued")
+        .group_by(Message.robot_id)
+    )
+    return {rid: n for rid, n in rows.tuples()}
+
+
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=RobotCreated)
+def register_robot(body: RobotCreate, who: OperatorDep, state: StateDep) -> RobotCreated:
+    """Register a robot; the response holds its token, shown this once."""
+    token = new_token(ROBOT_PREFIX)
+    try:
+        with state.db.session() as s:
+            robot = Robot(name=body.name, token_hash=hash_token(token), active_kernels={})
+            s.add(robot)
+            s.flush()
+            record(s, who, "robot.register", f"robot:{robot.id}", name=body.name)
+            rid = robot.id
+    except IntegrityError:
+        raise ConflictError(f"a robot named {body.name!r} exists already") from None
+    return RobotCreated(id=rid, name=body.name, token=token)
+
+
+@router.get("", response_model=list[RobotOut])
+def list_robots(who: OperatorDep, state: StateDep) -> list[RobotOut]:
+    with state.db.read() as s:
+        robots = list(s.scalars(select(Robot).order_by(Robot.id)))
+        pending = _pending(s, [r.id for r in robots])
+        return [_out(state, r, pending.get(r.id, 0)) for r in robots]
+
+
+@router.get("/{robot_id}", response_model=RobotOut)
+def read_robot(robot_id: int, who: Annotated[Principal, Depends(robot_access)], state: StateDep) -> RobotOut:
+    with state.db.read() as s:
+        robot = get_robot(s, robot_id)
+        return _out(state, robot, _pending(s, [robot_id]).get(robot_id, 0))
+
+
+@router.delete("/{robot_id}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_robot(robot_id: int, who: OperatorDep, state: StateDep) -> None:
+    """Forget a robot, its messages and its map; its token stops working."""
+    with state.db.session() as s:
+        robot = get_robot(s, robot_id)
+        record(s, who, "robot.delete", f"robot:{robot_id}", name=robot.name)
+        s.delete(robot)
+    state.forget_credentials()

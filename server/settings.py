@@ -1,0 +1,31 @@
+"""Server settings (environment ``LINEMAP_*`` or arguments of ``linemap server``), validated on start."""
+
+from __future__ import annotations
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+__all__ = ["DEFAULT_DATABASE_URL", "Settings"]
+
+DEFAULT_DATABASE_URL = "sqlite:///linemap-server.db"
+
+
+class Settings(BaseSettings):
+    """What the server needs to run; every field can be set as ``LINEMAP_<FIELD>`` in the environment."""
+
+    model_config = SettingsConfigDict(env_prefix="LINEMAP_", frozen=True, extra="forbid")
+
+    database_url: str = Field(DEFAULT_DATABASE_URL, description="SQLAlchemy URL of the server database.")
+    max_body_bytes: int = Field(4 * 1024 * 1024, ge=1024, description="Largest request body (413 beyond).")
+    max_kernel_bytes: int = Field(512 * 1024, ge=1024, description="Largest kernel module file.")
+    long_poll_max_s: float = Field(60.0, gt=0, le=600, description="Longest long-poll wait a robot may ask.")
+    poll_recheck_s: float = Field(
+        1.0,
+        gt=0,
+        le=60,
+        description="A waiting long-poll or stream re-reads the database this often "
+        "(covers writes by other server processes sharing a PostgreSQL database).",
+    )
+    online_window_s: float = Field(10.0, gt=0, description="A robot seen within this window is online.")
+    session_ttl_s: float = Field(12 * 3600.0, gt=0, description="Lifetime of a browser session cookie.")
+    secure_cookies: bool = Field(False, description="Mark the session cookie Secure (behind HTTPS).")
