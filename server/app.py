@@ -11,7 +11,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import APIRouter, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
@@ -24,10 +24,21 @@ from server.migrate import upgrade
 from server.routers import auth, kernels, maps, messages, meta, robots
 from server.settings import Settings
 
-__all__ = ["API_PREFIX", "create_app"]
+__all__ = ["API_PREFIX", "ROUTERS", "create_app"]
 
 log = logging.getLogger(__name__)
 API_PREFIX = "/api/v1"
+#: Every router with the prefix it is mounted at (the auth-matrix test walks this list).
+ROUTERS: list[tuple[APIRouter, str]] = [
+    (meta.router, ""),
+    (meta.api_router, API_PREFIX),
+    (auth.router, API_PREFIX),
+    (robots.router, API_PREFIX),
+    (messages.router, API_PREFIX),
+    (kernels.router, API_PREFIX),
+    (kernels.keys_router, API_PREFIX),
+    (maps.router, API_PREFIX),
+]
 
 
 def create_app(settings: Settings | None = None, *, migrate: bool = True) -> FastAPI:
@@ -55,11 +66,8 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     app.add_exception_handler(HTTPException, _http_error)
     app.add_exception_handler(Exception, _unexpected_error)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
-    app.include_router(meta.router)
-    for module in (meta, auth, robots, messages, kernels, maps):
-        router = module.api_router if module is meta else module.router
-        app.include_router(router, prefix=API_PREFIX)
-    app.include_router(kernels.keys_router, prefix=API_PREFIX)
+    for router, prefix in ROUTERS:
+        app.include_router(router, prefix=prefix)
     return app
 
 

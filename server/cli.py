@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 from typing import Annotated
 
 import typer
@@ -51,9 +52,10 @@ def serve(
     app = create_app(settings)
     token = ensure_admin_token(app.state.linemap.db)
     base = f"http://{host}:{port}"
-    typer.echo(f"linemap server on {base}  (API docs: {base}/docs, database: {app.state.linemap.db.url})")
     if token is not None:
         typer.echo(f"First start: operator token 'admin' (shown once, keep it): {token}")
+    typer.echo(f"linemap server on {base}  (API docs: {base}/docs, database: {app.state.linemap.db.url})")
+    sys.stdout.flush()  # a pipe or log file must see these lines before the server blocks
     uvicorn.run(app, host=host, port=port, log_level="warning", timeout_graceful_shutdown=5)
 
 

@@ -201,15 +201,15 @@ def read_map(s: Session, robot_id: int, trajectory_tail: int | None = None) -> M
         TrajectoryPoint.stamp_s, TrajectoryPoint.x_m, TrajectoryPoint.y_m, TrajectoryPoint.theta_rad
     ).where(TrajectoryPoint.robot_id == robot_id)
     if trajectory_tail is not None:
-        traj = list(s.execute(tq.order_by(TrajectoryPoint.id.desc()).limit(trajectory_tail)).tuples())[::-1]
+        traj = list(s.execute(tq.order_by(TrajectoryPoint.id.desc()).limit(trajectory_tail)))[::-1]
     else:
-        traj = list(s.execute(tq.order_by(TrajectoryPoint.id)).tuples())
+        traj = list(s.execute(tq.order_by(TrajectoryPoint.id)))
     state = s.get(MapState, robot_id)
     return MapOut(
         robot_id=robot_id,
         version=version,
         stamp_s=state.stamp_s if state else 0.0,
-        segments=[[float(i), x0, y0, x1, y1] for i, x0, y0, x1, y1 in segs.tuples()],
+        segments=[[float(i), x0, y0, x1, y1] for i, x0, y0, x1, y1 in segs],
         centroids=list(state.centroids.get("xy", [])) if state else [],
         pose=[state.pose["x_m"], state.pose["y_m"], state.pose["theta_rad"]] if state else [0.0, 0.0, 0.0],
         trajectory=[list(t) for t in traj],

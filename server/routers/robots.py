@@ -53,7 +53,7 @@ def _pending(s: Session, robot_ids: list[int]) -> dict[int, int]:
         .where(Message.robot_id.in_(robot_ids), Message.status == "queued")
         .group_by(Message.robot_id)
     )
-    return {rid: n for rid, n in rows.tuples()}
+    return {rid: n for rid, n in rows}
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=RobotCreated)
