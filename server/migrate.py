@@ -18,7 +18,12 @@ __all__ = ["MIGRATIONS_DIR", "current_revision", "downgrade", "head_revision", "
 
 log = logging.getLogger(__name__)
 
-MIGRATIONS_DIR = Path(__file__).resolve().parent.parent / "migrations" / "server"
+_PACKAGED = Path(__file__).resolve().parent / "migrations"  # inside an installed wheel
+MIGRATIONS_DIR = (
+    _PACKAGED
+    if (_PACKAGED / "env.py").is_file()
+    else Path(__file__).resolve().parent.parent / "migrations" / "server"
+)
 
 
 def _config(engine: Engine) -> Config:
