@@ -85,6 +85,11 @@ def _add_trajectory(s: Session, robot_id: int, version: int, rows: list[list[flo
 
 def apply_upload(s: Session, robot_id: int, up: MapUpload, key: str) -> AppliedUpload:
     """Apply one upload in the caller's transaction. O(rows in the upload)."""
+    # Lock the robot's row first: concurrent uploads of one robot (a retry racing its original) queue here,
+    # so the idempotency check below sees every upload committed before it.
+    robot = s.scalars(select(Robot).where(Robot.id == robot_id).with_for_update()).first()
+    if robot is None:
+        raise NotFoundError(f"no robot with id {robot_id}")
     seen = s.scalars(
         select(MapUploadRecord).where(
             MapUploadRecord.robot_id == robot_id, MapUploadRecord.idempotency_key == key
@@ -94,9 +99,6 @@ def apply_upload(s: Session, robot_id: int, up: MapUpload, key: str) -> AppliedU
         return AppliedUpload(
             MapUploadOut(version=seen.version, segments=_count(s, robot_id), duplicate=True), None
         )
-    robot = s.scalars(select(Robot).where(Robot.id == robot_id).with_for_update()).first()
-    if robot is None:
-        raise NotFoundError(f"no robot with id {robot_id}")
     current = robot.map_version
     if up.base_version is None:
         if up.version <= current:

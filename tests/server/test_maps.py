@@ -152,3 +152,22 @@ def test_stream_pushes_a_snapshot_then_each_upload(live: Live) -> None:
 def test_stream_of_unknown_robot_is_404(live: Live) -> None:
     with live.operator() as op:
         assert op.get("/robots/999999/maps/stream").status_code == 404
+
+
+def test_concurrent_retries_apply_once(live: Live) -> None:
+    """Eight copies of one upload at once (a robot retrying over a flaky link): one applies, the others
+    are reported as duplicates; nothing fails."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    rid, token = live.new_robot()
+
+    def send(_: int) -> httpx.Response:
+        with live.client(token) as robot:
+            return robot.post(f"/robots/{rid}/maps", json=_snapshot(), headers={"Idempotency-Key": "same"})
+
+    with ThreadPoolExecutor(8) as pool:
+        results = list(pool.map(send, range(8)))
+    assert [r.status_code for r in results] == [200] * 8
+    assert sorted(r.json()["duplicate"] for r in results) == [False] + [True] * 7
+    with live.operator() as op:
+        assert len(op.get(f"/robots/{rid}/maps/latest").json()["trajectory"]) == 2

@@ -150,3 +150,17 @@ def test_message_size_limit(live: Live) -> None:
     r = _post(live, rid, big)
     assert r.status_code == 413
     assert "limit" in r.json()["detail"]
+
+
+def test_concurrent_posts_get_distinct_consecutive_numbers(live: Live) -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    rid, _ = live.new_robot()
+    with ThreadPoolExecutor(8) as pool:
+        codes = list(
+            pool.map(
+                lambda _: _post(live, rid, b"<xml><message><mode>online</mode></message></xml>"), range(16)
+            )
+        )
+    assert all(r.status_code == 201 for r in codes)
+    assert sorted(r.json()["seq"] for r in codes) == list(range(1, 17))
