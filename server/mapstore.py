@@ -151,6 +151,7 @@ def apply_upload(s: Session, robot_id: int, up: MapUpload, key: str) -> AppliedU
             robot.active_kernels = dict(up.status.active_kernels)
         if up.status.step_ms is not None:
             robot.step_ms = up.status.step_ms
+        robot.last_error = up.status.last_error
     s.add(
         MapUploadRecord(
             robot_id=robot_id,

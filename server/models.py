@@ -113,6 +113,7 @@ class Robot(Base):
     mode: Mapped[str | None] = mapped_column(String(20), default=None)
     active_kernels: Mapped[dict[str, Any]] = mapped_column(default=dict)
     step_ms: Mapped[float | None] = mapped_column(Float, default=None)
+    last_error: Mapped[str | None] = mapped_column(Text, default=None)
     map_version: Mapped[int] = mapped_column(BigInteger, default=0)
     last_seq: Mapped[int] = mapped_column(Integer, default=0)
 

@@ -67,6 +67,7 @@ class RobotOut(BaseModel):
     mode: str | None
     active_kernels: dict[str, Any]
     step_ms: float | None
+    last_error: str | None
     map_version: int
     last_seq: int = Field(description="Sequence number of the newest control message queued.")
     pending_messages: int = Field(description="Messages not yet acknowledged by the robot.")
@@ -84,6 +85,7 @@ class RobotStatus(_In):
     mode: Literal["online", "offline", "mixed"] | None = None
     active_kernels: dict[str, str] | None = Field(None, description="stage -> 'name@version'")
     step_ms: Finite | None = Field(None, ge=0)
+    last_error: str | None = Field(None, max_length=2000, description="The robot's latest problem, if any.")
 
 
 class MessageOut(BaseModel):
@@ -91,7 +93,7 @@ class MessageOut(BaseModel):
     xml: str
     created_at: datetime
     created_by: str
-    status: Literal["queued", "applied", "rejected"]
+    status: Literal["queued", "applied", "rejected", "rolled-back"]
     reason: str | None
     acked_at: datetime | None
 
@@ -102,13 +104,15 @@ class MessageList(BaseModel):
 
 
 class AckIn(_In):
-    outcome: Literal["applied", "rejected"]
+    """``rolled-back``: applied, then undone by the robot (a kernel that failed at run time)."""
+
+    outcome: Literal["applied", "rejected", "rolled-back"]
     reason: str | None = Field(None, max_length=4000, description="Why it was rejected (required then).")
 
     @model_validator(mode="after")
     def _reason_when_rejected(self) -> AckIn:
-        if self.outcome == "rejected" and not (self.reason and self.reason.strip()):
-            raise ValueError("a rejected message needs a reason")
+        if self.outcome != "applied" and not (self.reason and self.reason.strip()):
+            raise ValueError(f"a {self.outcome} message needs a reason")
         return self
 
 

@@ -185,6 +185,9 @@ def _ack(state: AppState, robot_id: int, seq: int, outcome: str, reason: str | N
         if m.status != "queued":
             if m.status == outcome:
                 return _out(m)  # a retried acknowledgement
+            if m.status == "applied" and outcome == "rolled-back":
+                m.status, m.reason, m.acked_at = outcome, reason, utcnow()
+                return _out(m)
             raise ConflictError(
                 f"message {seq} was acknowledged as {m.status} already; cannot change it to {outcome}"
             )

@@ -41,6 +41,7 @@ def _out(state: AppState, robot: Robot, pending: int) -> RobotOut:
         mode=robot.mode,
         active_kernels=robot.active_kernels,
         step_ms=robot.step_ms,
+        last_error=robot.last_error,
         map_version=robot.map_version,
         last_seq=robot.last_seq,
         pending_messages=pending,

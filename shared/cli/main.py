@@ -12,6 +12,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from robot_agent.cli import agent_cmd
 from server.cli import server_app
 from shared.cli.keys import keys_app
 from shared.errors import LinemapError
@@ -29,6 +30,7 @@ bench_app = typer.Typer(help="Benchmarks (figures, not tests).", no_args_is_help
 app.add_typer(bench_app, name="bench")
 app.add_typer(keys_app, name="keys")
 app.add_typer(server_app, name="server")
+app.command("agent")(agent_cmd)
 
 # Wide enough for the benchmark table when the output goes to a file or a pipe (rich assumes 80 columns).
 console = Console(width=None if sys.stdout.isatty() else 160)

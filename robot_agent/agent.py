@@ -1,0 +1,469 @@
+"""The robot agent (SPEC §8, issue 5): maps step by step, keeps everything in the Robot DB, talks to the
+server on background threads, applies control messages between steps and hot-swaps kernels.
+
+Threads: the caller's thread maps (``run``); a poller long-polls messages and prepares them (download and
+verify kernels); an uploader sends acknowledgements and the outbox. Mapping never waits on the network: the
+threads meet only through the Robot DB and a queue of prepared messages.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from robot_agent.control import Prepared, apply_message, kernels_in_use, pin_versions
+from robot_agent.errors import AgentError, KernelRejected, LinkError
+from robot_agent.guard import guarded
+from robot_agent.link import Backoff, ServerLink, UploadConflict
+from robot_agent.models import KernelRecord
+from robot_agent.sources import open_scans
+from robot_agent.store import RobotDB, StepRecord
+from shared.control import ControlMessageError, OperationKind, parse_message
+from shared.errors import LinemapError
+from shared.kernels import REGISTRY, Kernel, Stage
+from shared.pipeline import Pipeline, PipelineConfig
+from shared.signing import load_public_key
+from shared.types import Scan
+
+__all__ = ["Agent", "AgentSettings"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class AgentSettings:
+    """How the agent runs. ``rate_hz`` None: the source's own pace (10 Hz simulated, log time stamps);
+    0: as fast as possible. ``server_url`` None: map alone (no link)."""
+
+    source: str
+    db_path: Path
+    server_url: str | None = None
+    robot_id: int = 0
+    token: str = ""
+    rate_hz: float | None = None
+    trusted_keys: tuple[str, ...] = ()
+    allow_unsigned: bool = False
+    config: PipelineConfig | None = None
+    upload_period_s: float = 0.5
+    poll_wait_s: float = 20.0
+    upload_batch: int = 50
+    probation_steps: int = 20
+    kernel_budget_ms: float = 200.0
+    dry_run_budget_s: float = 5.0
+    max_steps: int | None = None
+    stay: bool = True
+    seed: int = 0
+
+
+@dataclass
+class AgentStats:
+    steps: int = 0
+    swaps_ms: list[float] = field(default_factory=list)
+    rollbacks: int = 0
+    last_error: str | None = None
+
+
+class Agent:
+    """One robot's daemon. ``run(stop)`` blocks until the source ends (or ``stop`` is set)."""
+
+    def __init__(self, settings: AgentSettings, link: ServerLink | None = None) -> None:
+        self.s = settings
+        self.db = RobotDB(settings.db_path)
+        self.link = link
+        if link is None and settings.server_url:
+            self.link = ServerLink(settings.server_url, settings.robot_id, settings.token)
+        self.trusted = [load_public_key(k) for k in settings.trusted_keys]
+        self.stats = AgentStats()
+        self._inbox: queue.Queue[Prepared] = queue.Queue()
+        self._handed = 0
+        self._recent: deque[Scan] = deque(maxlen=10)
+        self._recent_lock = threading.Lock()
+        self._failures: list[tuple[type[Kernel[Any]], str]] = []
+        self._probation: dict[tuple[str, str, str], int] = {}
+        self._installed_by: dict[tuple[str, str, str], int] = {}
+        self._previous: PipelineConfig | None = None
+        self._wake_uploader = threading.Event()
+        self._need_snapshot = False
+        self.pipeline = Pipeline(self._initial_config())
+        self._prev_walls: dict[int, tuple[float, float, float, float]] = {}
+        stored = self.db.walls()
+        self._id_offset = int(max((w[0] for w in stored), default=-1)) + 1
+
+    # ------------------------------------------------------------------ start-up
+    def _initial_config(self) -> PipelineConfig:
+        for rec in self.db.kernels(["active", "verified", "retired"]):
+            try:
+                self._register_record(rec)
+            except KernelRejected as exc:
+                log.error("stored kernel %s %s no longer loads: %s", rec.name, rec.version, exc.reason)
+        stored = self.db.get("config")
+        config = self.s.config or PipelineConfig()
+        if stored is not None:
+            try:
+                config = PipelineConfig.parse(stored)
+            except LinemapError as exc:
+                log.error("stored configuration is invalid (%s); starting from the defaults", exc)
+        config = pin_versions(config)
+        self.db.record_config(config.model_dump(mode="json"), "start-up")
+        return config
+
+    def _register_record(self, rec: KernelRecord) -> None:
+        from robot_agent.kernels import load_kernel_class, verify_artifact
+
+        verify_artifact(rec.source, rec.sha256, rec.signature, self.trusted, self.s.allow_unsigned)
+        cls = load_kernel_class(rec.source, Stage(rec.stage), rec.name, rec.version)
+        self._register(cls)
+
+    def _register(self, cls: type[Kernel[Any]]) -> None:
+        key = (str(cls.stage), cls.name, cls.version)
+        try:
+            REGISTRY.get(cls.stage, cls.name, cls.version)
+            return  # registered already (built in, or installed earlier in this process)
+        except LinemapError:
+            pass
+        prev = self.pipeline.config if hasattr(self, "pipeline") else None
+        REGISTRY.register(
+            guarded(cls, self._fallback_for(cls, prev), self._on_kernel_failure, self.s.kernel_budget_ms)
+        )
+        self._probation[key] = self.s.probation_steps
+
+    def _fallback_for(self, cls: type[Kernel[Any]], prev: PipelineConfig | None) -> Any:
+        cache: list[Kernel[Any]] = []
+
+        def make() -> Kernel[Any]:
+            if not cache:
+                version = None
+                if prev is not None:
+                    for c in _uses(prev, Stage(cls.stage)):
+                        if c.name == cls.name and c.version != cls.version:
+                            version = c.version
+                builtin = [
+                    i for i in REGISTRY.list(cls.stage) if i.name == cls.name and i.version != cls.version
+                ]
+                version = version or (builtin[0].version if builtin else None)
+                if version is None:
+                    raise AgentError(f"no fallback for {cls.name} {cls.version}")
+                cache.append(REGISTRY.create(cls.stage, cls.name, None, version))
+            return cache[0]
+
+        return make
+
+    def _on_kernel_failure(self, cls: type[Kernel[Any]], reason: str) -> None:
+        self._failures.append((cls, reason))
+
+    # ------------------------------------------------------------------ main loop
+    def run(self, stop: threading.Event) -> None:
+        threads = []
+        if self.link is not None:
+            for target in (self._poller, self._uploader):
+                t = threading.Thread(target=target, args=(stop,), name=target.__name__, daemon=True)
+                t.start()
+                threads.append(t)
+        try:
+            self._map(stop)
+            while self.s.stay and not stop.is_set():  # the source ended: keep serving the link
+                self._apply_pending()
+                stop.wait(0.05)
+        finally:
+            stop.set()
+            self._wake_uploader.set()
+            for t in threads:
+                t.join(timeout=self.s.poll_wait_s + 15)
+            self.db.close()
+            if self.link is not None:
+                self.link.close()
+
+    def _map(self, stop: threading.Event) -> None:
+        resume = int(self.db.get("source_index", 0) or 0)
+        version = int(self.db.get("map_version", 0) or 0)
+        period = None if not self.s.rate_hz else 1.0 / self.s.rate_hz
+        next_at = time.monotonic()
+        for index, scan in self._scans():
+            if stop.is_set() or (self.s.max_steps is not None and self.stats.steps >= self.s.max_steps):
+                return
+            if index < resume:
+                continue
+            if period is not None:
+                stop.wait(max(0.0, next_at - time.monotonic()))
+                next_at = max(next_at + period, time.monotonic() - period)
+            self._apply_pending()
+            result = self.pipeline.step(scan)
+            with self._recent_lock:
+                self._recent.append(scan)
+            version += 1
+            self.db.record_step(self._record(version, index + 1, scan, result.pose))
+            self.stats.steps += 1
+            self._after_step()
+            self._wake_uploader.set()
+
+    def _scans(self) -> Iterator[tuple[int, Scan]]:
+        yield from enumerate(open_scans(self.s.source, seed=self.s.seed))
+
+    def _record(self, version: int, source_index: int, scan: Scan, pose: Any) -> StepRecord:
+        snap = self.pipeline.snapshot()
+        now = {
+            int(i) + self._id_offset: tuple(float(v) for v in seg)
+            for i, seg in zip(snap.segment_ids, snap.segments, strict=True)
+        }
+        changed = [[float(i), *seg] for i, seg in now.items() if self._prev_walls.get(i) != seg]
+        removed = [i for i in self._prev_walls if i not in now]
+        self._prev_walls = now  # type: ignore[assignment]
+        cents = np.asarray(snap.centroids[-200:], dtype=float).tolist()
+        return StepRecord(
+            version,
+            scan.stamp_s,
+            source_index,
+            changed,
+            removed,
+            [scan.stamp_s, pose.x_m, pose.y_m, pose.theta_rad],
+            cents,
+        )
+
+    def _after_step(self) -> None:
+        if self._failures:
+            cls, reason = self._failures[0]
+            self._failures.clear()
+            self._roll_back(cls, reason)
+            return
+        for key in list(self._probation):
+            self._probation[key] -= 1
+            if self._probation[key] <= 0:
+                del self._probation[key]
+
+    def _roll_back(self, cls: type[Kernel[Any]], reason: str) -> None:
+        """Put the configuration before ``cls`` came in back in force (between two steps)."""
+        self.stats.rollbacks += 1
+        self.stats.last_error = f"rolled back: {reason}"
+        log.error("kernel %s %s failed, rolling back: %s", cls.name, cls.version, reason)
+        previous = self._previous or PipelineConfig()
+        try:
+            self.pipeline.reconfigure(previous)
+        except LinemapError as exc:
+            log.error("rollback configuration failed to build (%s); using the defaults", exc)
+            previous = pin_versions(PipelineConfig())
+            self.pipeline.reconfigure(previous)
+        self.db.record_config(previous.model_dump(mode="json"), f"automatic rollback: {reason}"[:200])
+        key = (str(cls.stage), cls.name, cls.version)
+        self.db.set_kernel_state(*key, "rejected", reason)
+        self._probation.pop(key, None)
+        _unregister(*key)
+        seq = self._installed_by.pop(key, None)
+        if seq is not None:
+            self.db.mark_rolled_back(seq, reason)
+            self._wake_uploader.set()
+
+    # ------------------------------------------------------------------ control messages
+    def _apply_pending(self) -> None:
+        while True:
+            try:
+                prepared = self._inbox.get_nowait()
+            except queue.Empty:
+                return
+            self._apply(prepared)
+
+    def _apply(self, prepared: Prepared) -> None:
+        if self.db.outcome_of(prepared.seq) is not None:
+            return  # dealt with already (exactly once)
+        if prepared.error is not None:
+            self.db.record_message(prepared.seq, "rejected", prepared.error, None)
+            self._wake_uploader.set()
+            return
+        t0 = time.perf_counter()
+        before = self.pipeline.config
+        try:
+            config = apply_message(prepared, before, self._register, _unregister, self.pipeline.reconfigure)
+        except Exception as exc:  # anything the message caused: reject it, keep mapping as before
+            reason = str(exc) if isinstance(exc, LinemapError) else f"{type(exc).__name__}: {exc}"
+            self.db.record_message(prepared.seq, "rejected", reason, None)
+            self._wake_uploader.set()
+            return
+        self.stats.swaps_ms.append((time.perf_counter() - t0) * 1e3)
+        self._previous = before
+        self.db.record_message(prepared.seq, "applied", None, config.model_dump(mode="json"))
+        for key in prepared.classes:
+            self._installed_by[key] = prepared.seq
+            self.db.set_kernel_state(*key, "active" if _used(config, *key) else "verified")
+        self._wake_uploader.set()
+
+    def _prepare(self, raw: dict[str, Any]) -> Prepared:
+        """Parse a message and download/verify its kernels (network thread; may take seconds)."""
+        seq = int(raw["seq"])
+        try:
+            msg = parse_message(raw["xml"])
+        except ControlMessageError as exc:
+            return Prepared(seq, None, str(exc))
+        prepared = Prepared(seq, msg)
+        for op in msg.operations:
+            if op.kind not in (OperationKind.INSTALL, OperationKind.UPDATE):
+                continue
+            try:
+                prepared.classes[(op.stage.value, op.name, op.version)] = self._fetch_and_verify(op)
+            except KernelRejected as exc:
+                prepared.error = f"<kernel-{op.kind.value}> {op.name} {op.version}: {exc.reason}"
+                return prepared
+            except LinkError as exc:
+                prepared.error = f"<kernel-{op.kind.value}> {op.name} {op.version}: download failed: {exc}"
+                return prepared
+        return prepared
+
+    def _fetch_and_verify(self, op: Any) -> type[Kernel[Any]]:
+        from robot_agent.kernels import check_conformance, dry_run, load_kernel_class, verify_artifact
+
+        assert self.link is not None
+        got = self.link.fetch_kernel(op.name, op.version)
+        sha = op.sha256 or ""
+        if got.stage and got.stage != op.stage.value:
+            raise KernelRejected(
+                f"the server has it as a {got.stage} kernel, the message says {op.stage.value}"
+            )
+        record = KernelRecord(
+            stage=op.stage.value,
+            name=op.name,
+            version=op.version,
+            sha256=sha,
+            source=got.source,
+            signature=got.signature,
+            state="rejected",
+        )
+        try:
+            record.key_id = verify_artifact(
+                got.source, sha, got.signature, self.trusted, self.s.allow_unsigned
+            )
+            cls = load_kernel_class(got.source, op.stage, op.name, op.version)
+            check_conformance(cls)
+            with self._recent_lock:
+                scans = list(self._recent)
+            if scans:
+                dry_run(got.source, op.stage, op.name, op.version, None, scans, self.s.dry_run_budget_s)
+        except KernelRejected as exc:
+            record.reason = exc.reason
+            self.db.save_kernel(record)
+            raise
+        record.state = "verified"
+        self.db.save_kernel(record)
+        return cls
+
+    # ------------------------------------------------------------------ network threads
+    def _poller(self, stop: threading.Event) -> None:
+        assert self.link is not None
+        backoff = Backoff()
+        while not stop.is_set():
+            after = max(self.db.applied_seq(), self._handed)
+            try:
+                messages = self.link.poll(after, self.s.poll_wait_s)
+            except LinkError as exc:
+                self.stats.last_error = str(exc)
+                stop.wait(backoff.next_delay(exc.retry_after_s))
+                continue
+            backoff.reset()
+            for raw in messages:
+                if int(raw["seq"]) > after:
+                    self._inbox.put(self._prepare(raw))
+                    self._handed = after = int(raw["seq"])
+
+    def _uploader(self, stop: threading.Event) -> None:
+        assert self.link is not None
+        backoff = Backoff()
+        while True:
+            try:
+                busy = self._send_acks() | self._send_maps()
+                backoff.reset()
+            except LinkError as exc:
+                self.stats.last_error = str(exc)
+                if stop.wait(backoff.next_delay(exc.retry_after_s)):
+                    return
+                continue
+            if stop.is_set() and not busy:
+                return
+            if not busy:
+                self._wake_uploader.wait(self.s.upload_period_s)
+                self._wake_uploader.clear()
+
+    def _send_acks(self) -> bool:
+        assert self.link is not None
+        rows = self.db.unacked()
+        for row in rows:
+            self.link.ack(row.seq, row.outcome, row.reason)
+            self.db.mark_acked(row.seq)
+        return bool(rows)
+
+    def _status(self) -> dict[str, Any]:
+        median_ms, _p99 = self.pipeline.timing_ms()
+        return {
+            "mode": str(self.pipeline.config.mode),
+            "active_kernels": kernels_in_use(self.pipeline.config),
+            "step_ms": median_ms if median_ms == median_ms else None,
+            "last_error": self.stats.last_error,
+        }
+
+    def _send_maps(self) -> bool:
+        assert self.link is not None
+        up = self.db.pending_upload(self.s.upload_batch)
+        if up is None:
+            return False
+        base = self.db.get("uploaded_version")
+        if self._need_snapshot or base is None or int(base) != up.first_version - 1:
+            return self._send_snapshot()
+        payload = {
+            "version": up.version,
+            "base_version": int(base),
+            "stamp_s": up.stamp_s,
+            "segments": up.segments,
+            "removed": up.removed,
+            "centroids": up.centroids,
+            "pose": up.pose,
+            "trajectory": up.trajectory,
+            "status": self._status(),
+        }
+        got = self.link.upload(payload, f"r{self.s.robot_id}-{base}-{up.version}")
+        if isinstance(got, UploadConflict):
+            if got.current_version >= up.version:
+                self.db.mark_uploaded(got.current_version)
+            else:
+                self._need_snapshot = True
+            return True
+        self.db.mark_uploaded(up.version)
+        return True
+
+    def _send_snapshot(self) -> bool:
+        assert self.link is not None
+        snap = self.db.snapshot()
+        if snap is None:
+            return False
+        payload = {"base_version": None, "status": self._status(), **snap}
+        got = self.link.upload(payload, f"r{self.s.robot_id}-snapshot-{snap['version']}")
+        if isinstance(got, UploadConflict):
+            if got.current_version >= snap["version"]:
+                self.db.mark_uploaded(got.current_version)
+                self._need_snapshot = False
+                return True
+            raise LinkError(
+                f"the server's map of robot {self.s.robot_id} is at version {got.current_version}, "
+                f"ahead of this robot's {snap['version']}: was the Robot DB replaced?"
+            )
+        self.db.mark_uploaded(int(snap["version"]))
+        self._need_snapshot = False
+        return True
+
+
+def _uses(config: PipelineConfig, stage: Stage) -> list[Any]:
+    from robot_agent.control import _choices
+
+    return _choices(config, stage)
+
+
+def _used(config: PipelineConfig, stage: str, name: str, version: str) -> bool:
+    return any(c.name == name and c.version == version for c in _uses(config, Stage(stage)))
+
+
+def _unregister(stage: str, name: str, version: str) -> None:
+    REGISTRY.unregister(stage, name, version)

@@ -1,0 +1,124 @@
+"""``linemap agent``: run the robot daemon (map, keep the Robot DB, follow the server's control messages)."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from shared.errors import LinemapError
+
+__all__ = ["agent_cmd"]
+
+log = logging.getLogger(__name__)
+
+
+def _file_settings(path: Path | None) -> dict[str, Any]:
+    if path is None:
+        return {}
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise LinemapError(f"agent file {path}: {exc}") from None
+    allowed = {
+        "server",
+        "robot_id",
+        "token",
+        "source",
+        "db",
+        "rate",
+        "trust_keys",
+        "allow_unsigned",
+        "config",
+    }
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise LinemapError(f"agent file {path}: unknown keys {unknown}; expected some of {sorted(allowed)}")
+    return data
+
+
+def _key_text(value: str) -> str:
+    """A trusted key given inline (base64 or PEM) or as a file holding one."""
+    path = Path(value)
+    if len(value) < 200 and path.is_file():
+        return path.read_text(encoding="utf-8").strip()
+    return value
+
+
+def agent_cmd(
+    server: Annotated[
+        str | None, typer.Option(envvar="LINEMAP_SERVER", help="Server URL, e.g. http://host:8000")
+    ] = None,
+    robot_id: Annotated[
+        int | None, typer.Option(envvar="LINEMAP_ROBOT_ID", help="This robot's id on the server.")
+    ] = None,
+    token: Annotated[
+        str | None, typer.Option(envvar="LINEMAP_ROBOT_TOKEN", help="This robot's token.")
+    ] = None,
+    source: Annotated[
+        str | None, typer.Option(help="sim | sim:WORLD_FILE | a log file | urg:/dev/ttyACM0")
+    ] = None,
+    db: Annotated[Path | None, typer.Option(help="Robot DB file (SQLite).")] = None,
+    rate: Annotated[
+        float | None, typer.Option(min=0, help="Steps per second (default 10; 0 = as fast as possible).")
+    ] = None,
+    trust_key: Annotated[
+        list[str] | None,
+        typer.Option(help="Trusted Ed25519 public key (base64, PEM, or a file); repeatable."),
+    ] = None,
+    allow_unsigned: Annotated[
+        bool, typer.Option(help="DEVELOPMENT ONLY: accept kernels without a valid signature.")
+    ] = False,
+    config: Annotated[
+        Path | None, typer.Option(help="Initial pipeline configuration (XML control message, JSON or TOML).")
+    ] = None,
+    file: Annotated[
+        Path | None, typer.Option("--file", help="TOML file with any of these settings (options win).")
+    ] = None,
+    max_steps: Annotated[int | None, typer.Option(min=1, help="Stop after this many steps.")] = None,
+    exit_at_end: Annotated[
+        bool, typer.Option(help="Exit when the source ends (default: keep serving).")
+    ] = False,
+) -> None:
+    """Map from SOURCE and follow the server: apply control messages between steps, hot-swap verified
+    kernels, upload every map version (kept in the Robot DB until the server has it)."""
+    from robot_agent.agent import Agent, AgentSettings
+    from shared.cli.mapping import load_config
+
+    f = _file_settings(file)
+    src = source or f.get("source") or "sim"
+    keys = [_key_text(k) for k in (trust_key or f.get("trust_keys") or [])]
+    server_url = server or f.get("server")
+    rid = robot_id if robot_id is not None else f.get("robot_id")
+    tok = token or f.get("token")
+    if server_url and (rid is None or not tok):
+        raise LinemapError("--server needs --robot-id and --token (from POST /api/v1/robots)")
+    cfg_path = config or (Path(f["config"]) if f.get("config") else None)
+    settings = AgentSettings(
+        source=src,
+        db_path=db or Path(f.get("db", "robot.db")),
+        server_url=server_url,
+        robot_id=int(rid or 0),
+        token=str(tok or ""),
+        rate_hz=rate if rate is not None else f.get("rate", 10.0),
+        trusted_keys=tuple(keys),
+        allow_unsigned=allow_unsigned or bool(f.get("allow_unsigned", False)),
+        config=load_config(cfg_path) if cfg_path else None,
+        max_steps=max_steps,
+        stay=not exit_at_end,
+    )
+    if settings.allow_unsigned:
+        typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)
+    agent = Agent(settings)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    where = f"server {server_url} as robot {rid}" if server_url else "no server"
+    typer.echo(f"linemap agent: source {src}, Robot DB {settings.db_path}, {where}", err=True)
+    agent.run(stop)
+    typer.echo(f"linemap agent: stopped after {agent.stats.steps} steps", err=True)

@@ -1,0 +1,136 @@
+"""Applying a control message to the running pipeline, between two steps (SPEC §6, §9).
+
+The slow part (download, verification, conformance, dry run of kernels) happens before, on the network
+thread (:class:`Prepared`); what runs between two steps is only registering verified classes, computing the
+new configuration and building its kernels, so the swap costs milliseconds and no step is skipped. A
+message that fails anywhere changes nothing: registrations are undone and the old configuration stays.
+
+Kernel operations: ``install`` makes a version available; ``update`` makes it available and switches every
+use of that kernel name in its stage to it; ``rollback`` switches every use to the given (registered) version;
+``delete`` forgets a version that is not in use. Unpinned kernel choices are pinned to the version in use (or
+the highest registered), so installing never changes what runs by accident.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from shared.control import ControlMessage, KernelOperation, OperationKind, to_config
+from shared.errors import LinemapError
+from shared.kernels import REGISTRY, Kernel, Stage
+from shared.pipeline import KernelChoice, PipelineConfig
+
+__all__ = ["Prepared", "apply_message", "kernels_in_use", "pin_versions", "retarget"]
+
+_FIELDS = {
+    Stage.SEGMENTATION: "segmentation",
+    Stage.NOISE_REMOVAL: "noise_removal",
+    Stage.CLUSTERING: "clustering",
+    Stage.STRAIGHT_LINE: "straight_line",
+    Stage.SCAN_MATCHING: "scan_matching",
+}
+
+
+@dataclass
+class Prepared:
+    """A message made ready on the network thread: parsed, its kernels downloaded and verified.
+    ``error`` set means it is rejected with that reason."""
+
+    seq: int
+    message: ControlMessage | None
+    error: str | None = None
+    classes: dict[tuple[str, str, str], type[Kernel[Any]]] = field(default_factory=dict)
+
+
+def _choices(config: PipelineConfig, stage: Stage) -> list[KernelChoice]:
+    value = getattr(config, _FIELDS[stage])
+    if value is None:
+        return []
+    return list(value) if isinstance(value, tuple) else [value]
+
+
+def kernels_in_use(config: PipelineConfig) -> dict[str, str]:
+    """``stage -> "name@version[, ...]"`` (versions as pinned)."""
+    out = {}
+    for stage in Stage:
+        used = [f"{c.name}@{c.version or '?'}" for c in _choices(config, stage)]
+        if used:
+            out[stage.value] = ", ".join(used)
+    return out
+
+
+def _replace(
+    config: PipelineConfig, stage: Stage, fix: Callable[[KernelChoice], KernelChoice]
+) -> PipelineConfig:
+    value = getattr(config, _FIELDS[stage])
+    if value is None:
+        return config
+    new = tuple(fix(c) for c in value) if isinstance(value, tuple) else fix(value)
+    return config.model_copy(update={_FIELDS[stage]: new})
+
+
+def pin_versions(config: PipelineConfig, current: PipelineConfig | None = None) -> PipelineConfig:
+    """Give every unpinned choice a version: the one ``current`` runs for that name, else the highest."""
+    for stage in Stage:
+        running = {c.name: c.version for c in _choices(current, stage)} if current is not None else {}
+
+        def fix(
+            c: KernelChoice, stage: Stage = stage, running: dict[str, str | None] = running
+        ) -> KernelChoice:
+            if c.version is not None:
+                return c
+            version = running.get(c.name) or REGISTRY.get(stage, c.name).version
+            return c.model_copy(update={"version": version})
+
+        config = _replace(config, stage, fix)
+    return config
+
+
+def retarget(config: PipelineConfig, stage: Stage, name: str, version: str) -> PipelineConfig:
+    """Every use of ``name`` in ``stage`` switched to ``version``."""
+    return _replace(
+        config, stage, lambda c: c.model_copy(update={"version": version}) if c.name == name else c
+    )
+
+
+def apply_message(
+    prepared: Prepared,
+    current: PipelineConfig,
+    register: Callable[[type[Kernel[Any]]], None],
+    unregister: Callable[[str, str, str], None],
+    build: Callable[[PipelineConfig], None],
+) -> PipelineConfig:
+    """The configuration after ``prepared``, already built and put in force by ``build`` (the pipeline's
+    ``reconfigure``). On any error everything is undone and a :class:`LinemapError` names the reason."""
+    msg = prepared.message
+    assert msg is not None and prepared.error is None
+    added: list[tuple[str, str, str]] = []
+    deletions: list[KernelOperation] = []
+    try:
+        for key, cls in prepared.classes.items():
+            register(cls)
+            added.append(key)
+        config = to_config(msg, current)
+        for op in msg.operations:
+            if op.kind in (OperationKind.UPDATE, OperationKind.ROLLBACK):
+                REGISTRY.get(op.stage, op.name, op.version)  # must be there: built in or installed
+                config = retarget(config, op.stage, op.name, op.version)
+            elif op.kind is OperationKind.DELETE:
+                deletions.append(op)
+        config = pin_versions(config, current)
+        for op in deletions:
+            if any(c.name == op.name and c.version == op.version for c in _choices(config, op.stage)):
+                raise LinemapError(
+                    f"<kernel-delete>: {op.stage}/{op.name} {op.version} is in use; "
+                    "select another version first"
+                )
+        build(config)
+    except Exception:
+        for stage, name, version in added:
+            unregister(stage, name, version)
+        raise
+    for op in deletions:
+        unregister(op.stage.value, op.name, op.version)
+    return config

@@ -1,0 +1,160 @@
+"""The Robot DB (SPEC §8): a SQLite file in WAL mode on the robot, schema owned by ``migrations/robot``.
+
+Tables: ``meta`` (key -> JSON: robot id, versions, the configuration in force), ``kernels`` (downloaded
+kernel artifacts and their state), ``config_history``, ``map_versions`` (each step's map change),
+``walls`` (the current map, for restarts), ``poses`` (trajectory), ``outbox`` (map versions not yet
+acknowledged by the server), ``applied_messages`` (control messages applied or rejected, and whether the
+server has the acknowledgement). Lengths metres, angles radians, times UTC.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any, ClassVar
+
+from sqlalchemy import JSON, DateTime, Float, Integer, LargeBinary, MetaData, String, Text, UniqueConstraint
+from sqlalchemy.engine import Dialect
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+from sqlalchemy.types import TypeDecorator
+
+__all__ = [
+    "AppliedMessage",
+    "ConfigRecord",
+    "KernelRecord",
+    "MapVersion",
+    "Meta",
+    "OutboxEntry",
+    "PoseRecord",
+    "RobotBase",
+    "Wall",
+    "utcnow",
+]
+
+NAMING = {
+    "ix": "ix_%(column_0_label)s",
+    "uq": "uq_%(table_name)s_%(column_0_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """Aware UTC datetimes stored naive (SQLite keeps no zone)."""
+
+    impl = DateTime()
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        aware = value if value.tzinfo else value.replace(tzinfo=UTC)
+        return aware.astimezone(UTC).replace(tzinfo=None)
+
+    def process_result_value(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        return None if value is None else value.replace(tzinfo=UTC)
+
+
+class RobotBase(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING)
+    type_annotation_map: ClassVar[dict[Any, Any]] = {datetime: UTCDateTime(), dict[str, Any]: JSON}
+
+
+class Meta(RobotBase):
+    __tablename__ = "meta"
+
+    key: Mapped[str] = mapped_column(String(50), primary_key=True)
+    value: Mapped[dict[str, Any]] = mapped_column()
+
+
+class KernelRecord(RobotBase):
+    """A downloaded kernel artifact. ``state``: verified (passed every check), active (in use), retired
+    (replaced or rolled back), rejected (failed a check or failed at run time; ``reason`` says why),
+    deleted."""
+
+    __tablename__ = "kernels"
+    __table_args__ = (UniqueConstraint("stage", "name", "version"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    stage: Mapped[str] = mapped_column(String(32))
+    name: Mapped[str] = mapped_column(String(64))
+    version: Mapped[str] = mapped_column(String(32))
+    sha256: Mapped[str] = mapped_column(String(64))
+    source: Mapped[bytes] = mapped_column(LargeBinary)
+    signature: Mapped[str | None] = mapped_column(String(100), default=None)
+    key_id: Mapped[str | None] = mapped_column(String(16), default=None)
+    state: Mapped[str] = mapped_column(String(16))
+    reason: Mapped[str | None] = mapped_column(Text, default=None)
+    installed_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class ConfigRecord(RobotBase):
+    """Each configuration put in force, with the message that did it (``seq`` null: start-up or rollback)."""
+
+    __tablename__ = "config_history"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    at: Mapped[datetime] = mapped_column(default=utcnow)
+    seq: Mapped[int | None] = mapped_column(Integer, default=None)
+    config: Mapped[dict[str, Any]] = mapped_column()
+    note: Mapped[str] = mapped_column(String(200), default="")
+
+
+class MapVersion(RobotBase):
+    """One step's change of the temporary map: ``change`` holds ``segments`` (new or changed walls, rows
+    ``[id, x0, y0, x1, y1]``), ``removed`` ids, ``centroids`` and ``pose``."""
+
+    __tablename__ = "map_versions"
+
+    version: Mapped[int] = mapped_column(Integer, primary_key=True)
+    stamp_s: Mapped[float] = mapped_column(Float)
+    source_index: Mapped[int] = mapped_column(Integer)
+    change: Mapped[dict[str, Any]] = mapped_column()
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Wall(RobotBase):
+    """The current map's walls (kept in step with ``map_versions``; a restart resumes from them)."""
+
+    __tablename__ = "walls"
+
+    segment_id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    x0_m: Mapped[float] = mapped_column(Float)
+    y0_m: Mapped[float] = mapped_column(Float)
+    x1_m: Mapped[float] = mapped_column(Float)
+    y1_m: Mapped[float] = mapped_column(Float)
+
+
+class PoseRecord(RobotBase):
+    __tablename__ = "poses"
+
+    version: Mapped[int] = mapped_column(Integer, primary_key=True)
+    stamp_s: Mapped[float] = mapped_column(Float)
+    x_m: Mapped[float] = mapped_column(Float)
+    y_m: Mapped[float] = mapped_column(Float)
+    theta_rad: Mapped[float] = mapped_column(Float)
+
+
+class OutboxEntry(RobotBase):
+    """A map version the server has not acknowledged yet."""
+
+    __tablename__ = "outbox"
+
+    version: Mapped[int] = mapped_column(Integer, primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+
+
+class AppliedMessage(RobotBase):
+    """A control message the robot has dealt with (exactly once): ``outcome`` applied / rejected."""
+
+    __tablename__ = "applied_messages"
+
+    seq: Mapped[int] = mapped_column(Integer, primary_key=True)
+    outcome: Mapped[str] = mapped_column(String(16))
+    reason: Mapped[str | None] = mapped_column(Text, default=None)
+    applied_at: Mapped[datetime] = mapped_column(default=utcnow)
+    acked_at: Mapped[datetime | None] = mapped_column(default=None)
