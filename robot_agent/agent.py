@@ -338,12 +338,13 @@ class Agent:
             record.key_id = verify_artifact(
                 got.source, sha, got.signature, self.trusted, self.s.allow_unsigned
             )
-            cls = load_kernel_class(got.source, op.stage, op.name, op.version)
-            check_conformance(cls)
+            # Untrusted behaviour runs first in a child process with time and memory limits; only a kernel
+            # that passed it is imported into this process and run through the conformance battery.
             with self._recent_lock:
                 scans = list(self._recent)
-            if scans:
-                dry_run(got.source, op.stage, op.name, op.version, None, scans, self.s.dry_run_budget_s)
+            dry_run(got.source, op.stage, op.name, op.version, None, scans, self.s.dry_run_budget_s)
+            cls = load_kernel_class(got.source, op.stage, op.name, op.version)
+            check_conformance(cls)
         except KernelRejected as exc:
             record.reason = exc.reason
             self.db.save_kernel(record)

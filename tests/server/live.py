@@ -74,10 +74,10 @@ def database_url(backend: str, tmp: Path) -> str:
 class ServerThread:
     """uvicorn serving ``app`` on a socket bound to 127.0.0.1 and a free port, in a daemon thread."""
 
-    def __init__(self, app: object) -> None:
+    def __init__(self, app: object, port: int = 0) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.sock.bind(("127.0.0.1", 0))
+        self.sock.bind(("127.0.0.1", port))
         self.port = self.sock.getsockname()[1]
         config = uvicorn.Config(app, log_level="warning", lifespan="on", timeout_graceful_shutdown=2)  # type: ignore[arg-type]
         self.server = uvicorn.Server(config)

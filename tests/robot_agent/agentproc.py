@@ -1,0 +1,87 @@
+"""A real agent process (``linemap agent``) beside a real server, for the agent's integration tests."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+LINEMAP = str(Path(sys.executable).parent / "linemap")
+
+
+def wait_for(what: str, check: Callable[[], Any], timeout_s: float = 60.0) -> Any:
+    """Poll ``check`` until it returns something truthy (a readiness wait, not a timing assertion)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = check()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.05)
+
+
+class AgentProcess:
+    """``linemap agent`` as a subprocess; ``stop()`` sends SIGINT, ``kill()`` SIGKILL."""
+
+    def __init__(
+        self,
+        db: Path,
+        *,
+        server: str | None,
+        robot_id: int = 0,
+        token: str = "",
+        extra: list[str] | None = None,
+    ):
+        self.db = db
+        args = [LINEMAP, "agent", "--db", str(db), *(extra or [])]
+        if server is not None:
+            args += ["--server", server, "--robot-id", str(robot_id), "--token", token]
+        self.log = db.with_suffix(".log")
+        self._out = self.log.open("ab")
+        self.proc = subprocess.Popen(args, stdout=self._out, stderr=subprocess.STDOUT, env={**os.environ})
+
+    def stop(self, timeout_s: float = 60.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        try:
+            return self.proc.wait(timeout_s)
+        finally:
+            self._out.close()
+
+    def kill(self) -> None:
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait(30)
+        self._out.close()
+
+    def output(self) -> str:
+        return self.log.read_text(errors="replace")
+
+
+def robot_db_meta(db: Path, key: str) -> Any:
+    import json
+
+    try:
+        with sqlite3.connect(db) as conn:
+            row = conn.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+    except sqlite3.OperationalError:  # the agent is still creating its database
+        return None
+    return None if row is None else json.loads(row[0])["v"]
+
+
+def integrity(db: Path) -> str:
+    with sqlite3.connect(db) as conn:
+        return str(conn.execute("PRAGMA integrity_check").fetchone()[0])
+
+
+def robot_state(client: httpx.Client, robot_id: int) -> dict[str, Any]:
+    data: dict[str, Any] = client.get(f"/robots/{robot_id}").json()
+    return data
