@@ -1,7 +1,8 @@
 """The mapping pipeline (SPEC §2-§4): one ``step(scan)`` at a time, from scans and odometry to a line map."""
 
 from shared.pipeline.config import KernelChoice, Mode, PipelineConfig, StageSchedule
-from shared.pipeline.pipeline import IcpGate, Pipeline, StepResult
+from shared.pipeline.gate import IcpGate
+from shared.pipeline.pipeline import Pipeline, StepResult
 from shared.pipeline.snapshot import MapSnapshot
 from shared.pipeline.wallmap import MergeTolerances, WallMap
 

@@ -5,7 +5,12 @@ once a few walls are confirmed, each scan's pose is refined against them (the pa
 §6.3.1). Each scan point is associated with the nearest wall segment within ``max_distance_m``; the pose
 update ``(dx, dy, dtheta)`` minimises the squared point-to-line distances (linearised about the current
 pose, Gauss-Newton, a few iterations with re-association), with a small damping term so directions the
-walls do not constrain (along a corridor) stay where odometry and ICP put them. Residuals beyond
+walls do not constrain (along a corridor) stay where odometry and ICP put them. The damping alone is too
+weak when the walls are a few degrees off parallel: their across-wall residuals then echo, amplified by
+1 / sin(angle), into a large along-corridor step (on the ACES log the pose crept backwards several cm per
+scan). With ``degeneracy_ratio > 0`` the step is solved in the eigenbasis of the normal matrix, in the
+unknowns ``(dx, dy, s dtheta)`` (``s`` the RMS lever of the pairs, so all three are lengths), and
+directions whose eigenvalue is at most that share of the largest get no update. Residuals beyond
 ``trim_m`` are dropped as outliers. Complexity O(iterations x N x W_near).
 """
 
@@ -62,6 +67,28 @@ def _nearest_wall(points: FloatArray, walls: FloatArray) -> tuple[FloatArray, Fl
     return dist, normal[j], offset[j]
 
 
+def _step(
+    n: FloatArray, jt: FloatArray, r: FloatArray, lever: FloatArray, damping: float, ratio: float
+) -> tuple[float, float, float]:
+    """The damped Gauss-Newton step ``(dx, dy, dtheta)`` for the residuals ``r`` with normals ``n`` and
+    rotation derivatives ``jt``; with ``ratio > 0`` only along the eigen-directions of the normal matrix
+    (in ``(dx, dy, s dtheta)``, ``s`` the RMS ``lever``) whose eigenvalue exceeds ``ratio`` times the
+    largest: directions the walls barely constrain get no update. O(N)."""
+    if ratio <= 0.0:  # the plain damped step
+        a = np.column_stack([n, jt])
+        h = a.T @ a + damping * np.diag([1.0, 1.0, 4.0])
+        dx, dy, dth = (float(v) for v in np.linalg.solve(h, -(a.T @ r)))
+        return dx, dy, dth
+    scale = max(float(np.sqrt(np.mean(np.einsum("ij,ij->i", lever, lever)))), 1e-3)
+    a = np.column_stack([n, jt / scale])  # unknowns (dx, dy, scale dtheta): all lengths
+    h = a.T @ a + damping * np.diag([1.0, 1.0, 4.0 / scale**2])  # the same damping as above
+    w, v = np.linalg.eigh(h)
+    keep = v[:, w > ratio * w[-1]]
+    lam = w[w > ratio * w[-1]]
+    step = keep @ ((keep.T @ -(a.T @ r)) / lam)
+    return float(step[0]), float(step[1]), float(step[2]) / scale
+
+
 def refine_to_walls(
     points: FloatArray,
     scanner_pose: Pose2D,
@@ -73,9 +100,12 @@ def refine_to_walls(
     damping: float = 1.0,
     min_matches: int = 30,
     range_m: float = 8.0,
+    degeneracy_ratio: float = 0.0,
 ) -> WallFit | None:
     """Refine ``scanner_pose`` so the scan ``points`` (scanner frame) lie on ``walls`` (world frame).
 
+    ``degeneracy_ratio`` (0: off, the plain damped step) leaves out poorly constrained directions (module
+    docstring).
     Returns ``None`` when fewer than ``min_matches`` points find a wall (then keep the unrefined pose).
     """
     if len(points) < min_matches or len(walls) == 0:
@@ -102,10 +132,7 @@ def refine_to_walls(
         lever = world[use] - np.array([pose.x_m, pose.y_m])
         # d(residual) / d(theta) for a rotation about the scanner: n . (J lever), J = rot90
         jt = -n[:, 0] * lever[:, 1] + n[:, 1] * lever[:, 0]
-        a = np.column_stack([n, jt])
-        h = a.T @ a + damping * np.diag([1.0, 1.0, 4.0])
-        step = np.linalg.solve(h, -(a.T @ r))
-        dx, dy, dth = (float(v) for v in step)
+        dx, dy, dth = _step(n, jt, r, lever, damping, degeneracy_ratio)
         # a rotation about the scanner position, then a translation
         pose = Pose2D(pose.x_m + dx, pose.y_m + dy, pose.theta_rad + dth)
         rmse = float(np.sqrt(np.mean(r * r)))

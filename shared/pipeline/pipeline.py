@@ -1,10 +1,13 @@
 """The step loop (SPEC §2-§4): one ``step(scan)`` at a time, from a scan and odometry to the line map.
 
-Per step: pose prediction from odometry (paper §2, eq. 9-11), ICP correction against the previous scan
-(§6.2.2), segmentation (§3.1) of the scan, then the scheduled stages (noise removal §3.2, clustering §3.3,
-straight lines §3.4/§4) and the map update. In **online** mode the scheduled stages run on every step's new
-points; in **offline** mode points accumulate for ``n_smax`` steps (flushed early once the heading turned
-more than ``heading_flush_deg`` since the batch began); in **mixed** mode each stage has its own schedule.
+Per step: pose prediction from odometry (paper §2, eq. 9-11), ICP correction against a recent keyframe
+scan (§6.2.2; :class:`~shared.pipeline.gate.IcpGate` says when it is believed, :mod:`shared.pipeline.rematch`
+gives a refused match a second chance) and refinement against a local wall map
+(:mod:`shared.pipeline.localize`), segmentation (§3.1) of the scan, then the scheduled stages (noise removal
+§3.2, clustering §3.3, straight lines §3.4/§4) and the map update. In **online** mode the scheduled stages
+run on every step's new points; in **offline** mode points accumulate for ``n_smax`` steps (flushed early
+once the heading turned more than ``heading_flush_deg`` since the batch began); in **mixed** mode each stage
+has its own schedule.
 Every point passes each stage exactly once: a stage's buffer is emptied when it runs.
 
 The pipeline is stateful (it is the robot's memory); the kernels it calls are pure.
@@ -24,8 +27,10 @@ import numpy as np
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Stage
 from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
+from shared.pipeline.gate import IcpGate
 from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.regroup import regroup
+from shared.pipeline.rematch import rematch
 from shared.pipeline.snapshot import MapSnapshot
 from shared.pipeline.stages import Chunk, cluster, concat, extract_lines, remove_noise
 from shared.pipeline.wallmap import MergeTolerances, WallMap
@@ -34,38 +39,6 @@ from shared.types import FloatArray, Pose2D, Scan, wrap_angle
 __all__ = ["IcpGate", "Pipeline", "StepResult"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, slots=True)
-class IcpGate:
-    """When an ICP correction is trusted over odometry, and when the reference scan (keyframe) moves on.
-
-    Scans are matched against the last keyframe, renewed every ``keyframe_m`` metres or ``keyframe_rad``
-    of turn (0: every scan, i.e. scan-to-scan matching). A correction farther than ``max_correction_m`` or
-    ``max_correction_rad`` from the odometry prediction is refused: between two scans wheel odometry is
-    rarely that wrong, and a wrong match on a repetitive corridor is. Measured on the ACES log (relation
-    error, mean +- std): gates of 0.5 m / 0.35 rad gave 0.73 +- 3.20 m, these 0.28 +- 0.97 m.
-    ``correction_ratio`` widens the gate by that share of the step's own odometry motion (for robots whose
-    wheels slip in turns); 0.5 cost ACES a factor 3, so it is off by default. ``strong_*`` accept a larger
-    correction (up to ``strong_max_m``/``strong_max_rad``) when the match is excellent (converged, inlier
-    share >= ``strong_inlier_ratio``, RMS <= ``strong_rmse_m``); off by default (ratio > 1): with 0.85 the
-    FR079 relation error fell from 3.17 to 0.33 m but MIT CSAIL rose from 0.29 to 0.86 m.
-    """
-
-    min_inlier_ratio: float = 0.5
-    max_correction_m: float = 0.1
-    max_correction_rad: float = 0.05
-    correction_ratio: float = 0.0
-    refine_range_m: float = 1000.0
-    strong_inlier_ratio: float = 2.0  # > 1: off
-    strong_rmse_m: float = 0.03
-    strong_max_m: float = 0.5
-    strong_max_rad: float = 0.3
-    keyframe_m: float = 0.0
-    keyframe_rad: float = 0.0
-    refine_to_map: bool = True
-    local_map_steps: int = 100
-    refine_min_share: float = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,17 +79,21 @@ class Pipeline:
         self._map = WallMap(merge)
         # Localisation keeps its own local line map, built every step whatever the schedule (offline
         # batches would leave the pose uncorrected for N_smax steps); the configured stages make the map
-        # shown. It is local: two maps restart in turn every `local_map_steps`, and the older one (the
-        # last `local_map_steps` to twice that) is matched against, so old, drifted walls of a loop never
+        # shown. It is local: two maps restart in turn every `local_map_steps` steps or `local_map_m`
+        # metres of travel, and the older one is matched against, so old, drifted walls of a loop never
         # pull the pose.
         self._merge = merge
         self._loc_maps = [WallMap(merge), WallMap(merge)]
-        self._steps = 0
+        self.local_map_restarts = 0
+        self._since_steps = 0
+        self._since_m = 0.0
         self._loc_lines: Any = REGISTRY.create(Stage.STRAIGHT_LINE, "hough-cluster", {"min_points": 8})
         self._centroids: list[FloatArray] = []
         self._trajectory: list[tuple[float, float, float, float]] = []
         self._pose: Pose2D | None = None
         self._prev_odom: Pose2D | None = None
+        self._last_motion = Pose2D()  # the last step's estimated robot motion (constant-velocity seed)
+        self._last_icp = False  # whether that motion came from a believed match
         self._key_pose: Pose2D | None = None  # robot pose of the keyframe
         self._key_points: FloatArray | None = None  # keyframe scan points, scanner frame
         self._next_group = 0
@@ -127,6 +104,7 @@ class Pipeline:
         self._by_k: dict[int, Any] = {}
         self.icp_rejections = 0
         self.map_refinements = 0
+        self.rematches = 0
 
     # ------------------------------------------------------------------ configuration
     @property
@@ -176,7 +154,9 @@ class Pipeline:
         return ran
 
     def _estimate_pose(self, odom: Pose2D | None, points: FloatArray) -> bool:
-        """Predict the pose from odometry, then correct it by ICP against the keyframe scan."""
+        """Predict the pose from odometry, correct it by ICP against the keyframe scan (with a second chance
+        when the gate refuses the match, :mod:`shared.pipeline.rematch`), then refine it against the local
+        wall map."""
         if self._pose is None:
             self._pose = odom or Pose2D()
             self._prev_odom = odom
@@ -197,7 +177,7 @@ class Pipeline:
             and min(len(points), len(key_points)) >= 3
         ):
             # laser motion from the keyframe's scanner frame to the current one
-            guess = self._offset.inverse() @ key_pose.between(predicted) @ self._offset
+            guess = self._to_laser(key_pose, predicted)
             match = matchers[0].apply(key_points, points, guess)
             corr = guess.between(match.pose)
             g = self._gate
@@ -211,24 +191,31 @@ class Pipeline:
                     and math.hypot(corr.x_m, corr.y_m) <= g.strong_max_m
                     and abs(corr.theta_rad) <= g.strong_max_rad
                 )
+            if not trusted and g.rematch:
+                steady = self._last_icp and g.constant_velocity
+                starts = [self._to_laser(key_pose, self._pose @ self._last_motion)] if steady else []
+                second = rematch(matchers[0], key_points, points, guess, match, g, starts)
+                if second is not None:
+                    match, trusted = second, True
+                    self.rematches += 1
             if trusted:
                 predicted = key_pose @ self._offset @ match.pose @ self._offset.inverse()
                 icp_used = True
             else:
                 self.icp_rejections += 1
-        k = max(self._gate.local_map_steps, 1)
-        if self._steps % k == 0 and self._steps:
-            self._loc_maps[(self._steps // k) % 2] = WallMap(self._merge)
-        self._steps += 1
-        local = self._loc_maps[((self._steps - 1) // k + 1) % 2]  # the one not restarted last
+        local = self._local_map(math.hypot(delta.x_m, delta.y_m))
         if self._gate.refine_to_map and len(local):
-            near = points[np.einsum("ij,ij->i", points, points) <= self._gate.refine_range_m**2]
-            fit = refine_to_walls(near, predicted @ self._offset, local.segments())
-            if fit is not None and fit.matched >= self._gate.refine_min_share * len(near):
-                corr = (predicted @ self._offset).between(fit.pose)
+            g = self._gate
+            near = points[np.einsum("ij,ij->i", points, points) <= g.refine_range_m**2]
+            scanner = predicted @ self._offset
+            fit = refine_to_walls(near, scanner, local.segments(), degeneracy_ratio=g.refine_degeneracy)
+            if fit is not None and fit.matched >= g.refine_min_share * len(near):
+                corr = scanner.between(fit.pose)
                 if self._plausible(corr, delta):
                     predicted = fit.pose @ self._offset.inverse()
                     self.map_refinements += 1
+        self._last_motion = self._pose.between(predicted)
+        self._last_icp = icp_used
         self._pose = predicted
         moved = self._key_pose.between(predicted) if self._key_pose is not None else Pose2D()
         if (
@@ -238,6 +225,21 @@ class Pipeline:
         ):
             self._key_pose, self._key_points = predicted, points
         return icp_used
+
+    def _local_map(self, travel_m: float) -> WallMap:
+        """Count a step of ``travel_m`` (odometry), restart the older local map when its span is over, and
+        return the one to match against (the one not restarted last)."""
+        if self._since_steps >= max(self._gate.local_map_steps, 1) or self._since_m >= self._gate.local_map_m:
+            self.local_map_restarts += 1
+            self._loc_maps[self.local_map_restarts % 2] = WallMap(self._merge)
+            self._since_steps, self._since_m = 0, 0.0
+        self._since_steps += 1
+        self._since_m += travel_m
+        return self._loc_maps[(self.local_map_restarts + 1) % 2]
+
+    def _to_laser(self, key_pose: Pose2D, robot: Pose2D) -> Pose2D:
+        """The scanner's motion from the keyframe's scanner frame to that of the robot pose ``robot``."""
+        return self._offset.inverse() @ key_pose.between(robot) @ self._offset
 
     def _plausible(self, corr: Pose2D, motion: Pose2D) -> bool:
         """Whether a correction of the odometry prediction is small enough to believe: within the fixed

@@ -47,3 +47,22 @@ def test_corridor_keeps_the_along_wall_guess() -> None:
 def test_too_few_matches_gives_none() -> None:
     assert refine_to_walls(scan_points(), Pose2D(50.0, 50.0, 0.0), WORLD.walls) is None
     assert refine_to_walls(np.zeros((0, 2)), TRUE, WORLD.walls) is None
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(2.0, 5.0), st.floats(0.01, 0.04))
+def test_nearly_parallel_walls_do_not_slide_the_pose_along_the_corridor(
+    tilt_deg: float, shift_m: float
+) -> None:
+    """Walls a few degrees off parallel barely fix the along-track position: a small inconsistency between
+    scan and map (``shift_m`` across one wall) must not become a large along-track move (issue 3)."""
+    t = math.tan(math.radians(tilt_deg))
+    x = np.linspace(-6, 6, 240)
+    pts = np.vstack([np.column_stack([x, np.full_like(x, -1.0)]), np.column_stack([x, 1.0 + t * x])])
+    walls = np.array([[-10, -1.0, 10, -1.0], [-10, 1.0 - 10 * t + shift_m, 10, 1.0 + 10 * t + shift_m]])
+    free = refine_to_walls(pts, Pose2D(), walls)
+    kept = refine_to_walls(pts, Pose2D(), walls, degeneracy_ratio=0.05)
+    assert free is not None and kept is not None
+    assert abs(free.pose.x_m) > 0.1, "without the degeneracy test the across-wall residual slides the pose"
+    assert abs(kept.pose.x_m) < 0.01
+    assert abs(kept.pose.y_m) <= shift_m and abs(kept.pose.theta_rad) < math.radians(0.2)

@@ -154,6 +154,65 @@ def test_icp_corrects_bad_odometry() -> None:
     assert abs(without.pose.x_m - true_x) > 0.15
 
 
+def turning_run(odom_heading_rad: list[float], seed: int = 0) -> list[Scan]:
+    """An on-the-spot turn of 10 deg per scan (creeping 2 cm per scan) whose odometry reports the headings
+    ``odom_heading_rad`` instead of the true ones."""
+    world, rng = default_world(), np.random.default_rng(seed)
+    scans = []
+    for i, heading in enumerate(odom_heading_rad):
+        pose = Pose2D(2.0 + 0.02 * i, 2.0, math.radians(10.0) * i)
+        s = simulate_scan(world, pose, rng, RangeNoise(outlier_rate=0.0), stamp_s=0.1 * i)
+        odom = Pose2D(pose.x_m, pose.y_m, heading)
+        scans.append(Scan(s.stamp_s, s.angle_min_rad, s.angle_increment_rad, s.range_min_m, s.range_max_m,
+                          s.ranges_m, odometry=odom))
+    return scans
+
+
+def heading_error_deg(gate: IcpGate, scans: list[Scan]) -> float:
+    pipe = Pipeline(PipelineConfig(), icp_gate=gate)
+    for s in scans:
+        pipe.step(s)
+    return abs(math.degrees(pipe.pose.theta_rad - math.radians(10.0) * (len(scans) - 1)))
+
+
+def test_fast_turn_with_slipping_wheels_keeps_its_heading() -> None:
+    """Odometry under-reports the turn by 4 deg per scan: beyond the gate, so before issue 3 every (right)
+    correction was refused and the heading error summed up; the second chance takes them."""
+    scans = turning_run([math.radians(6.0) * i for i in range(10)])
+    assert heading_error_deg(IcpGate(), scans) < 1.0
+    assert heading_error_deg(IcpGate.legacy(), scans) > 20.0
+
+
+def test_stalled_then_jumping_odometry_is_bridged() -> None:
+    """Odometry stalls for three scans, then catches up 40 deg at once (the MIT CSAIL log does this): the
+    matches during the stall are taken, and the jump is not counted twice. Either the correlative search or
+    the constant-velocity seed finds the true 10 deg step; with neither, ICP from the jump goes wrong."""
+    headings = [math.radians(10.0) * i for i in range(10)]
+    for k in (3, 4, 5):
+        headings[k] = headings[2]
+    scans = turning_run(headings)
+    assert heading_error_deg(IcpGate(), scans) < 1.0
+    assert heading_error_deg(IcpGate(search_rad=0.0), scans) < 1.0
+    assert heading_error_deg(IcpGate(constant_velocity=False), scans) < 1.0
+    assert heading_error_deg(IcpGate(search_rad=0.0, constant_velocity=False), scans) > 10.0
+
+
+def test_local_map_restarts_by_distance_or_steps() -> None:
+    """The local wall map restarts every ``local_map_m`` metres of travel or ``local_map_steps`` steps."""
+    scans = straight_run(30)  # 4 cm per step
+    by_distance = Pipeline(PipelineConfig(), icp_gate=IcpGate(local_map_m=0.2, local_map_steps=1000))
+    by_steps = Pipeline(PipelineConfig(), icp_gate=IcpGate(local_map_m=1e9, local_map_steps=10))
+    never = Pipeline(PipelineConfig(), icp_gate=IcpGate(local_map_m=1e9, local_map_steps=1000))
+    for s in scans:
+        for pipe in (by_distance, by_steps, never):
+            pipe.step(s)
+    assert never.local_map_restarts == 0
+    assert by_steps.local_map_restarts == 2  # after steps 10 and 20
+    assert by_distance.local_map_restarts in (5, 6)  # every 0.2 m of 1.16 m of odometry travel
+    for pipe in (by_distance, by_steps, never):
+        assert pipe.pose.x_m == pytest.approx(2.0 + 0.04 * 29, abs=0.03)
+
+
 def test_reconfigure_validates_before_swapping() -> None:
     pipe = Pipeline(PipelineConfig())
     with pytest.raises(ValueError, match="epsilon_m"):

@@ -1,0 +1,140 @@
+"""Relation error (Kümmerle et al. 2009) of the online pipeline on the SLAM benchmark logs.
+
+Maps each log of ``../shared/data`` (beside the repository) with the pipeline, one ``step`` per scan as
+``linemap map`` does, and prints per log and variant: scans, throughput (scans/s, reading included, from
+the second scan on), the relation error of the trajectory (mean +- std of the translational error per
+relation, m), that of the log's raw odometry and the published incremental scan-matching figure.
+
+    .venv/bin/python benchmarks/relation_error.py [--logs aces,fr079,mit] [--variant default,legacy]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+from shared.io import open_log
+from shared.metrics import RelationError, read_relations, relation_error
+from shared.pipeline import IcpGate, Pipeline, PipelineConfig
+
+__all__ = ["LOGS", "VARIANTS", "LogSpec", "Result", "main", "run"]
+
+DATA = Path(__file__).resolve().parent.parent / ".." / "shared" / "data"
+
+
+@dataclass(frozen=True, slots=True)
+class LogSpec:
+    """One benchmark log: its name, files under ``DATA`` and the published scan-matching figure (m)."""
+
+    title: str
+    log: str
+    relations: str
+    published_m: tuple[float, float]
+
+
+LOGS: dict[str, LogSpec] = {
+    "aces": LogSpec("ACES", "aces/aces.clf.gz", "aces/aces.relations", (0.173, 0.614)),
+    "fr079": LogSpec("Freiburg 079", "fr079/fr079.clf.gz", "fr079/fr079.relations", (0.258, 0.427)),
+    "mit": LogSpec(
+        "MIT CSAIL", "mit-csail/mit-csail.clf.gz", "mit-csail/mit-csail.relations", (0.106, 0.325)
+    ),
+}
+
+#: named pipeline set-ups: the defaults, and the scan matching as it was before issue 3's rework
+VARIANTS: dict[str, Callable[[], tuple[PipelineConfig, IcpGate]]] = {
+    "default": lambda: (PipelineConfig(), IcpGate()),
+    "legacy": lambda: (PipelineConfig(), IcpGate.legacy()),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Result:
+    """One mapped log: scan count, throughput and the relation errors of the pipeline and of odometry."""
+
+    scans: int
+    scans_per_s: float
+    pipeline: RelationError
+    odometry: RelationError
+
+
+def run(spec: LogSpec, variant: str, progress: Progress) -> Result:
+    """Map ``spec``'s log with ``variant``; O(scans x step)."""
+    config, gate = VARIANTS[variant]()
+    stamps: list[float] = []
+    poses: list[tuple[float, float, float]] = []
+    odom: list[tuple[float, float, float]] = []
+    task = progress.add_task(f"{spec.title} ({variant})", total=None)
+    with open_log(DATA / spec.log) as reader:
+        pipeline = Pipeline(config, laser_offset=reader.info.laser_offset, icp_gate=gate)
+        start = time.perf_counter()
+        for scan in reader:
+            result = pipeline.step(scan)
+            if not stamps:  # the first step compiles the kernels: not throughput
+                start = time.perf_counter()
+            stamps.append(scan.stamp_s)
+            poses.append(result.pose.as_tuple())
+            odom.append(scan.odometry.as_tuple() if scan.odometry is not None else (np.nan,) * 3)
+            progress.advance(task)
+        pipeline.flush()
+        seconds = time.perf_counter() - start
+    progress.remove_task(task)
+    relations = read_relations(DATA / spec.relations)
+    t = np.asarray(stamps)
+    return Result(
+        len(stamps),
+        (len(stamps) - 1) / seconds if seconds > 0 else 0.0,
+        relation_error(t, np.asarray(poses), relations),
+        relation_error(t, np.asarray(odom), relations),
+    )
+
+
+def _pm(mean: float, std: float) -> str:
+    return f"{mean:.3f} +- {std:.3f}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: map the chosen logs with the chosen variants and print the table."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--logs", default=",".join(LOGS), help=f"comma-separated, of {', '.join(LOGS)}")
+    parser.add_argument("--variant", default="default", help=f"comma-separated, of {', '.join(VARIANTS)}")
+    args = parser.parse_args(argv)
+    logs = [name.strip() for name in args.logs.split(",") if name.strip()]
+    variants = [name.strip() for name in args.variant.split(",") if name.strip()]
+    known = [(n, list(LOGS)) for n in logs] + [(v, list(VARIANTS)) for v in variants]
+    for name, choices in known:
+        if name not in choices:
+            parser.error(f"unknown name {name!r}: expected one of {', '.join(choices)}")
+    console = Console(width=140)
+    table = Table(title="Relation error (Kümmerle et al. 2009), translational, m")
+    for column in ("log", "variant", "scans", "scans/s", "ours", "max", "raw odometry", "published ISM"):
+        table.add_column(column, justify="right" if column in ("scans", "scans/s", "max") else "left")
+    with Progress(console=console, transient=True) as progress:
+        for name in logs:
+            spec = LOGS[name]
+            for variant in variants:
+                r = run(spec, variant, progress)
+                p, o = r.pipeline, r.odometry
+                table.add_row(
+                    spec.title,
+                    variant,
+                    f"{r.scans:,}",
+                    f"{r.scans_per_s:.0f}",
+                    _pm(p.trans_mean_m, p.trans_std_m),
+                    f"{p.trans_max_m:.2f}",
+                    _pm(o.trans_mean_m, o.trans_std_m),
+                    _pm(*spec.published_m),
+                )
+    console.print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
