@@ -6,12 +6,14 @@ returns the app; ``linemap server`` serves it with uvicorn.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
 from fastapi import APIRouter, FastAPI, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
@@ -23,6 +25,7 @@ from server.errors import ServerError
 from server.migrate import upgrade
 from server.routers import auth, kernels, maps, messages, meta, robots
 from server.settings import Settings
+from server.writer import WriteBatcher
 
 __all__ = ["API_PREFIX", "ROUTERS", "create_app"]
 
@@ -47,11 +50,15 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     db = Database(settings.database_url)
     if migrate:
         upgrade(db.engine)
-    state = AppState(settings=settings, db=db)
+    state = AppState(settings=settings, db=db, writer=WriteBatcher(db))
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        flusher = asyncio.create_task(_flush_seen(state))
         yield
+        flusher.cancel()
+        await run_in_threadpool(state.flush_seen)
+        await run_in_threadpool(state.writer.close)
         db.dispose()
 
     app = FastAPI(
@@ -69,6 +76,18 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     for router, prefix in ROUTERS:
         app.include_router(router, prefix=prefix)
     return app
+
+
+async def _flush_seen(state: AppState, every_s: float = 10.0) -> None:
+    """Every couple of seconds: write robots' last-seen times (one transaction for all robots) and
+    checkpoint the SQLite write-ahead log."""
+    while True:
+        await asyncio.sleep(every_s)
+        try:
+            await state.writer.submit(state.flush_seen)
+            await run_in_threadpool(state.db.checkpoint)
+        except Exception:  # retried with the next round; never kill the task
+            log.exception("could not record robots' last-seen times or checkpoint the database")
 
 
 async def _server_error(_request: Request, exc: Exception) -> JSONResponse:

@@ -10,11 +10,12 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
-from datetime import timedelta
+from datetime import datetime, timedelta
 from typing import Annotated, Literal
 
 from fastapi import Depends, Request
-from sqlalchemy import select, update
+from fastapi.concurrency import run_in_threadpool
+from sqlalchemy import Connection, bindparam, select, update
 
 from server.database import Database
 from server.errors import AuthError, ForbiddenError
@@ -22,6 +23,7 @@ from server.hub import Hub
 from server.models import OperatorToken, Robot, Session, utcnow
 from server.security import OPERATOR_PREFIX, ROBOT_PREFIX, SESSION_PREFIX, hash_token
 from server.settings import Settings
+from server.writer import WriteBatcher
 
 __all__ = [
     "SESSION_COOKIE",
@@ -38,7 +40,6 @@ __all__ = [
 
 SESSION_COOKIE = "linemap_session"
 _CACHE_S = 5.0
-_SEEN_EVERY_S = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,9 +62,11 @@ class AppState:
 
     settings: Settings
     db: Database
+    writer: WriteBatcher
     hub: Hub = field(default_factory=Hub)
     _cache: dict[str, tuple[float, Principal | None]] = field(default_factory=dict)
-    _seen: dict[int, float] = field(default_factory=dict)
+    _seen: dict[int, datetime] = field(default_factory=dict)
+    _unflushed: dict[int, datetime] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def forget_credentials(self) -> None:
@@ -71,19 +74,25 @@ class AppState:
         with self._lock:
             self._cache.clear()
 
-    def lookup(self, credential: str) -> Principal | None:
-        """The principal behind a bearer token or session id, or ``None``."""
+    def cached(self, credential: str) -> tuple[str, Principal | None, bool]:
+        """``(hash, principal, hit)`` from the cache alone (cheap enough for the event loop)."""
         key = hash_token(credential)
-        now = time.monotonic()
         with self._lock:
             hit = self._cache.get(key)
-        if hit is not None and hit[0] > now:
-            return hit[1]
+        if hit is not None and hit[0] > time.monotonic():
+            return key, hit[1], True
+        return key, None, False
+
+    def lookup(self, credential: str) -> Principal | None:
+        """The principal behind a bearer token or session id, or ``None`` (cache, then database)."""
+        key, found, hit = self.cached(credential)
+        if hit:
+            return found
         found = self._lookup_db(credential, key)
         with self._lock:
             if len(self._cache) > 10_000:
                 self._cache.clear()
-            self._cache[key] = (now + _CACHE_S, found)
+            self._cache[key] = (time.monotonic() + _CACHE_S, found)
         return found
 
     def _lookup_db(self, credential: str, key: str) -> Principal | None:
@@ -110,20 +119,36 @@ class AppState:
         return None
 
     def mark_seen(self, robot_id: int) -> None:
-        """Record that the robot was heard from (at most one write every couple of seconds per robot)."""
-        now = time.monotonic()
+        """Note that the robot was heard from now (in memory; :meth:`flush_seen` writes it down)."""
+        now = utcnow()
+        self._seen[robot_id] = now
         with self._lock:
-            if now - self._seen.get(robot_id, -1e9) < _SEEN_EVERY_S:
-                return
-            self._seen[robot_id] = now
-        with self.db.session() as s:
-            s.execute(update(Robot).where(Robot.id == robot_id).values(last_seen_at=utcnow()))
+            self._unflushed[robot_id] = now
+
+    def last_seen(self, robot_id: int) -> datetime | None:
+        """When the robot was last heard from, if later than what the database holds."""
+        return self._seen.get(robot_id)
+
+    def flush_seen(self, conn: Connection | None = None) -> None:
+        """Write the last-seen times noted since the previous flush (one executemany; in ``conn``'s
+        transaction when given, e.g. a write batch). Reads merge in the newer in-memory times."""
+        with self._lock:
+            pending, self._unflushed = self._unflushed, {}
+        if not pending:
+            return
+        rows = [{"rid": rid, "at": at} for rid, at in pending.items()]
+        stmt = update(Robot).where(Robot.id == bindparam("rid")).values(last_seen_at=bindparam("at"))
+        if conn is not None:
+            conn.execute(stmt, rows)
+            return
+        with self.db.write_conn() as own:
+            own.execute(stmt, rows)
 
     def session_expiry(self) -> timedelta:
         return timedelta(seconds=self.settings.session_ttl_s)
 
 
-def get_state(request: Request) -> AppState:
+async def get_state(request: Request) -> AppState:
     state: AppState = request.app.state.linemap
     return state
 
@@ -131,23 +156,26 @@ def get_state(request: Request) -> AppState:
 StateDep = Annotated[AppState, Depends(get_state)]
 
 
-def get_principal(request: Request, state: StateDep) -> Principal:
-    """The caller, from the bearer token or else the session cookie; 401 when neither is valid."""
+async def get_principal(request: Request, state: StateDep) -> Principal:
+    """The caller, from the bearer token or else the session cookie; 401 when neither is valid. Runs on
+    the event loop; only a cache miss reads the database (in the thread pool)."""
     header = request.headers.get("authorization")
     if header:
         scheme, _, credential = header.partition(" ")
-        if scheme.lower() != "bearer" or not credential.strip():
+        credential = credential.strip()
+        if scheme.lower() != "bearer" or not credential:
             raise AuthError("expected 'Authorization: Bearer <token>'")
-        found = state.lookup(credential.strip())
-        if found is None:
-            raise AuthError("unknown or revoked token")
     else:
-        cookie = request.cookies.get(SESSION_COOKIE)
-        if not cookie:
+        credential = request.cookies.get(SESSION_COOKIE) or ""
+        if not credential:
             raise AuthError("no credential: send 'Authorization: Bearer <token>' or log in")
-        found = state.lookup(cookie)
-        if found is None or found.kind != "operator":
-            raise AuthError("session expired or unknown: log in again")
+    _key, found, hit = state.cached(credential)
+    if not hit:
+        found = await run_in_threadpool(state.lookup, credential)
+    if found is None:
+        raise AuthError("unknown or revoked token" if header else "session expired or unknown: log in again")
+    if not header and found.kind != "operator":
+        raise AuthError("session expired or unknown: log in again")
     if found.kind == "robot":
         state.mark_seen(found.id)
     return found
@@ -156,7 +184,7 @@ def get_principal(request: Request, state: StateDep) -> Principal:
 PrincipalDep = Annotated[Principal, Depends(get_principal)]
 
 
-def require_operator(who: PrincipalDep) -> Principal:
+async def require_operator(who: PrincipalDep) -> Principal:
     if who.kind != "operator":
         raise ForbiddenError("this route is for operators; robot tokens reach only their own robot's routes")
     return who
@@ -165,14 +193,14 @@ def require_operator(who: PrincipalDep) -> Principal:
 OperatorDep = Annotated[Principal, Depends(require_operator)]
 
 
-def robot_access(robot_id: int, who: PrincipalDep) -> Principal:
+async def robot_access(robot_id: int, who: PrincipalDep) -> Principal:
     """An operator, or the robot ``robot_id`` itself."""
     if who.kind == "robot" and who.id != robot_id:
         raise ForbiddenError(f"this robot token belongs to robot {who.id}, not robot {robot_id}")
     return who
 
 
-def robot_self(robot_id: int, who: PrincipalDep) -> Principal:
+async def robot_self(robot_id: int, who: PrincipalDep) -> Principal:
     """Only the robot ``robot_id`` itself (it uploads its maps and acknowledges its messages)."""
     if who.kind != "robot":
         raise ForbiddenError(f"only robot {robot_id}'s own token may do this")

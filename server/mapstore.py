@@ -9,9 +9,10 @@ refused with 409 and the server's version, and the robot sends a snapshot instea
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
-from sqlalchemy import delete, func, insert, select
+from sqlalchemy import Connection, Table, delete, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
@@ -30,84 +31,107 @@ class AppliedUpload:
     event: dict[str, Any] | None
 
 
-def _upsert_segments(s: Session, robot_id: int, version: int, rows: list[list[float]]) -> None:
+_SEG: Table = MapSegment.__table__  # type: ignore[assignment]
+_TRAJ: Table = TrajectoryPoint.__table__  # type: ignore[assignment]
+_STATE: Table = MapState.__table__  # type: ignore[assignment]
+_UPLOADS: Table = MapUploadRecord.__table__  # type: ignore[assignment]
+_ROBOTS: Table = Robot.__table__  # type: ignore[assignment]
+_COORDS = ("x0_m", "y0_m", "x1_m", "y1_m", "version")
+
+
+def _upsert(
+    conn: Connection, table: Any, keys: list[str], columns: tuple[str, ...], values: list[dict[str, Any]]
+) -> None:
+    """Insert ``values``, replacing rows whose ``keys`` exist (SQLite and PostgreSQL ``ON CONFLICT``)."""
+    if not values:
+        return
+    dialect = conn.dialect.name
+    if dialect in ("postgresql", "sqlite"):
+        ins: Any = (postgresql if dialect == "postgresql" else sqlite).insert(table)
+        stmt = ins.on_conflict_do_update(
+            index_elements=keys, set_={c: getattr(ins.excluded, c) for c in columns}
+        )
+        conn.execute(stmt, values)
+        return
+    for row in values:  # other backends: delete then insert
+        conn.execute(delete(table).where(*(table.c[k] == row[k] for k in keys)))
+    conn.execute(insert(table), values)
+
+
+_SEGMENT_SQL = (
+    "INSERT INTO map_segments (robot_id, segment_id, x0_m, y0_m, x1_m, y1_m, version) VALUES {rows} "
+    "ON CONFLICT (robot_id, segment_id) DO UPDATE SET x0_m = excluded.x0_m, y0_m = excluded.y0_m, "
+    "x1_m = excluded.x1_m, y1_m = excluded.y1_m, version = excluded.version"
+)
+_TRAJECTORY_SQL = (
+    "INSERT INTO trajectory_points (robot_id, version, stamp_s, x_m, y_m, theta_rad) VALUES {rows}"
+)
+_CHUNK_ROWS = 500  # 7 parameters a row: well under SQLite's 32,766 and PostgreSQL's 65,535
+
+
+def _multi_row(conn: Connection, sql: str, rows: list[tuple[Any, ...]]) -> None:
+    """One multi-row ``VALUES`` statement per chunk, at driver level. A driver ``executemany`` goes back to
+    Python (and the GIL) after every row, and under load each return waited for the GIL: 200-row uploads
+    stalled for 100+ ms. One statement per chunk costs one round trip."""
+    mark = "?" if conn.dialect.paramstyle == "qmark" else "%s"
+    width = len(rows[0])
+    one = "(" + ", ".join([mark] * width) + ")"
+    for start in range(0, len(rows), _CHUNK_ROWS):
+        chunk = rows[start : start + _CHUNK_ROWS]
+        params = tuple(v for row in chunk for v in row)
+        conn.exec_driver_sql(sql.format(rows=", ".join([one] * len(chunk))), params)
+
+
+def _bulk_segments(conn: Connection, robot_id: int, version: int, rows: list[list[float]]) -> None:
+    """Upsert walls (the hot path: ~200 rows several times a second). SQLite and PostgreSQL both speak
+    ``ON CONFLICT ... DO UPDATE``; other backends go through :func:`_upsert`. A segment id given twice in
+    one upload keeps its last row."""
     if not rows:
         return
-    values = [
-        {
-            "robot_id": robot_id,
-            "segment_id": int(r[0]),
-            "x0_m": r[1],
-            "y0_m": r[2],
-            "x1_m": r[3],
-            "y1_m": r[4],
-            "version": version,
-        }
-        for r in rows
-    ]
-    dialect = s.get_bind().dialect.name
-    if dialect == "postgresql":
-        pg = postgresql.insert(MapSegment)
-        stmt: Any = pg.on_conflict_do_update(
-            index_elements=["robot_id", "segment_id"],
-            set_={c: getattr(pg.excluded, c) for c in ("x0_m", "y0_m", "x1_m", "y1_m", "version")},
-        )
-    elif dialect == "sqlite":
-        lite = sqlite.insert(MapSegment)
-        stmt = lite.on_conflict_do_update(
-            index_elements=["robot_id", "segment_id"],
-            set_={c: getattr(lite.excluded, c) for c in ("x0_m", "y0_m", "x1_m", "y1_m", "version")},
-        )
-    else:  # other backends: delete then insert
-        ids = [v["segment_id"] for v in values]
-        s.execute(delete(MapSegment).where(MapSegment.robot_id == robot_id, MapSegment.segment_id.in_(ids)))
-        stmt = insert(MapSegment)
-    s.execute(stmt, values)
+    last = {int(r[0]): r for r in rows}  # ON CONFLICT cannot touch one row twice in a statement
+    if conn.dialect.name not in ("sqlite", "postgresql"):
+        values = [
+            dict(zip(("robot_id", "segment_id", *_COORDS), (robot_id, sid, *r[1:5], version), strict=True))
+            for sid, r in last.items()
+        ]
+        _upsert(conn, _SEG, ["robot_id", "segment_id"], _COORDS, values)
+        return
+    _multi_row(
+        conn, _SEGMENT_SQL, [(robot_id, sid, r[1], r[2], r[3], r[4], version) for sid, r in last.items()]
+    )
 
 
-def _add_trajectory(s: Session, robot_id: int, version: int, rows: list[list[float]]) -> None:
+def _bulk_trajectory(conn: Connection, robot_id: int, version: int, rows: list[list[float]]) -> None:
     if rows:
-        s.execute(
-            insert(TrajectoryPoint),
-            [
-                {
-                    "robot_id": robot_id,
-                    "version": version,
-                    "stamp_s": r[0],
-                    "x_m": r[1],
-                    "y_m": r[2],
-                    "theta_rad": r[3],
-                }
-                for r in rows
-            ],
-        )
+        _multi_row(conn, _TRAJECTORY_SQL, [(robot_id, version, r[0], r[1], r[2], r[3]) for r in rows])
 
 
-def apply_upload(s: Session, robot_id: int, up: MapUpload, key: str) -> AppliedUpload:
-    """Apply one upload in the caller's transaction. O(rows in the upload)."""
+def apply_upload(
+    conn: Connection, robot_id: int, up: MapUpload, key: str, seen_at: datetime | None = None
+) -> AppliedUpload:
+    """Apply one upload in the caller's transaction (SQLAlchemy Core: a robot sends one every few hundred
+    milliseconds). O(rows in the upload)."""
     # Lock the robot's row first: concurrent uploads of one robot (a retry racing its original) queue here,
     # so the idempotency check below sees every upload committed before it.
-    robot = s.scalars(select(Robot).where(Robot.id == robot_id).with_for_update()).first()
+    robot = conn.execute(
+        select(_ROBOTS.c.map_version).where(_ROBOTS.c.id == robot_id).with_for_update()
+    ).first()
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
-    seen = s.scalars(
-        select(MapUploadRecord).where(
-            MapUploadRecord.robot_id == robot_id, MapUploadRecord.idempotency_key == key
-        )
+    seen = conn.execute(
+        select(_UPLOADS.c.version).where(_UPLOADS.c.robot_id == robot_id, _UPLOADS.c.idempotency_key == key)
     ).first()
     if seen is not None:
-        return AppliedUpload(
-            MapUploadOut(version=seen.version, segments=_count(s, robot_id), duplicate=True), None
-        )
-    current = robot.map_version
+        return AppliedUpload(MapUploadOut(version=seen[0], duplicate=True), None)
+    current = robot[0]
     if up.base_version is None:
         if up.version <= current:
             raise ConflictError(
                 f"snapshot version {up.version} is not newer than the server's map version {current}",
                 current_version=current,
             )
-        s.execute(delete(MapSegment).where(MapSegment.robot_id == robot_id))
-        s.execute(delete(TrajectoryPoint).where(TrajectoryPoint.robot_id == robot_id))
+        conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id))
+        conn.execute(delete(_TRAJ).where(_TRAJ.c.robot_id == robot_id))
     else:
         if up.base_version != current:
             raise ConflictError(
@@ -116,56 +140,61 @@ def apply_upload(s: Session, robot_id: int, up: MapUpload, key: str) -> AppliedU
                 current_version=current,
             )
         if up.removed:
-            s.execute(
-                delete(MapSegment).where(
-                    MapSegment.robot_id == robot_id, MapSegment.segment_id.in_(up.removed)
-                )
-            )
-    _upsert_segments(s, robot_id, up.version, up.segments)
-    _add_trajectory(s, robot_id, up.version, up.trajectory)
+            conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(up.removed)))
+    v = up.version
+    _bulk_segments(conn, robot_id, v, up.segments)
+    _bulk_trajectory(conn, robot_id, v, up.trajectory)
+    now = utcnow()
     pose = {"x_m": up.pose[0], "y_m": up.pose[1], "theta_rad": up.pose[2]}
-    state = s.get(MapState, robot_id)
-    if state is None:
-        s.add(
-            MapState(
-                robot_id=robot_id,
-                version=up.version,
-                stamp_s=up.stamp_s,
-                centroids={"xy": up.centroids},
-                pose=pose,
-            )
-        )
-    else:
-        state.version, state.stamp_s, state.centroids, state.pose = (
-            up.version,
-            up.stamp_s,
-            {"xy": up.centroids},
-            pose,
-        )
-        state.updated_at = utcnow()
-    robot.map_version = up.version
+    _upsert(
+        conn,
+        _STATE,
+        ["robot_id"],
+        ("version", "stamp_s", "centroids", "pose", "updated_at"),
+        [
+            {
+                "robot_id": robot_id,
+                "version": v,
+                "stamp_s": up.stamp_s,
+                "centroids": {"xy": up.centroids},
+                "pose": pose,
+                "updated_at": now,
+            }
+        ],
+    )
+    changes: dict[str, Any] = {"map_version": v}
+    if seen_at is not None:
+        changes["last_seen_at"] = seen_at
     if up.status is not None:
-        if up.status.mode is not None:
-            robot.mode = up.status.mode
-        if up.status.active_kernels is not None:
-            robot.active_kernels = dict(up.status.active_kernels)
-        if up.status.step_ms is not None:
-            robot.step_ms = up.status.step_ms
-        robot.last_error = up.status.last_error
-    s.add(
-        MapUploadRecord(
+        st = up.status
+        changes.update(
+            {
+                k: val
+                for k, val in (
+                    ("mode", st.mode),
+                    ("active_kernels", st.active_kernels),
+                    ("step_ms", st.step_ms),
+                )
+                if val is not None
+            }
+        )
+        changes["last_error"] = st.last_error
+    conn.execute(update(_ROBOTS).where(_ROBOTS.c.id == robot_id).values(**changes))
+    conn.execute(
+        insert(_UPLOADS).values(
             robot_id=robot_id,
             idempotency_key=key,
-            version=up.version,
+            version=v,
             base_version=up.base_version,
             n_segments=len(up.segments),
             n_removed=len(up.removed),
+            received_at=now,
         )
     )
     event = {
         "kind": "snapshot" if up.base_version is None else "delta",
         "robot_id": robot_id,
-        "version": up.version,
+        "version": v,
         "base_version": up.base_version,
         "stamp_s": up.stamp_s,
         "segments": up.segments,
@@ -174,15 +203,7 @@ def apply_upload(s: Session, robot_id: int, up: MapUpload, key: str) -> AppliedU
         "pose": up.pose,
         "trajectory": up.trajectory,
     }
-    return AppliedUpload(
-        MapUploadOut(version=up.version, segments=_count(s, robot_id), duplicate=False), event
-    )
-
-
-def _count(s: Session, robot_id: int) -> int:
-    return int(
-        s.scalar(select(func.count()).select_from(MapSegment).where(MapSegment.robot_id == robot_id)) or 0
-    )
+    return AppliedUpload(MapUploadOut(version=v, duplicate=False), event)
 
 
 def map_version(s: Session, robot_id: int) -> int:

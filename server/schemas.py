@@ -171,8 +171,7 @@ class MapUpload(_In):
 
 
 class MapUploadOut(BaseModel):
-    version: int
-    segments: int = Field(description="Walls in the server's copy of the map after this upload.")
+    version: int = Field(description="The server's map version after this upload.")
     duplicate: bool = Field(description="True when this idempotency key was seen before (nothing changed).")
 
 

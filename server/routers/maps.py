@@ -29,14 +29,6 @@ RobotAccess = Annotated[Principal, Depends(robot_access)]
 KEEPALIVE_S = 15.0
 
 
-def _apply(
-    state: AppState, robot_id: int, up: MapUpload, key: str
-) -> tuple[MapUploadOut, dict[str, Any] | None]:
-    with state.db.session() as s:
-        applied = apply_upload(s, robot_id, up, key)
-    return applied.out, applied.event
-
-
 @router.post("", response_model=MapUploadOut)
 async def upload_map(
     robot_id: int,
@@ -53,10 +45,11 @@ async def upload_map(
     """Upload a snapshot (``base_version`` null) or a delta; 409 with ``current_version`` if the delta's base
     is not the server's version (send a snapshot then)."""
     key = idempotency_key or f"version-{body.version}"
-    out, event = await run_in_threadpool(_apply, state, robot_id, body, key)
-    if event is not None:
-        state.hub.publish(f"maps:{robot_id}", event)
-    return out
+    seen = state.last_seen(robot_id)
+    applied = await state.writer.submit(lambda conn: apply_upload(conn, robot_id, body, key, seen))
+    if applied.event is not None:
+        state.hub.publish(f"maps:{robot_id}", applied.event)
+    return applied.out
 
 
 def _read(state: AppState, robot_id: int, tail: int | None) -> MapOut:

@@ -31,12 +31,13 @@ def get_robot(s: Session, robot_id: int) -> Robot:
 
 def _out(state: AppState, robot: Robot, pending: int) -> RobotOut:
     window = timedelta(seconds=state.settings.online_window_s)
-    online = robot.last_seen_at is not None and utcnow() - robot.last_seen_at <= window
+    seen = max((t for t in (robot.last_seen_at, state.last_seen(robot.id)) if t is not None), default=None)
+    online = seen is not None and utcnow() - seen <= window
     return RobotOut(
         id=robot.id,
         name=robot.name,
         created_at=robot.created_at,
-        last_seen_at=robot.last_seen_at,
+        last_seen_at=seen,
         online=online,
         mode=robot.mode,
         active_kernels=robot.active_kernels,

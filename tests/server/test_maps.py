@@ -43,9 +43,9 @@ def test_snapshot_then_delta_then_latest(live: Live) -> None:
     with live.client(token) as robot:
         r = robot.post(f"/robots/{rid}/maps", json=_snapshot())
         assert r.status_code == 200, r.text
-        assert r.json() == {"version": 1, "segments": 2, "duplicate": False}
+        assert r.json() == {"version": 1, "duplicate": False}
         r = robot.post(f"/robots/{rid}/maps", json=_delta(1, 2))
-        assert r.json() == {"version": 2, "segments": 2, "duplicate": False}
+        assert r.json() == {"version": 2, "duplicate": False}
     with live.operator() as op:
         m = op.get(f"/robots/{rid}/maps/latest").json()
         row = op.get(f"/robots/{rid}").json()
@@ -71,7 +71,7 @@ def test_retried_upload_is_a_no_op(live: Live) -> None:
         first = robot.post(f"/robots/{rid}/maps", json=_delta(1, 2), headers={"Idempotency-Key": "b"})
         retry = robot.post(f"/robots/{rid}/maps", json=_delta(1, 2), headers={"Idempotency-Key": "b"})
         assert first.json()["duplicate"] is False
-        assert retry.status_code == 200 and retry.json() == {"version": 2, "segments": 2, "duplicate": True}
+        assert retry.status_code == 200 and retry.json() == {"version": 2, "duplicate": True}
         m = robot.get(f"/robots/{rid}/maps/latest").json()
     assert len(m["trajectory"]) == 3, "the retry added no pose"
 

@@ -1,0 +1,124 @@
+"""Group commit for the hot write path (map uploads): one writer thread applies queued jobs in batches, one
+transaction per batch.
+
+A database has one writer at a time anyway (SQLite) or pays a round trip per commit (PostgreSQL), so many
+request threads writing in turn only add thread switches and commits. Jobs are functions of a Core
+connection. A job must raise its expected errors (conflicts) before it writes anything; then its error goes
+to its caller alone and the batch commits the others. An unexpected database error rolls the batch back and
+its jobs are retried one by one, so one bad job never sinks the rest.
+
+Cost: one thread hop and ``1/batch`` of a commit per job.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import queue
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any, Generic, TypeVar
+
+from sqlalchemy import Connection
+from sqlalchemy.exc import SQLAlchemyError
+
+from server.database import Database
+from server.errors import ServerError
+
+__all__ = ["WriteBatcher"]
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+_STOP = object()
+
+
+class _Job(Generic[T]):
+    __slots__ = ("fn", "future")
+
+    def __init__(self, fn: Callable[[Connection], T]) -> None:
+        self.fn = fn
+        self.future: Future[T] = Future()
+
+
+class WriteBatcher:
+    """Runs ``submit``-ted jobs on one thread, up to ``max_batch`` per transaction."""
+
+    def __init__(self, db: Database, max_batch: int = 8) -> None:
+        self._db = db
+        self._max = max_batch
+        self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name="linemap-writer", daemon=True)
+        self._thread.start()
+        self.batches = 0
+        self.jobs = 0
+
+    async def submit(self, fn: Callable[[Connection], T]) -> T:
+        """Run ``fn(conn)`` in the next batch and return its result (or raise its error)."""
+        job: _Job[T] = _Job(fn)
+        self._queue.put(job)
+        return await asyncio.wrap_future(job.future)
+
+    def close(self) -> None:
+        self._queue.put(_STOP)
+        self._thread.join(timeout=10)
+
+    def _run(self) -> None:
+        while True:
+            first = self._queue.get()
+            if first is _STOP:
+                return
+            batch = [first]
+            while len(batch) < self._max:
+                try:
+                    nxt = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                if nxt is _STOP:
+                    self._queue.put(_STOP)
+                    break
+                batch.append(nxt)
+            import time as _t
+
+            t0 = _t.perf_counter()
+            self._apply(batch)
+            ms = (_t.perf_counter() - t0) * 1e3
+            if ms > 30:
+                log.warning("LAG batch of %d took %.0f ms", len(batch), ms)
+
+    def _apply(self, batch: list[_Job[Any]]) -> None:
+        results: list[tuple[_Job[Any], Any, BaseException | None]] = []
+        try:
+            with self._db.write_conn() as conn:
+                for job in batch:
+                    try:
+                        results.append((job, job.fn(conn), None))
+                    except ServerError as exc:  # expected, raised before the job wrote anything
+                        results.append((job, None, exc))
+        except SQLAlchemyError:
+            if len(batch) == 1:
+                log.exception("write failed")
+                _settle(batch[0], None, ServerError("the database refused the write; see the server log"))
+                return
+            log.warning("a batch of %d writes failed; retrying them one by one", len(batch))
+            for job in batch:
+                self._apply([job])
+            return
+        except BaseException as exc:  # a bug in a job: fail the batch's callers, keep the writer alive
+            log.exception("unexpected error in a write batch")
+            for job in batch:
+                _settle(job, None, exc)
+            return
+        self.batches += 1
+        self.jobs += len(batch)
+        for job, value, error in results:
+            _settle(job, value, error)
+
+
+def _settle(job: _Job[Any], value: Any, error: BaseException | None) -> None:
+    if job.future.done():
+        return
+    if error is not None:
+        job.future.set_exception(error)
+    else:
+        job.future.set_result(value)
