@@ -185,13 +185,17 @@ class Agent:
     def _map(self, stop: threading.Event) -> None:
         resume = int(self.db.get("source_index", 0) or 0)
         version = int(self.db.get("map_version", 0) or 0)
-        period = None if not self.s.rate_hz else 1.0 / self.s.rate_hz
-        next_at = time.monotonic()
+        own_pace = self.s.rate_hz is None  # the scans' own time stamps (logs) or 10 Hz (simulator)
+        period = 0.1 if own_pace else (1.0 / self.s.rate_hz if self.s.rate_hz else None)
+        next_at, last_stamp = time.monotonic(), None
         for index, scan in self._scans():
             if stop.is_set() or (self.s.max_steps is not None and self.stats.steps >= self.s.max_steps):
                 return
             if index < resume:
                 continue
+            if own_pace and last_stamp is not None:
+                period = min(max(scan.stamp_s - last_stamp, 0.0), 5.0)  # a gap in a log: wait at most 5 s
+            last_stamp = scan.stamp_s
             if period is not None:
                 stop.wait(max(0.0, next_at - time.monotonic()))
                 next_at = max(next_at + period, time.monotonic() - period)

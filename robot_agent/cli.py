@@ -65,7 +65,10 @@ def agent_cmd(
     ] = None,
     db: Annotated[Path | None, typer.Option(help="Robot DB file (SQLite).")] = None,
     rate: Annotated[
-        float | None, typer.Option(min=0, help="Steps per second (default 10; 0 = as fast as possible).")
+        float | None,
+        typer.Option(
+            min=0, help="Steps per second (default: the log's own time stamps, 10 for sim; 0 = flat out)."
+        ),
     ] = None,
     trust_key: Annotated[
         list[str] | None,
@@ -105,7 +108,7 @@ def agent_cmd(
         server_url=server_url,
         robot_id=int(rid or 0),
         token=str(tok or ""),
-        rate_hz=rate if rate is not None else f.get("rate", 10.0),
+        rate_hz=rate if rate is not None else f.get("rate"),
         trusted_keys=tuple(keys),
         allow_unsigned=allow_unsigned or bool(f.get("allow_unsigned", False)),
         config=load_config(cfg_path) if cfg_path else None,
