@@ -24,14 +24,14 @@ def upgrade() -> None:
         sa.Column("seq", sa.Integer(), nullable=False),
         sa.Column("outcome", sa.String(length=16), nullable=False),
         sa.Column("reason", sa.Text(), nullable=True),
-        sa.Column("applied_at", sa.DateTime(), nullable=False),
-        sa.Column("acked_at", sa.DateTime(), nullable=True),
+        sa.Column("applied_at", sa.DateTime(timezone=True), nullable=False),
+        sa.Column("acked_at", sa.DateTime(timezone=True), nullable=True),
         sa.PrimaryKeyConstraint("seq", name=op.f("pk_applied_messages")),
     )
     op.create_table(
         "config_history",
         sa.Column("id", sa.Integer(), nullable=False),
-        sa.Column("at", sa.DateTime(), nullable=False),
+        sa.Column("at", sa.DateTime(timezone=True), nullable=False),
         sa.Column("seq", sa.Integer(), nullable=True),
         sa.Column("config", sa.JSON(), nullable=False),
         sa.Column("note", sa.String(length=200), nullable=False),
@@ -49,7 +49,7 @@ def upgrade() -> None:
         sa.Column("key_id", sa.String(length=16), nullable=True),
         sa.Column("state", sa.String(length=16), nullable=False),
         sa.Column("reason", sa.Text(), nullable=True),
-        sa.Column("installed_at", sa.DateTime(), nullable=False),
+        sa.Column("installed_at", sa.DateTime(timezone=True), nullable=False),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_kernels")),
         sa.UniqueConstraint("stage", "name", "version", name=op.f("uq_kernels_stage")),
     )
@@ -59,7 +59,7 @@ def upgrade() -> None:
         sa.Column("stamp_s", sa.Float(), nullable=False),
         sa.Column("source_index", sa.Integer(), nullable=False),
         sa.Column("change", sa.JSON(), nullable=False),
-        sa.Column("created_at", sa.DateTime(), nullable=False),
+        sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
         sa.PrimaryKeyConstraint("version", name=op.f("pk_map_versions")),
     )
     op.create_table(
@@ -71,7 +71,7 @@ def upgrade() -> None:
     op.create_table(
         "outbox",
         sa.Column("version", sa.Integer(), nullable=False),
-        sa.Column("created_at", sa.DateTime(), nullable=False),
+        sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
         sa.Column("attempts", sa.Integer(), nullable=False),
         sa.PrimaryKeyConstraint("version", name=op.f("pk_outbox")),
     )

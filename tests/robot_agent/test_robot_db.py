@@ -1,0 +1,72 @@
+"""The Robot DB: migrations match the models, and a step's records commit together."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+from alembic.autogenerate import compare_metadata
+from alembic.runtime.migration import MigrationContext
+
+from robot_agent.models import RobotBase
+from robot_agent.store import RobotDB, StepRecord
+
+
+def test_migrated_schema_matches_the_models(tmp_path: Path) -> None:
+    db = RobotDB(tmp_path / "robot.db")
+    try:
+        with db.engine.connect() as conn:
+            diff = compare_metadata(MigrationContext.configure(conn), RobotBase.metadata)
+        assert diff == [], f"robot models and migrations differ: {diff}"
+        assert db.integrity_ok()
+    finally:
+        db.close()
+
+
+def _step(version: int) -> StepRecord:
+    return StepRecord(
+        version=version,
+        stamp_s=version * 0.1,
+        source_index=version,
+        segments=[[float(version), 0.0, 0.0, 1.0, float(version)]],
+        removed=[version - 1] if version > 1 else [],
+        pose=[version * 0.1, 1.0, 2.0, 0.5],
+        centroids=[[0.5, 0.5]],
+    )
+
+
+def test_steps_fold_into_one_delta_and_survive_reopening(tmp_path: Path) -> None:
+    path = tmp_path / "robot.db"
+    db = RobotDB(path)
+    for v in (1, 2, 3):
+        db.record_step(_step(v))
+    db.close()
+    db = RobotDB(path)  # reopened, as after a restart
+    try:
+        up = db.pending_upload()
+        assert up is not None and (up.first_version, up.version) == (1, 3)
+        assert [r[0] for r in up.segments] == [3.0], "walls 1 and 2 were replaced within the batch"
+        assert up.removed == [1, 2] and len(up.trajectory) == 3
+        db.mark_uploaded(2)
+        rest = db.pending_upload()
+        assert rest is not None and (rest.first_version, rest.version) == (3, 3)
+        assert db.walls() == [[3.0, 0.0, 0.0, 1.0, 3.0]]
+        assert db.get("map_version") == 3 and db.get("source_index") == 3
+    finally:
+        db.close()
+    with sqlite3.connect(path) as conn:
+        assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+def test_message_outcome_and_config_commit_together(tmp_path: Path) -> None:
+    db = RobotDB(tmp_path / "robot.db")
+    try:
+        db.record_message(4, "applied", None, {"mode": "offline"})
+        db.record_message(5, "rejected", "line 1 <mode>: bad", None)
+        assert db.applied_seq() == 5 and db.get("config") == {"mode": "offline"}
+        assert [(m.seq, m.outcome) for m in db.unacked()] == [(4, "applied"), (5, "rejected")]
+        db.mark_acked(4)
+        db.mark_rolled_back(4, "raised RuntimeError")
+        assert [(m.seq, m.outcome) for m in db.unacked()] == [(4, "rolled-back"), (5, "rejected")]
+    finally:
+        db.close()
