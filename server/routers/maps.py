@@ -16,8 +16,10 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Header, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
+from pydantic import ValidationError
 
 from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access
+from server.errors import InvalidRequestError
 from server.hub import OVERFLOW
 from server.mapstore import apply_upload, map_version, read_map
 from server.schemas import MapOut, MapUpload, MapUploadOut
@@ -29,10 +31,18 @@ RobotAccess = Annotated[Principal, Depends(robot_access)]
 KEEPALIVE_S = 15.0
 
 
-@router.post("", response_model=MapUploadOut)
+_UPLOAD_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {"application/json": {"schema": MapUpload.model_json_schema()}},
+    }
+}
+
+
+@router.post("", response_model=MapUploadOut, openapi_extra=_UPLOAD_BODY)
 async def upload_map(
     robot_id: int,
-    body: MapUpload,
+    request: Request,
     who: RobotSelf,
     state: StateDep,
     idempotency_key: Annotated[
@@ -42,8 +52,16 @@ async def upload_map(
         ),
     ] = None,
 ) -> MapUploadOut:
-    """Upload a snapshot (``base_version`` null) or a delta; 409 with ``current_version`` if the delta's base
-    is not the server's version (send a snapshot then)."""
+    """Upload a snapshot (``base_version`` null) or a delta (body: ``MapUpload``); 409 with
+    ``current_version`` if the delta's base is not the server's version (send a snapshot then)."""
+    try:  # parsed and validated in one pass by pydantic-core: a robot sends one every few 100 ms
+        body = MapUpload.model_validate_json(await request.body())
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in e['loc']) or 'body'}: {e['msg']}"
+            for e in exc.errors(include_url=False)
+        )
+        raise InvalidRequestError(problems) from None
     key = idempotency_key or f"version-{body.version}"
     seen = state.last_seen(robot_id)
     applied = await state.writer.submit(lambda conn: apply_upload(conn, robot_id, body, key, seen))
