@@ -157,3 +157,53 @@ def test_unknown_source_fails_clearly(tmp_path: Path) -> None:
     out = agent.output()
     assert code == 2, out
     assert "URG-04LX serial driver" in out and "Traceback" not in out
+
+
+def test_messages_apply_exactly_once_across_kill_9(live: Live, tmp_path: Path) -> None:
+    """Messages applied before a kill -9 are not applied again after the restart; later ones are, in order."""
+    import sqlite3
+
+    rid, token = live.new_robot()
+    db = tmp_path / "robot.db"
+    op = live.operator()
+    first = AgentProcess(db, server=live.base_url, robot_id=rid, token=token, extra=["--rate", "20"])
+    for mode in ("offline", "online"):
+        r = op.post(
+            f"/robots/{rid}/messages",
+            content=f"<xml><message><mode>{mode}</mode></message></xml>",
+            headers={"Content-Type": "application/xml"},
+        )
+        assert r.status_code == 201
+    wait_for("both applied", lambda: robot_db_meta(db, "config") is not None and _applied(db) == [1, 2])
+    first.kill()
+    r = op.post(
+        f"/robots/{rid}/messages",
+        content=b"<xml><message><n-smax>5</n-smax></message></xml>",
+        headers={"Content-Type": "application/xml"},
+    )
+    assert r.status_code == 201
+    second = AgentProcess(db, server=live.base_url, robot_id=rid, token=token, extra=["--rate", "20"])
+    try:
+        wait_for(
+            "message 3 acknowledged",
+            lambda: op.get(f"/robots/{rid}/messages/3").json()["status"] == "applied",
+        )
+    finally:
+        assert second.stop() == 0, second.output()
+    assert _applied(db) == [1, 2, 3]
+    with sqlite3.connect(db) as conn:
+        seqs = [
+            row[0] for row in conn.execute("SELECT seq FROM config_history WHERE seq IS NOT NULL ORDER BY id")
+        ]
+    assert seqs == [1, 2, 3], "each message put its configuration in force exactly once"
+    assert robot_db_meta(db, "config")["n_smax"] == 5
+
+
+def _applied(db: Path) -> list[int]:
+    import sqlite3
+
+    try:
+        with sqlite3.connect(db) as conn:
+            return [row[0] for row in conn.execute("SELECT seq FROM applied_messages ORDER BY seq")]
+    except sqlite3.OperationalError:
+        return []
