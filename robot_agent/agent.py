@@ -18,9 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from robot_agent.control import Prepared, apply_message, kernels_in_use, pin_versions
+from robot_agent.control import Prepared, apply_message, choices, kernels_in_use, pin_versions
 from robot_agent.errors import AgentError, KernelRejected, LinkError
 from robot_agent.guard import guarded
 from robot_agent.link import Backoff, ServerLink, UploadConflict
@@ -213,15 +211,15 @@ class Agent:
         yield from enumerate(open_scans(self.s.source, seed=self.s.seed))
 
     def _record(self, version: int, source_index: int, scan: Scan, pose: Any) -> StepRecord:
-        snap = self.pipeline.snapshot()
+        ids, segments = self.pipeline.walls()
         now = {
             int(i) + self._id_offset: tuple(float(v) for v in seg)
-            for i, seg in zip(snap.segment_ids, snap.segments, strict=True)
+            for i, seg in zip(ids, segments, strict=True)
         }
         changed = [[float(i), *seg] for i, seg in now.items() if self._prev_walls.get(i) != seg]
         removed = [i for i in self._prev_walls if i not in now]
         self._prev_walls = now  # type: ignore[assignment]
-        cents = np.asarray(snap.centroids[-200:], dtype=float).tolist()
+        cents = self.pipeline.recent_centroids(200).tolist()
         return StepRecord(
             version,
             scan.stamp_s,
@@ -461,9 +459,7 @@ class Agent:
 
 
 def _uses(config: PipelineConfig, stage: Stage) -> list[Any]:
-    from robot_agent.control import _choices
-
-    return _choices(config, stage)
+    return choices(config, stage)
 
 
 def _used(config: PipelineConfig, stage: str, name: str, version: str) -> bool:

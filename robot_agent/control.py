@@ -22,7 +22,7 @@ from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Kernel, Stage
 from shared.pipeline import KernelChoice, PipelineConfig
 
-__all__ = ["Prepared", "apply_message", "kernels_in_use", "pin_versions", "retarget"]
+__all__ = ["Prepared", "apply_message", "choices", "kernels_in_use", "pin_versions", "retarget"]
 
 _FIELDS = {
     Stage.SEGMENTATION: "segmentation",
@@ -44,7 +44,10 @@ class Prepared:
     classes: dict[tuple[str, str, str], type[Kernel[Any]]] = field(default_factory=dict)
 
 
-def _choices(config: PipelineConfig, stage: Stage) -> list[KernelChoice]:
+def choices(config: PipelineConfig | None, stage: Stage) -> list[KernelChoice]:
+    """The kernel choices ``config`` makes for ``stage`` (a chain for noise removal)."""
+    if config is None:
+        return []
     value = getattr(config, _FIELDS[stage])
     if value is None:
         return []
@@ -55,7 +58,7 @@ def kernels_in_use(config: PipelineConfig) -> dict[str, str]:
     """``stage -> "name@version[, ...]"`` (versions as pinned)."""
     out = {}
     for stage in Stage:
-        used = [f"{c.name}@{c.version or '?'}" for c in _choices(config, stage)]
+        used = [f"{c.name}@{c.version or '?'}" for c in choices(config, stage)]
         if used:
             out[stage.value] = ", ".join(used)
     return out
@@ -74,7 +77,7 @@ def _replace(
 def pin_versions(config: PipelineConfig, current: PipelineConfig | None = None) -> PipelineConfig:
     """Give every unpinned choice a version: the one ``current`` runs for that name, else the highest."""
     for stage in Stage:
-        running = {c.name: c.version for c in _choices(current, stage)} if current is not None else {}
+        running = {c.name: c.version for c in choices(current, stage)} if current is not None else {}
 
         def fix(
             c: KernelChoice, stage: Stage = stage, running: dict[str, str | None] = running
@@ -121,7 +124,7 @@ def apply_message(
                 deletions.append(op)
         config = pin_versions(config, current)
         for op in deletions:
-            if any(c.name == op.name and c.version == op.version for c in _choices(config, op.stage)):
+            if any(c.name == op.name and c.version == op.version for c in choices(config, op.stage)):
                 raise LinemapError(
                     f"<kernel-delete>: {op.stage}/{op.name} {op.version} is in use; "
                     "select another version first"

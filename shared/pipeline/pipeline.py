@@ -34,7 +34,7 @@ from shared.pipeline.rematch import rematch
 from shared.pipeline.snapshot import MapSnapshot
 from shared.pipeline.stages import Chunk, cluster, concat, extract_lines, remove_noise
 from shared.pipeline.wallmap import MergeTolerances, WallMap
-from shared.types import FloatArray, Pose2D, Scan, wrap_angle
+from shared.types import FloatArray, IntArray, Pose2D, Scan, wrap_angle
 
 __all__ = ["IcpGate", "Pipeline", "StepResult"]
 
@@ -342,6 +342,24 @@ class Pipeline:
             return (0.0, 0.0)
         arr = np.fromiter(self._step_ms, dtype=np.float64)
         return float(np.median(arr)), float(np.percentile(arr, 99))
+
+    def walls(self) -> tuple[IntArray, FloatArray]:
+        """The confirmed walls now: stable ids ``(W,)`` and end points ``(W, 4)`` in metres. O(walls), unlike
+        :meth:`snapshot`, which also copies the whole trajectory (the robot agent calls this every step)."""
+        return self._map.ids, self._map.segments()
+
+    def recent_centroids(self, limit: int) -> FloatArray:
+        """The last ``limit`` cluster centroids ``(C, 2)`` (metres, world frame), oldest first. O(limit)."""
+        out: list[FloatArray] = []
+        count = 0
+        for block in reversed(self._centroids):
+            if count >= limit:
+                break
+            out.append(block)
+            count += len(block)
+        if not out:
+            return np.zeros((0, 2))
+        return np.vstack(out[::-1])[-limit:]
 
     def snapshot(self) -> MapSnapshot:
         """The temporary map now: walls, centroids, pose, trajectory, version. O(map + trajectory)."""

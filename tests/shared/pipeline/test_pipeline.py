@@ -241,3 +241,16 @@ def test_failing_kernel_names_itself(counting: type[CountingNoise]) -> None:
         LinemapError, match=r"noise-removal/counting-test@1\.0\.0 failed .*RuntimeError: boom"
     ):
         pipe.step(straight_run(1)[0])
+
+
+def test_walls_and_recent_centroids_agree_with_the_snapshot() -> None:
+    pipe = Pipeline()
+    for scan in straight_run(30):
+        pipe.step(scan)
+    snap = pipe.snapshot()
+    ids, segments = pipe.walls()
+    assert np.array_equal(ids, snap.segment_ids) and np.array_equal(segments, snap.segments)
+    assert len(ids) > 0
+    for k in (0, 1, 7, len(snap.centroids), len(snap.centroids) + 5):
+        want = snap.centroids[len(snap.centroids) - min(k, len(snap.centroids)) :]
+        assert np.array_equal(pipe.recent_centroids(k), want)
