@@ -300,7 +300,7 @@ class Agent:
         """Parse a message and download/verify its kernels (network thread; may take seconds)."""
         seq = int(raw["seq"])
         try:
-            msg = parse_message(raw["xml"])
+            msg = parse_message(str(raw["xml"]).encode("utf-8"))
         except ControlMessageError as exc:
             return Prepared(seq, None, str(exc))
         prepared = Prepared(seq, msg)

@@ -121,9 +121,12 @@ async def post_message(
         raise InvalidRequestError(str(exc), element=exc.element, line=exc.line, reason=exc.reason) from None
     try:
         xml = body.decode("utf-8")
-    except UnicodeDecodeError:
-        # The parser accepted another declared encoding: keep the document as text the robot can re-parse.
-        xml = body.decode("latin-1")
+    except UnicodeDecodeError as exc:
+        raise InvalidRequestError(
+            f"control message is not UTF-8 (byte {exc.start}): send it encoded as UTF-8",
+            element=None,
+            line=None,
+        ) from None
     out = await run_in_threadpool(_queue, state, robot_id, xml, msg, who)
     state.hub.publish(f"messages:{robot_id}", out["seq"])
     return out

@@ -164,3 +164,13 @@ def test_concurrent_posts_get_distinct_consecutive_numbers(live: Live) -> None:
         )
     assert all(r.status_code == 201 for r in codes)
     assert sorted(r.json()["seq"] for r in codes) == list(range(1, 17))
+
+
+def test_non_utf8_message_is_refused(live: Live) -> None:
+    rid, _ = live.new_robot()
+    body = (
+        '<?xml version="1.0" encoding="ISO-8859-1"?>'
+        "<xml><message><mode>online</mode></message><!-- é --></xml>"
+    )
+    r = _post(live, rid, body.encode("latin-1"))
+    assert r.status_code == 422 and "UTF-8" in r.json()["detail"]
