@@ -141,7 +141,7 @@ class Agent:
             if not cache:
                 version = None
                 if prev is not None:
-                    for c in _uses(prev, Stage(cls.stage)):
+                    for c in choices(prev, Stage(cls.stage)):
                         if c.name == cls.name and c.version != cls.version:
                             version = c.version
                 builtin = [
@@ -458,12 +458,8 @@ class Agent:
         return True
 
 
-def _uses(config: PipelineConfig, stage: Stage) -> list[Any]:
-    return choices(config, stage)
-
-
 def _used(config: PipelineConfig, stage: str, name: str, version: str) -> bool:
-    return any(c.name == name and c.version == version for c in _uses(config, Stage(stage)))
+    return any(c.name == name and c.version == version for c in choices(config, Stage(stage)))
 
 
 def _unregister(stage: str, name: str, version: str) -> None:
