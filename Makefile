@@ -5,9 +5,12 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 NUMBA_STAMP := $(VENV)/.numba-cache-stamp
 
-.PHONY: demo test install lint typecheck pytest bench clean
+.PHONY: demo map test install lint typecheck pytest bench clean
 
-demo: install $(NUMBA_STAMP)  ## the main job: map the simulated world, draw it, print the accuracy
+demo: install $(NUMBA_STAMP)  ## server + simulated robot + dashboard on http://127.0.0.1:8000 until Ctrl-C
+	$(BIN)/linemap demo
+
+map: install $(NUMBA_STAMP)  ## offline: map the simulated world, draw it, print the accuracy
 	$(BIN)/linemap map sim --out map.geojson --svg map.svg --png map.png --trajectory-out trajectory.csv
 
 test: install lint typecheck pytest  ## ruff, mypy and pytest in a fresh or updated virtual environment
@@ -41,5 +44,5 @@ bench: install $(NUMBA_STAMP)  ## kernel benchmark with JSON output
 	$(BIN)/linemap bench kernels --json bench-kernels.json
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache bench-kernels.json map.geojson map.svg map.png trajectory.csv
+	rm -rf $(VENV) .mypy_cache .ruff_cache .demo test-artifacts bench-kernels.json map.geojson map.svg map.png trajectory.csv
 	find shared -name '*.nbi' -delete -o -name '*.nbc' -delete

@@ -60,6 +60,7 @@ class AgentSettings:
     max_steps: int | None = None
     stay: bool = True
     seed: int = 0
+    laps: int = 1
 
 
 @dataclass
@@ -90,6 +91,7 @@ class Agent:
         self._installed_by: dict[tuple[str, str, str], int] = {}
         self._previous: PipelineConfig | None = None
         self._wake_uploader = threading.Event()
+        self._stepped: tuple[int, float] = (0, 0.0)
         self._need_snapshot = False
         self.pipeline = Pipeline(self._initial_config())
         self._prev_walls: dict[int, tuple[float, float, float, float]] = {}
@@ -175,7 +177,10 @@ class Agent:
             stop.set()
             self._wake_uploader.set()
             for t in threads:
-                t.join(timeout=self.s.poll_wait_s + 15)
+                # The uploader finishes its round (acknowledgements and map versions reach the server); the
+                # poller may sit in a long-poll for poll_wait_s: what it would fetch is fetched again at the
+                # next start, so it is not waited for (a daemon thread, gone with the process).
+                t.join(timeout=2.0 if t.name == "_poller" else self.s.poll_wait_s + 15)
             self.db.close()
             if self.link is not None:
                 self.link.close()
@@ -203,12 +208,13 @@ class Agent:
                 self._recent.append(scan)
             version += 1
             self.db.record_step(self._record(version, index + 1, scan, result.pose))
+            self._stepped = (version, time.time())
             self.stats.steps += 1
             self._after_step()
             self._wake_uploader.set()
 
     def _scans(self) -> Iterator[tuple[int, Scan]]:
-        yield from enumerate(open_scans(self.s.source, seed=self.s.seed))
+        yield from enumerate(open_scans(self.s.source, seed=self.s.seed, laps=self.s.laps))
 
     def _record(self, version: int, source_index: int, scan: Scan, pose: Any) -> StepRecord:
         ids, segments = self.pipeline.walls()
@@ -368,6 +374,8 @@ class Agent:
                 stop.wait(backoff.next_delay(exc.retry_after_s))
                 continue
             backoff.reset()
+            if stop.is_set():
+                return
             for raw in messages:
                 if int(raw["seq"]) > after:
                     self._inbox.put(self._prepare(raw))
@@ -401,12 +409,23 @@ class Agent:
 
     def _status(self) -> dict[str, Any]:
         median_ms, _p99 = self.pipeline.timing_ms()
+        config = self.pipeline.config
         return {
-            "mode": str(self.pipeline.config.mode),
-            "active_kernels": kernels_in_use(self.pipeline.config),
+            "mode": str(config.mode),
+            "active_kernels": kernels_in_use(config),
             "step_ms": median_ms if median_ms == median_ms else None,
             "last_error": self.stats.last_error,
+            "config": config.model_dump(mode="json"),
+            "kernels": [
+                {"stage": k.stage, "name": k.name, "version": k.version, "state": k.state, "sha256": k.sha256}
+                for k in self.db.kernels()
+            ],
         }
+
+    def _wall_time(self, version: int) -> float | None:
+        """When the step of map ``version`` finished (Unix s), if it is the newest step; else None."""
+        stepped_version, at = self._stepped
+        return at if stepped_version == version else None
 
     def _send_maps(self) -> bool:
         assert self.link is not None
@@ -426,6 +445,7 @@ class Agent:
             "pose": up.pose,
             "trajectory": up.trajectory,
             "status": self._status(),
+            "wall_time_s": self._wall_time(up.version),
         }
         got = self.link.upload(payload, f"r{self.s.robot_id}-{base}-{up.version}")
         if isinstance(got, UploadConflict):
@@ -442,7 +462,12 @@ class Agent:
         snap = self.db.snapshot()
         if snap is None:
             return False
-        payload = {"base_version": None, "status": self._status(), **snap}
+        payload = {
+            "base_version": None,
+            "status": self._status(),
+            "wall_time_s": self._wall_time(int(snap["version"])),
+            **snap,
+        }
         got = self.link.upload(payload, f"r{self.s.robot_id}-snapshot-{snap['version']}")
         if isinstance(got, UploadConflict):
             if got.current_version >= snap["version"]:

@@ -35,6 +35,7 @@ def _file_settings(path: Path | None) -> dict[str, Any]:
         "trust_keys",
         "allow_unsigned",
         "config",
+        "laps",
     }
     unknown = sorted(set(data) - allowed)
     if unknown:
@@ -84,6 +85,12 @@ def agent_cmd(
         Path | None, typer.Option("--file", help="TOML file with any of these settings (options win).")
     ] = None,
     max_steps: Annotated[int | None, typer.Option(min=1, help="Stop after this many steps.")] = None,
+    laps: Annotated[
+        int | None,
+        typer.Option(
+            min=0, help="Simulated source: drive the path out and back this many times (0 = until stopped)."
+        ),
+    ] = None,
     exit_at_end: Annotated[
         bool, typer.Option(help="Exit when the source ends (default: keep serving).")
     ] = False,
@@ -114,6 +121,7 @@ def agent_cmd(
         config=load_config(cfg_path) if cfg_path else None,
         max_steps=max_steps,
         stay=not exit_at_end,
+        laps=laps if laps is not None else int(f.get("laps", 1)),
     )
     if settings.allow_unsigned:
         typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)

@@ -19,11 +19,12 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from server import dashboard
 from server.database import Database
 from server.deps import AppState
 from server.errors import ServerError
 from server.migrate import upgrade
-from server.routers import auth, kernels, maps, messages, meta, robots
+from server.routers import auth, control, kernels, maps, messages, meta, robots
 from server.settings import Settings
 from server.writer import WriteBatcher
 
@@ -41,6 +42,8 @@ ROUTERS: list[tuple[APIRouter, str]] = [
     (kernels.router, API_PREFIX),
     (kernels.keys_router, API_PREFIX),
     (maps.router, API_PREFIX),
+    (control.router, API_PREFIX),
+    (dashboard.router, ""),
 ]
 
 
@@ -75,6 +78,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     for router, prefix in ROUTERS:
         app.include_router(router, prefix=prefix)
+    dashboard.mount(app)
     return app
 
 

@@ -150,7 +150,7 @@ def apply_upload(
         conn,
         _STATE,
         ["robot_id"],
-        ("version", "stamp_s", "centroids", "pose", "updated_at"),
+        ("version", "stamp_s", "centroids", "pose", "wall_time_s", "updated_at"),
         [
             {
                 "robot_id": robot_id,
@@ -158,6 +158,7 @@ def apply_upload(
                 "stamp_s": up.stamp_s,
                 "centroids": {"xy": up.centroids},
                 "pose": pose,
+                "wall_time_s": up.wall_time_s,
                 "updated_at": now,
             }
         ],
@@ -174,6 +175,8 @@ def apply_upload(
                     ("mode", st.mode),
                     ("active_kernels", st.active_kernels),
                     ("step_ms", st.step_ms),
+                    ("config", st.config),
+                    ("kernels", [k.model_dump() for k in st.kernels] if st.kernels is not None else None),
                 )
                 if val is not None
             }
@@ -202,6 +205,7 @@ def apply_upload(
         "centroids": up.centroids,
         "pose": up.pose,
         "trajectory": up.trajectory,
+        "wall_time_s": up.wall_time_s,
     }
     return AppliedUpload(MapUploadOut(version=v, duplicate=False), event)
 
@@ -237,4 +241,5 @@ def read_map(s: Session, robot_id: int, trajectory_tail: int | None = None) -> M
         centroids=list(state.centroids.get("xy", [])) if state else [],
         pose=[state.pose["x_m"], state.pose["y_m"], state.pose["theta_rad"]] if state else [0.0, 0.0, 0.0],
         trajectory=[list(t) for t in traj],
+        wall_time_s=state.wall_time_s if state else None,
     )

@@ -84,6 +84,10 @@ class Robot(Base):
     active_kernels: Mapped[dict[str, Any]] = mapped_column(default=dict)
     step_ms: Mapped[float | None] = mapped_column(Float, default=None)
     last_error: Mapped[str | None] = mapped_column(Text, default=None)
+    #: The configuration in force (``PipelineConfig`` as JSON), as the robot last reported it.
+    config: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+    #: The robot's kernel store: ``[{stage, name, version, state, sha256}]``, as last reported.
+    kernels: Mapped[list[dict[str, Any]] | None] = mapped_column(JSON, default=None)
     map_version: Mapped[int] = mapped_column(BigInteger, default=0)
     last_seq: Mapped[int] = mapped_column(Integer, default=0)
 
@@ -148,6 +152,8 @@ class MapState(Base):
     stamp_s: Mapped[float] = mapped_column(Float)
     centroids: Mapped[dict[str, Any]] = mapped_column()
     pose: Mapped[dict[str, Any]] = mapped_column()
+    #: Unix time (s) at which the robot finished the step of ``version`` (None if it did not say).
+    wall_time_s: Mapped[float | None] = mapped_column(Float, default=None)
     updated_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 

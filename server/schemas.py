@@ -24,6 +24,7 @@ __all__ = [
     "MessageOut",
     "RobotCreate",
     "RobotCreated",
+    "RobotKernel",
     "RobotOut",
     "RobotStatus",
     "SigningKeyIn",
@@ -52,6 +53,16 @@ class RobotCreate(_In):
     name: str = Field(pattern=NAME_PATTERN, description="Unique robot name (letters, digits, . _ - space).")
 
 
+class RobotKernel(_In):
+    """One kernel in a robot's store (SPEC §7): ``state`` verified | active | retired | failed."""
+
+    stage: str = Field(max_length=32)
+    name: str = Field(max_length=64)
+    version: str = Field(max_length=32)
+    state: str = Field(max_length=16)
+    sha256: str = Field(max_length=64)
+
+
 class RobotOut(BaseModel):
     id: int
     name: str
@@ -62,6 +73,10 @@ class RobotOut(BaseModel):
     active_kernels: dict[str, Any]
     step_ms: float | None
     last_error: str | None
+    config: dict[str, Any] | None = Field(
+        None, description="The configuration in force (PipelineConfig JSON), as the robot last reported it."
+    )
+    kernels: list[RobotKernel] | None = Field(None, description="The robot's kernel store and its states.")
     map_version: int
     last_seq: int = Field(description="Sequence number of the newest control message queued.")
     pending_messages: int = Field(description="Messages not yet acknowledged by the robot.")
@@ -80,6 +95,8 @@ class RobotStatus(_In):
     active_kernels: dict[str, str] | None = Field(None, description="stage -> 'name@version'")
     step_ms: Finite | None = Field(None, ge=0)
     last_error: str | None = Field(None, max_length=2000, description="The robot's latest problem, if any.")
+    config: dict[str, Any] | None = Field(None, description="The configuration in force (PipelineConfig).")
+    kernels: list[RobotKernel] | None = Field(None, max_length=1000, description="The robot's kernel store.")
 
 
 class MessageOut(BaseModel):
@@ -145,6 +162,9 @@ class MapUpload(_In):
     version: int = Field(ge=1)
     base_version: int | None = Field(None, ge=0)
     stamp_s: Finite = 0.0
+    wall_time_s: Finite | None = Field(
+        None, description="Unix time (s) at which the robot finished the step of this version (for latency)."
+    )
     segments: list[SegmentRow] = Field(default_factory=list, max_length=200_000)
     removed: list[int] = Field(default_factory=list, max_length=200_000)
     centroids: list[PointRow] = Field(default_factory=list, max_length=100_000)
@@ -179,6 +199,7 @@ class MapOut(BaseModel):
     centroids: list[list[float]]
     pose: list[float]
     trajectory: list[list[float]]
+    wall_time_s: float | None = None
 
 
 class TokenCreate(_In):

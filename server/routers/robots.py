@@ -43,6 +43,8 @@ def _out(state: AppState, robot: Robot, pending: int) -> RobotOut:
         active_kernels=robot.active_kernels,
         step_ms=robot.step_ms,
         last_error=robot.last_error,
+        config=robot.config,
+        kernels=robot.kernels,
         map_version=robot.map_version,
         last_seq=robot.last_seq,
         pending_messages=pending,

@@ -15,6 +15,7 @@ from tests.server.live import Live
 
 PUBLIC = {
     ("GET", "/healthz"),
+    ("GET", "/"),  # the dashboard page: static, no secrets; every API call it makes is checked
     ("GET", "/api/v1/schema/control.xsd"),
     ("POST", "/api/v1/session"),
     ("DELETE", "/api/v1/session"),

@@ -35,6 +35,7 @@ def _delta(base: int, version: int) -> dict[str, Any]:
         "centroids": [[2.0, 3.5]],
         "pose": [1.2, 1.0, 0.5],
         "trajectory": [[10.1, 1.2, 1.0, 0.5]],
+        "wall_time_s": 1_800_000_000.25,
     }
 
 
@@ -55,6 +56,7 @@ def test_snapshot_then_delta_then_latest(live: Live) -> None:
     assert [t[0] for t in m["trajectory"]] == [9.9, 10.0, 10.1]
     assert row["map_version"] == 2 and row["mode"] == "online" and row["step_ms"] == 1.2
     assert row["active_kernels"] == {"noise-removal": "dbscan@1.0.0"} and row["online"] is True
+    assert m["wall_time_s"] == 1_800_000_000.25  # the step time of the newest version, for latency displays
 
 
 def test_latest_before_any_upload_is_empty(live: Live) -> None:
@@ -147,6 +149,7 @@ def test_stream_pushes_a_snapshot_then_each_upload(live: Live) -> None:
     assert k0 == "snapshot" and snap["version"] == 1 and len(snap["segments"]) == 2
     assert k1 == "delta" and delta["version"] == 2 and delta["base_version"] == 1
     assert delta["removed"] == [1] and [s[0] for s in delta["segments"]] == [2, 3]
+    assert snap["wall_time_s"] is None and delta["wall_time_s"] == 1_800_000_000.25
 
 
 def test_stream_of_unknown_robot_is_404(live: Live) -> None:
@@ -171,3 +174,31 @@ def test_concurrent_retries_apply_once(live: Live) -> None:
     assert sorted(r.json()["duplicate"] for r in results) == [False] + [True] * 7
     with live.operator() as op:
         assert len(op.get(f"/robots/{rid}/maps/latest").json()["trajectory"]) == 2
+
+
+def test_status_reports_configuration_and_kernel_store(live: Live) -> None:
+    """What the robot runs (its whole configuration) and holds (its kernels) reach the robot's record."""
+    rid, token = live.new_robot()
+    config = {
+        "mode": "online",
+        "n_smax": 9,
+        "noise_removal": [{"name": "dbscan", "params": {"epsilon_m": 0.04}}],
+    }
+    kernel = {
+        "stage": "noise-removal",
+        "name": "dbscan",
+        "version": "1.1.0",
+        "state": "verified",
+        "sha256": "a" * 64,
+    }
+    up = _snapshot()
+    up["status"] = {**up["status"], "config": config, "kernels": [kernel]}
+    with live.client(token) as robot:
+        assert robot.post(f"/robots/{rid}/maps", json=up).status_code == 200
+        row = robot.get(f"/robots/{rid}").json()
+    assert row["config"] == config and row["kernels"] == [kernel]
+    bad = _delta(1, 2)
+    bad["status"] = {"kernels": [{**kernel, "state": "x" * 40}]}
+    with live.client(token) as robot:
+        r = robot.post(f"/robots/{rid}/maps", json=bad)
+    assert r.status_code == 422 and "state" in r.json()["detail"]

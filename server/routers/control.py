@@ -1,0 +1,139 @@
+"""``/control/xml``: turn the dashboard's tuning form (a JSON draft) into a canonical control message.
+
+The browser never writes XML itself: the one XML writer is :func:`shared.control.build_message`, and the
+draft's kernel parameters are validated here against the built-in kernels' parameter models, so the form
+shows "clustering kmeans: cluster_no ..." before anything is queued. Parameters of kernel versions the
+server does not have built in (uploaded ones) are left to the robot, which validates them on load.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter
+from pydantic import BaseModel, ConfigDict, Field
+
+from server.deps import OperatorDep
+from server.errors import InvalidRequestError
+from shared.control import (
+    NO_SCAN_MATCHING,
+    ControlMessage,
+    ControlMessageError,
+    KernelOperation,
+    KernelSpec,
+    OperationKind,
+    build_message,
+    parse_message,
+)
+from shared.errors import KernelParameterError, UnknownKernelError
+from shared.kernels import REGISTRY, Stage
+from shared.pipeline.config import Mode
+
+__all__ = ["ControlDraft", "KernelDraft", "OperationDraft", "router"]
+
+router = APIRouter(prefix="/control", tags=["control"])
+
+ParamScalar = bool | int | float | str | list[int]
+StageName = Literal["segmentation", "noise-removal", "clustering", "straight-line", "scan-matching"]
+
+
+class KernelDraft(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
+    version: str | None = Field(None, pattern=r"^\d+\.\d+\.\d+$")
+    params: dict[str, ParamScalar] = Field(
+        default_factory=dict, description="Parameter -> value, in the units of the kernel's schema (SI)."
+    )
+
+
+class OperationDraft(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["install", "update", "delete", "rollback"]
+    stage: StageName
+    name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
+    version: str = Field(pattern=r"^\d+\.\d+\.\d+$")
+    sha256: str | None = Field(None, pattern=r"^[0-9a-fA-F]{64}$")
+
+
+class ControlDraft(BaseModel):
+    """What the tuning form sends; every field is optional (what is left out stays as the robot has it)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mode: Literal["online", "offline", "mixed"] | None = None
+    n_smax: int | None = Field(None, ge=1, le=10_000)
+    heading_flush_deg: float | None = Field(None, gt=0, le=180)
+    segmentation: KernelDraft | None = None
+    noise_removal: Annotated[list[KernelDraft], Field(max_length=8)] | None = None
+    clustering: KernelDraft | None = None
+    straight_line: KernelDraft | None = None
+    scan_matching: KernelDraft | Literal["none"] | None = None
+    operations: list[OperationDraft] = Field(default_factory=list, max_length=32)
+
+
+class ControlXml(BaseModel):
+    xml: str
+
+
+def _spec(draft: KernelDraft, stage: Stage) -> KernelSpec:
+    params = {k: tuple(v) if isinstance(v, list) else v for k, v in draft.params.items()}
+    try:
+        REGISTRY.get(stage, draft.name, draft.version)
+    except UnknownKernelError:
+        pass  # an uploaded version: the robot validates its parameters when it loads it
+    else:
+        try:
+            REGISTRY.create(stage, draft.name, params, draft.version)
+        except KernelParameterError as exc:
+            raise InvalidRequestError(f"{stage.value} {draft.name}: {exc}") from None
+    return KernelSpec(draft.name, tuple(sorted(params.items())), draft.version)
+
+
+def draft_message(draft: ControlDraft) -> ControlMessage:
+    """The control message a draft describes; :class:`InvalidRequestError` naming the bad parameter."""
+    scan: KernelSpec | Literal["none"] | None = None
+    if draft.scan_matching == NO_SCAN_MATCHING:
+        scan = NO_SCAN_MATCHING
+    elif isinstance(draft.scan_matching, KernelDraft):
+        scan = _spec(draft.scan_matching, Stage.SCAN_MATCHING)
+    return ControlMessage(
+        mode=Mode(draft.mode) if draft.mode else None,
+        n_smax=draft.n_smax,
+        heading_flush_deg=draft.heading_flush_deg,
+        segmentation=_spec(draft.segmentation, Stage.SEGMENTATION) if draft.segmentation else None,
+        noise_removal=(
+            tuple(_spec(d, Stage.NOISE_REMOVAL) for d in draft.noise_removal)
+            if draft.noise_removal is not None
+            else None
+        ),
+        clustering=_spec(draft.clustering, Stage.CLUSTERING) if draft.clustering else None,
+        straight_line=_spec(draft.straight_line, Stage.STRAIGHT_LINE) if draft.straight_line else None,
+        scan_matching=scan,
+        operations=tuple(
+            KernelOperation(
+                OperationKind(op.kind),
+                Stage(op.stage),
+                op.name,
+                op.version,
+                op.sha256.lower() if op.sha256 else None,
+            )
+            for op in draft.operations
+        ),
+    )
+
+
+@router.post("/xml", response_model=ControlXml)
+def control_xml(draft: ControlDraft, who: OperatorDep) -> ControlXml:
+    """Canonical XML for a tuning-form draft (lengths written in metres with ``unit="m"``); 422 names the
+    parameter or element that is wrong. Nothing is queued: post the XML to ``/robots/{id}/messages``."""
+    if draft.noise_removal is not None and not draft.noise_removal:
+        raise InvalidRequestError("noise_removal: the chain needs at least one kernel")
+    msg = draft_message(draft)
+    try:
+        xml = build_message(msg)
+        parse_message(xml)  # what the robot will read must be what we meant
+    except ControlMessageError as exc:
+        raise InvalidRequestError(str(exc)) from None
+    return ControlXml(xml=xml.decode("utf-8"))

@@ -1,0 +1,255 @@
+"""``linemap demo``: the whole system on one machine: a server, a simulated robot, the dashboard.
+
+Starts ``linemap server`` on ``HOST:PORT`` with a SQLite database in ``DIR``, registers a robot and a
+signing key, starts ``linemap agent`` patrolling the default simulated world until stopped, prints the
+dashboard URL and the operator token, and waits. Ctrl-C (or SIGTERM) stops the agent, then the server.
+``DIR/demo.json`` records what it made (URL, token, robot id, key files) for scripts and tests.
+
+Each start is fresh: the databases in ``DIR`` are replaced (``--keep`` reuses them). The processes are real
+subprocesses talking HTTP on loopback, exactly as a robot and a server on two machines would.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Annotated
+
+import httpx
+import typer
+
+from shared.errors import LinemapError
+
+__all__ = ["DemoInfo", "demo_cmd"]
+
+EXAMPLE_KERNEL = Path(__file__).resolve().parents[2] / "docs" / "examples" / "dbscan_1_1_0.py"
+ROBOT_NAME = "sim-robot"
+
+
+@dataclass(frozen=True)
+class DemoInfo:
+    """What a running demo made (written to ``DIR/demo.json``)."""
+
+    url: str
+    operator_token: str
+    robot_id: int
+    robot_name: str
+    private_key: str
+    public_key: str
+    example_kernel: str | None
+    example_signature: str | None
+    server_pid: int
+    agent_pid: int
+
+
+def _linemap() -> list[str]:
+    exe = Path(sys.executable).with_name("linemap")
+    return [str(exe)] if exe.is_file() else [sys.executable, "-m", "shared.cli.main"]
+
+
+def _port_free(host: str, port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def _tail(path: Path, lines: int = 15) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return "(no log)"
+
+
+class _Child:
+    """A ``linemap`` subprocess with its output in a log file."""
+
+    def __init__(self, name: str, args: list[str], log: Path) -> None:
+        self.name, self.log = name, log
+        self._out = log.open("ab")
+        self.proc = subprocess.Popen(
+            [*_linemap(), *args], stdout=self._out, stderr=subprocess.STDOUT, start_new_session=True
+        )
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, timeout_s: float) -> int:
+        """SIGINT, then SIGKILL after ``timeout_s``; the exit code."""
+        if self.alive():
+            self.proc.send_signal(signal.SIGINT)
+        try:
+            code = self.proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            code = self.proc.wait()
+        self._out.close()
+        return code
+
+
+def _wait_healthy(base: str, server: _Child, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if not server.alive():
+            raise LinemapError(
+                f"the server exited at start (code {server.proc.returncode}):\n{_tail(server.log)}"
+            )
+        try:
+            if httpx.get(f"{base}/healthz", timeout=2.0).status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        time.sleep(0.2)
+    raise LinemapError(
+        f"the server did not answer on {base}/healthz within {timeout_s:.0f} s:\n{_tail(server.log)}"
+    )
+
+
+def _setup(base: str, op_token: str, directory: Path) -> tuple[int, str, str, str, str | None, str | None]:
+    """Register the robot and a signing key; pre-sign the example kernel. Returns (robot id, robot token,
+    private key file, public key, example kernel file, its signature)."""
+    from shared.signing import generate_keypair, load_private_key, sha256_hex, sign_digest
+
+    pair = generate_keypair()
+    key_file = directory / "signing.pem"
+    fd = os.open(key_file, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(pair.private_pem)
+    (directory / "signing.pub").write_text(pair.public_b64 + "\n", encoding="utf-8")
+    with httpx.Client(base_url=f"{base}/api/v1", headers={"Authorization": f"Bearer {op_token}"}) as api:
+        r = api.post("/robots", json={"name": ROBOT_NAME})
+        if r.status_code != 201:
+            raise LinemapError(f"could not register the demo robot: HTTP {r.status_code} {r.text[:300]}")
+        robot = r.json()
+        r = api.post("/keys", json={"name": "demo", "public_key": pair.public_b64})
+        if r.status_code not in (201, 409):
+            raise LinemapError(
+                f"could not register the demo signing key: HTTP {r.status_code} {r.text[:300]}"
+            )
+    example = signature = None
+    if EXAMPLE_KERNEL.is_file():
+        kernels = directory / "kernels"
+        kernels.mkdir(exist_ok=True)
+        copy = kernels / EXAMPLE_KERNEL.name
+        shutil.copyfile(EXAMPLE_KERNEL, copy)
+        signature = sign_digest(load_private_key(pair.private_pem), sha256_hex(copy.read_bytes()))
+        copy.with_suffix(".sig").write_text(signature + "\n", encoding="utf-8")
+        example = str(copy)
+    return int(robot["id"]), str(robot["token"]), str(key_file), pair.public_b64, example, signature
+
+
+def demo_cmd(
+    directory: Annotated[
+        Path, typer.Option("--dir", help="Where the demo keeps its databases, keys and logs.")
+    ] = Path(".demo"),
+    host: Annotated[str, typer.Option(help="Address the server listens on.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=1, max=65535, help="The server's TCP port.")] = 8000,
+    keep: Annotated[
+        bool, typer.Option(help="Reuse the databases of the last demo instead of starting fresh.")
+    ] = False,
+    laps: Annotated[int, typer.Option(min=0, help="Patrols of the simulated world (0: until stopped).")] = 0,
+) -> None:
+    """Run a server and a simulated robot, print the dashboard's URL and operator token, wait for Ctrl-C."""
+    if not _port_free(host, port):
+        raise LinemapError(f"port {port} on {host} is in use: stop what runs there or pass --port")
+    directory.mkdir(parents=True, exist_ok=True)
+    if not keep:
+        for pattern in ("server.db*", "robot.db*", "*.log", "demo.json"):
+            for old in directory.glob(pattern):
+                old.unlink()
+    db = directory / "server.db"
+    base = f"http://{host}:{port}"
+    token = subprocess.run(
+        [*_linemap(), "server", "--db", str(db), "token", "create", "--name", "demo"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if token.returncode != 0:
+        raise LinemapError(
+            f"could not create the operator token: {token.stderr.strip() or token.stdout.strip()}"
+        )
+    op_token = token.stdout.strip().splitlines()[-1]
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    server = _Child(
+        "server", ["server", "--db", str(db), "--host", host, "--port", str(port)], directory / "server.log"
+    )
+    agent: _Child | None = None
+    code = 0
+    try:
+        _wait_healthy(base, server)
+        robot_id, robot_token, key_file, public_key, example, signature = _setup(base, op_token, directory)
+        agent = _Child(
+            "agent",
+            [
+                "agent",
+                "--source", "sim",
+                "--laps", str(laps),
+                "--server", base,
+                "--robot-id", str(robot_id),
+                "--token", robot_token,
+                "--db", str(directory / "robot.db"),
+                "--trust-key", public_key,
+            ],
+            directory / "agent.log",
+        )  # fmt: skip
+        info = DemoInfo(
+            f"{base}/", op_token, robot_id, ROBOT_NAME, key_file, public_key, example, signature,
+            server.proc.pid, agent.proc.pid,
+        )  # fmt: skip
+        (directory / "demo.json").write_text(json.dumps(asdict(info), indent=2) + "\n", encoding="utf-8")
+        _banner(info, directory)
+        while not stop.wait(0.5):
+            for child in (server, agent):
+                if not child.alive():
+                    typer.echo(
+                        f"linemap demo: the {child.name} stopped (code {child.proc.returncode}); "
+                        f"its log ends:\n{_tail(child.log)}",
+                        err=True,
+                    )
+                    code = 1
+                    stop.set()
+    finally:
+        typer.echo("linemap demo: stopping the robot agent and the server ...", err=True)
+        if agent is not None:
+            agent.stop(60.0)
+        server.stop(20.0)
+    typer.echo("linemap demo: stopped", err=True)
+    if code:
+        raise typer.Exit(code)
+
+
+def _banner(info: DemoInfo, directory: Path) -> None:
+    from rich.console import Console
+    from rich.panel import Panel
+
+    lines = [
+        f"Dashboard:      [bold cyan]{info.url}[/]",
+        f"Operator token: [bold]{info.operator_token}[/]   (paste it at the login)",
+        f"Robot:          {info.robot_name} (id {info.robot_id}), patrolling the simulated world at 10 Hz",
+        f"Signing key:    {info.private_key}  (trusted by the robot)",
+    ]
+    if info.example_kernel:
+        lines.append(
+            f"Example kernel: {info.example_kernel} with its signature in "
+            f"{Path(info.example_kernel).with_suffix('.sig').name} (upload it on the Kernels page)"
+        )
+    lines.append(f"Logs:           {directory / 'server.log'}, {directory / 'agent.log'}")
+    lines.append("Stop with Ctrl-C.")
+    Console(highlight=False).print(Panel("\n".join(lines), title="linemap demo", expand=False))
+    sys.stdout.flush()
