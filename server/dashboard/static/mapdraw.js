@@ -1,0 +1,86 @@
+// Canvas drawing helpers of the live map: colours, grid, robot marker, scale bar.
+
+export const NICE = [0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
+export const COLORS = {
+  bg: "#0f151c",
+  gridMinor: "rgba(255,255,255,0.05)",
+  gridMajor: "rgba(255,255,255,0.11)",
+  axis: "rgba(255,255,255,0.22)",
+  wall: "#e9eef4",
+  centroid: "#f0b429",
+  trajectory: "rgba(76,166,255,0.85)",
+  robot: "#3ddc84",
+  robotEdge: "#0f151c",
+  text: "#d8dee6",
+};
+
+export function drawGrid(ctx, w, hgt, scale, ox, oy) {
+  // Minor lines: the smallest nice step at least 28 px apart; major lines every 1, 5 or 10 x 10^k m.
+  const step = niceAtLeast(28 / scale);
+  const major = step * (String(step).replace(/[0.]/g, "")[0] === "5" ? 2 : 5);
+  const x0 = Math.floor((0 - ox) / scale / step) * step;
+  const x1 = (w - ox) / scale;
+  const y0 = Math.floor((oy - hgt) / scale / step) * step;
+  const y1 = oy / scale;
+  const minor = new Path2D();
+  const majorP = new Path2D();
+  for (let x = x0; x <= x1; x += step) {
+    const sx = Math.round(x * scale + ox) + 0.5;
+    const p = isMultiple(x, major) ? majorP : minor;
+    p.moveTo(sx, 0); p.lineTo(sx, hgt);
+  }
+  for (let y = y0; y <= y1; y += step) {
+    const sy = Math.round(oy - y * scale) + 0.5;
+    const p = isMultiple(y, major) ? majorP : minor;
+    p.moveTo(0, sy); p.lineTo(w, sy);
+  }
+  ctx.lineWidth = 1;
+  ctx.strokeStyle = COLORS.gridMinor;
+  ctx.stroke(minor);
+  ctx.strokeStyle = COLORS.gridMajor;
+  ctx.stroke(majorP);
+  // World axes through the origin.
+  ctx.beginPath();
+  const ax = Math.round(ox) + 0.5;
+  const ay = Math.round(oy) + 0.5;
+  ctx.moveTo(ax, 0); ctx.lineTo(ax, hgt);
+  ctx.moveTo(0, ay); ctx.lineTo(w, ay);
+  ctx.strokeStyle = COLORS.axis;
+  ctx.stroke();
+}
+
+export function drawRobot(ctx, sx, sy, theta) {
+  const size = 13;
+  ctx.save();
+  ctx.translate(sx, sy);
+  ctx.rotate(-theta); // world y up -> canvas y down
+  ctx.beginPath();
+  ctx.moveTo(size, 0);
+  ctx.lineTo(-size * 0.65, size * 0.6);
+  ctx.lineTo(-size * 0.35, 0);
+  ctx.lineTo(-size * 0.65, -size * 0.6);
+  ctx.closePath();
+  ctx.fillStyle = COLORS.robot;
+  ctx.strokeStyle = COLORS.robotEdge;
+  ctx.lineWidth = 1.5;
+  ctx.fill();
+  ctx.stroke();
+  ctx.restore();
+}
+
+/** The scale bar's length: the largest nice length (0.1 ... 1000 m) at most 140 px long. */
+export function scaleBarLength(scale) {
+  let len = NICE[0];
+  for (const n of NICE) if (n * scale <= 140) len = n;
+  return len;
+}
+
+function niceAtLeast(v) {
+  for (const n of NICE) if (n >= v) return n;
+  return NICE[NICE.length - 1] * Math.ceil(v / NICE[NICE.length - 1]);
+}
+
+function isMultiple(v, step) {
+  const r = Math.abs(v / step - Math.round(v / step));
+  return r < 1e-6;
+}

@@ -1,0 +1,373 @@
+// Live map: keeps the robot's map from the SSE stream (snapshot + deltas) and draws it on a canvas
+// (walls, centroids, trajectory, pose, grid, scale bar) with pan, zoom, fit and follow.
+// Redraws only when something changed, at most once per animation frame; records latency and frame
+// times in window.linemapStats (see brief: tests and a benchmark read them).
+
+import { h } from "./dom.js";
+import { api } from "./api.js";
+import { COLORS, drawGrid, drawRobot, scaleBarLength } from "./mapdraw.js";
+
+const TRAJECTORY_KEEP = 5000;
+const STATS_KEEP = 1000;
+
+export function stats() {
+  if (!window.linemapStats) {
+    window.linemapStats = { latencies_ms: [], frame_ms: [], version: null, segments: 0, drawn_at: null };
+  }
+  return window.linemapStats;
+}
+
+const pushCapped = (arr, v) => {
+  arr.push(v);
+  if (arr.length > STATS_KEEP) arr.splice(0, arr.length - STATS_KEEP);
+};
+
+function median(values) {
+  if (!values.length) return null;
+  const s = [...values].sort((a, b) => a - b);
+  const m = s.length >> 1;
+  return s.length % 2 ? s[m] : (s[m - 1] + s[m]) / 2;
+}
+
+export class MapView {
+  constructor() {
+    this.segments = new Map(); // id -> [x0, y0, x1, y1]
+    this.centroids = [];
+    this.trajectory = []; // [stamp_s, x, y, theta]
+    this.pose = null;
+    this.version = null;
+    this.pendingWallTimes = [];
+    this.view = { cx: 0, cy: 0, scale: 40 }; // world centre (m) and CSS px per metre
+    this.follow = false;
+    this.fitted = false;
+    this.dirty = true;
+    this.frame = 0;
+    this.es = null;
+    this.closed = false;
+    this.status = "connecting";
+
+    this.canvas = h("canvas", { class: "map-canvas", "data-testid": "map-canvas" });
+    this.hudVersion = h("span", { "data-testid": "map-version" }, "—");
+    this.hudWalls = h("span", { "data-testid": "map-walls" }, "0");
+    this.hudLatency = h("span", { "data-testid": "map-latency" }, "—");
+    this.hudStatus = h("span", { class: "hud-status", "data-testid": "map-status" }, "connecting…");
+    this.scaleText = h("span", { class: "map-scale-text" });
+    this.scaleBarEl = h("div", { class: "map-scale", "data-testid": "map-scale" }, this.scaleText);
+    this.followBox = h("input", { type: "checkbox", "data-testid": "map-follow", onchange: (e) => this.setFollow(e.target.checked) });
+    this.el = h("div", { class: "map-wrap" },
+      this.canvas,
+      h("div", { class: "map-hud" },
+        h("div", null, "map v", this.hudVersion, " · ", this.hudWalls, " walls"),
+        h("div", null, "link latency ", this.hudLatency),
+        this.hudStatus),
+      h("div", { class: "map-tools" },
+        h("button", { type: "button", "data-testid": "map-fit", title: "Fit the whole map (double-click the map too)", onclick: () => this.fit() }, "Fit"),
+        h("label", { class: "map-follow", title: "Keep the robot in the centre" }, this.followBox, " Follow robot"),
+        h("button", { type: "button", title: "Zoom in", onclick: () => this.zoomBy(1.5) }, "+"),
+        h("button", { type: "button", title: "Zoom out", onclick: () => this.zoomBy(1 / 1.5) }, "−")),
+      this.scaleBarEl,
+      h("div", { class: "map-legend" },
+        legendItem("wall", "walls"), legendItem("centroid", "centroids"),
+        legendItem("trajectory", "trajectory"), legendItem("robot", "robot")));
+    this.ctx = this.canvas.getContext("2d", { alpha: false });
+    this.bindInput();
+    this.resizeObserver = new ResizeObserver(() => this.invalidate());
+    this.resizeObserver.observe(this.canvas);
+  }
+
+  // ---- stream -------------------------------------------------------------------------------------
+
+  connect(robotId) {
+    this.robotId = robotId;
+    this.closed = false;
+    this.open();
+  }
+
+  open() {
+    if (this.closed) return;
+    if (this.es) this.es.close();
+    const es = new EventSource(api.streamUrl(this.robotId, TRAJECTORY_KEEP), { withCredentials: true });
+    this.es = es;
+    this.setStatus("connecting…");
+    es.addEventListener("snapshot", (e) => this.onSnapshot(JSON.parse(e.data)));
+    es.addEventListener("delta", (e) => this.onDelta(JSON.parse(e.data)));
+    es.addEventListener("open", () => this.setStatus(""));
+    es.addEventListener("error", () => {
+      if (this.es !== es || this.closed) return;
+      if (es.readyState === EventSource.CLOSED) {
+        // Not retried by the browser (e.g. 401/404): check the session (a 401 leads to login), retry later.
+        this.setStatus("stream closed — retrying…");
+        api.whoami().catch(() => {});
+        clearTimeout(this.retryTimer);
+        this.retryTimer = setTimeout(() => this.open(), 3000);
+      } else {
+        this.setStatus("reconnecting…");
+      }
+    });
+  }
+
+  close() {
+    this.closed = true;
+    clearTimeout(this.retryTimer);
+    if (this.es) this.es.close();
+    this.es = null;
+    cancelAnimationFrame(this.frame);
+    this.frame = 0;
+    this.resizeObserver.disconnect();
+  }
+
+  setStatus(text) {
+    this.status = text;
+    this.hudStatus.textContent = text;
+    this.hudStatus.hidden = !text;
+  }
+
+  onSnapshot(m) {
+    this.segments.clear();
+    for (const s of m.segments || []) this.segments.set(s[0], [s[1], s[2], s[3], s[4]]);
+    this.centroids = m.centroids || [];
+    this.trajectory = (m.trajectory || []).slice(-TRAJECTORY_KEEP);
+    this.pose = m.pose && m.pose.length >= 2 ? m.pose : null;
+    this.version = m.version;
+    this.setStatus(m.version ? "" : "no map yet: waiting for the robot's first upload");
+    this.noteEvent(m);
+    if (!this.fitted && (this.segments.size || this.trajectory.length || this.pose)) this.fit();
+  }
+
+  onDelta(d) {
+    if (this.version === null || d.base_version !== this.version) {
+      // Out of step: reopen; the server starts every stream with a fresh snapshot.
+      this.open();
+      return;
+    }
+    for (const s of d.segments || []) this.segments.set(s[0], [s[1], s[2], s[3], s[4]]);
+    for (const id of d.removed || []) this.segments.delete(id);
+    if (d.centroids) this.centroids = d.centroids;
+    if (d.pose && d.pose.length >= 2) this.pose = d.pose;
+    if (d.trajectory && d.trajectory.length) {
+      for (const row of d.trajectory) this.trajectory.push(row);
+      if (this.trajectory.length > TRAJECTORY_KEEP * 1.2) this.trajectory = this.trajectory.slice(-TRAJECTORY_KEEP);
+    }
+    this.version = d.version;
+    if (this.status) this.setStatus("");
+    this.noteEvent(d);
+    if (!this.fitted && (this.segments.size || this.trajectory.length || this.pose)) this.fit();
+  }
+
+  noteEvent(ev) {
+    if (typeof ev.wall_time_s === "number") {
+      this.pendingWallTimes.push(ev.wall_time_s);
+      if (this.pendingWallTimes.length > STATS_KEEP) this.pendingWallTimes.shift(); // no frames while hidden
+    }
+    this.invalidate();
+  }
+
+  // ---- view ---------------------------------------------------------------------------------------
+
+  invalidate() {
+    this.dirty = true;
+    if (!this.frame && !this.closed) this.frame = requestAnimationFrame(() => this.onFrame());
+  }
+
+  setFollow(on) {
+    this.follow = on;
+    this.followBox.checked = on;
+    this.invalidate();
+  }
+
+  /** Bounds of everything drawn: [minX, minY, maxX, maxY] or null. */
+  bounds() {
+    let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+    const add = (x, y) => {
+      if (x < x0) x0 = x;
+      if (x > x1) x1 = x;
+      if (y < y0) y0 = y;
+      if (y > y1) y1 = y;
+    };
+    for (const s of this.segments.values()) { add(s[0], s[1]); add(s[2], s[3]); }
+    for (const t of this.trajectory) add(t[1], t[2]);
+    for (const c of this.centroids) add(c[0], c[1]);
+    if (this.pose) add(this.pose[0], this.pose[1]);
+    return x0 <= x1 ? [x0, y0, x1, y1] : null;
+  }
+
+  /** Fit everything in view (computed at the next frame, when the canvas has its size). */
+  fit() {
+    this.pendingFit = true;
+    this.invalidate();
+  }
+
+  applyFit(w, hgt) {
+    this.pendingFit = false;
+    const b = this.bounds();
+    if (!b) return;
+    const bw = Math.max(b[2] - b[0], 4);
+    const bh = Math.max(b[3] - b[1], 4);
+    const scale = Math.min((w - 60) / bw, (hgt - 60) / bh);
+    this.view = { cx: (b[0] + b[2]) / 2, cy: (b[1] + b[3]) / 2, scale: clampScale(scale) };
+    this.fitted = true;
+  }
+
+  zoomBy(f, sx, sy) {
+    const { w, hgt } = this.size();
+    if (sx === undefined) { sx = w / 2; sy = hgt / 2; }
+    const before = this.toWorld(sx, sy);
+    this.view.scale = clampScale(this.view.scale * f);
+    const after = this.toWorld(sx, sy);
+    if (!this.follow) {
+      this.view.cx += before[0] - after[0];
+      this.view.cy += before[1] - after[1];
+    }
+    this.invalidate();
+  }
+
+  size() {
+    return { w: this.canvas.clientWidth || 1, hgt: this.canvas.clientHeight || 1 };
+  }
+
+  toWorld(sx, sy) {
+    const { w, hgt } = this.size();
+    const v = this.view;
+    return [v.cx + (sx - w / 2) / v.scale, v.cy - (sy - hgt / 2) / v.scale];
+  }
+
+  bindInput() {
+    const c = this.canvas;
+    let drag = null;
+    c.addEventListener("pointerdown", (e) => {
+      if (e.button !== 0) return;
+      drag = { x: e.clientX, y: e.clientY, cx: this.view.cx, cy: this.view.cy };
+      c.setPointerCapture(e.pointerId);
+      c.classList.add("dragging");
+    });
+    c.addEventListener("pointermove", (e) => {
+      if (!drag) return;
+      const dx = e.clientX - drag.x;
+      const dy = e.clientY - drag.y;
+      if (this.follow && Math.hypot(dx, dy) > 3) this.setFollow(false);
+      this.view.cx = drag.cx - dx / this.view.scale;
+      this.view.cy = drag.cy + dy / this.view.scale;
+      this.invalidate();
+    });
+    const end = () => { drag = null; c.classList.remove("dragging"); };
+    c.addEventListener("pointerup", end);
+    c.addEventListener("pointercancel", end);
+    c.addEventListener("wheel", (e) => {
+      e.preventDefault();
+      const r = c.getBoundingClientRect();
+      const dy = e.deltaMode === 1 ? e.deltaY * 16 : e.deltaY;
+      this.zoomBy(Math.exp(-dy * 0.0015), e.clientX - r.left, e.clientY - r.top);
+    }, { passive: false });
+    c.addEventListener("dblclick", () => this.fit());
+  }
+
+  // ---- drawing ------------------------------------------------------------------------------------
+
+  onFrame() {
+    this.frame = 0;
+    if (this.closed || !this.dirty) return;
+    this.dirty = false;
+    const t0 = performance.now();
+    this.draw();
+    const t1 = performance.now();
+    const st = stats();
+    pushCapped(st.frame_ms, t1 - t0);
+    st.version = this.version;
+    st.segments = this.segments.size;
+    st.drawn_at = performance.timeOrigin + t1;
+    if (this.pendingWallTimes.length) {
+      const now = performance.timeOrigin + performance.now();
+      for (const wt of this.pendingWallTimes) pushCapped(st.latencies_ms, now - wt * 1000);
+      this.pendingWallTimes = [];
+    }
+    this.updateHud();
+  }
+
+  updateScaleBar(scale) {
+    const len = scaleBarLength(scale);
+    const px = Math.round(len * scale);
+    if (this.scaleLen === len && this.scalePx === px) return;
+    this.scaleLen = len;
+    this.scalePx = px;
+    this.scaleBarEl.style.width = `${px}px`;
+    this.scaleText.textContent = `${len} m`;
+    this.scaleBarEl.dataset.metres = String(len);
+  }
+
+  updateHud() {
+    this.hudVersion.textContent = this.version === null ? "—" : String(this.version);
+    this.hudWalls.textContent = String(this.segments.size);
+    const lat = median(stats().latencies_ms.slice(-50));
+    this.hudLatency.textContent = lat === null ? "—" : `${Math.round(lat)} ms`;
+  }
+
+  draw() {
+    const c = this.canvas;
+    const dpr = window.devicePixelRatio || 1;
+    const { w, hgt } = this.size();
+    const pw = Math.round(w * dpr);
+    const ph = Math.round(hgt * dpr);
+    if (c.width !== pw || c.height !== ph) { c.width = pw; c.height = ph; }
+    const ctx = this.ctx;
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    ctx.fillStyle = COLORS.bg;
+    ctx.fillRect(0, 0, w, hgt);
+
+    if (this.pendingFit && w > 1 && hgt > 1) this.applyFit(w, hgt);
+    if (this.follow && this.pose) { this.view.cx = this.pose[0]; this.view.cy = this.pose[1]; }
+    const { cx, cy, scale } = this.view;
+    const ox = w / 2 - cx * scale;
+    const oy = hgt / 2 + cy * scale;
+    // screen = (x * scale + ox, oy - y * scale)
+
+    drawGrid(ctx, w, hgt, scale, ox, oy);
+
+    // Trajectory: one polyline.
+    const tr = this.trajectory;
+    if (tr.length > 1) {
+      ctx.beginPath();
+      ctx.moveTo(tr[0][1] * scale + ox, oy - tr[0][2] * scale);
+      for (let i = 1; i < tr.length; i++) ctx.lineTo(tr[i][1] * scale + ox, oy - tr[i][2] * scale);
+      ctx.strokeStyle = COLORS.trajectory;
+      ctx.lineWidth = 1.25;
+      ctx.lineJoin = "round";
+      ctx.stroke();
+    }
+
+    // Walls: one path, one stroke.
+    if (this.segments.size) {
+      ctx.beginPath();
+      for (const s of this.segments.values()) {
+        ctx.moveTo(s[0] * scale + ox, oy - s[1] * scale);
+        ctx.lineTo(s[2] * scale + ox, oy - s[3] * scale);
+      }
+      ctx.strokeStyle = COLORS.wall;
+      ctx.lineWidth = 2;
+      ctx.lineCap = "round";
+      ctx.stroke();
+    }
+
+    // Centroids: small squares, one path, one fill.
+    const cs = this.centroids;
+    if (cs.length) {
+      const r = 2;
+      ctx.beginPath();
+      for (const p of cs) ctx.rect(p[0] * scale + ox - r, oy - p[1] * scale - r, 2 * r, 2 * r);
+      ctx.fillStyle = COLORS.centroid;
+      ctx.fill();
+    }
+
+    if (this.pose) drawRobot(ctx, this.pose[0] * scale + ox, oy - this.pose[1] * scale, this.pose[2] || 0);
+    this.updateScaleBar(scale);
+  }
+
+}
+
+function legendItem(kind, label) {
+  return h("span", { class: `legend-item legend-${kind}` }, h("i"), label);
+}
+
+function clampScale(s) {
+  return Math.min(5000, Math.max(0.05, Number.isFinite(s) ? s : 40));
+}
+

@@ -1,0 +1,300 @@
+"""The operator dashboard in a real browser (Debian's Chromium via Playwright) against ``linemap demo``: a
+real server and a real simulated robot agent on loopback.
+
+The tests run in order on one page, as an operator would: log in, watch the live map, tune DBSCAN, send
+Listing 1, upload / install / roll back a signed kernel, read the history, then draw a 5,000-wall map.
+Screenshots and the measured latency and frame times are kept in ``test-artifacts/dashboard/``; the
+figures are printed, not asserted (speed lives in the benchmarks: ``benchmarks/dashboard_latency.py``).
+"""
+
+from __future__ import annotations
+
+import re
+import statistics
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.robot_agent.agentproc import wait_for
+from tests.server.dashboard.browser import (
+    ARTIFACTS,
+    launch_chromium,
+    operator_client,
+    running_demo,
+    save_figures,
+)
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is a dev dependency")
+expect = sync_api.expect
+
+LISTING_1 = """<?xml version="1.0" encoding="UTF-8"?>
+<xml>
+ <message>
+  <mode> online </mode>
+  <noise-removal>
+   <dbscan>
+    <minpts> 3 </minpts>
+    <epsilon> 5 </epsilon>
+   </dbscan>
+  </noise-removal>
+  <clustering>
+   <kmeans>
+    <cluster-no> 50 </cluster-no>
+   </kmeans>
+  </clustering>
+  <straight-line-method> Hough </straight-line-method>
+ </message>
+</xml>
+"""
+
+ACK_TIMEOUT_MS = 90_000
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    with running_demo(tmp_path_factory.mktemp("demo")) as info:
+        yield info
+
+
+@pytest.fixture(scope="module")
+def page(demo: dict[str, Any]) -> Iterator[Any]:
+    errors: list[str] = []
+    with sync_api.sync_playwright() as p:
+        browser = launch_chromium(p)
+        context = browser.new_context(viewport={"width": 1280, "height": 800})
+        pg = context.new_page()
+        pg.set_default_timeout(30_000)
+        pg.on("pageerror", lambda exc: errors.append(f"page error: {exc}"))
+        pg.on(
+            "console", lambda m: errors.append(f"console {m.type}: {m.text}") if m.type == "error" else None
+        )
+        pg.errors = errors  # type: ignore[attr-defined]
+        yield pg
+        context.close()
+        browser.close()
+    # A 4xx the page asked for on purpose shows as a console error in Chromium; scripts must not throw.
+    assert not [e for e in errors if e.startswith("page error")], errors
+
+
+def shot(page: Any, name: str) -> Path:
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    path = ARTIFACTS / f"{name}.png"
+    page.screenshot(path=str(path))
+    return path
+
+
+def tid(page: Any, name: str) -> Any:
+    return page.get_by_test_id(name)
+
+
+def robot_state(demo: dict[str, Any]) -> dict[str, Any]:
+    with operator_client(demo) as op:
+        return dict(op.get(f"/robots/{demo['robot_id']}").json())
+
+
+def open_robot(page: Any, demo: dict[str, Any]) -> None:
+    page.goto(f"{demo['url']}#/robots/{demo['robot_id']}")
+    expect(tid(page, "map-canvas")).to_be_visible()
+
+
+def test_login_refuses_a_wrong_token_then_lists_the_robot(page: Any, demo: dict[str, Any]) -> None:
+    page.goto(demo["url"])
+    tid(page, "login-token").fill("lmo_not-a-real-token")
+    tid(page, "login-submit").click()
+    expect(tid(page, "login-error")).to_be_visible()
+    expect(tid(page, "login-error")).not_to_be_empty()
+    tid(page, "login-token").fill(demo["operator_token"])
+    tid(page, "login-submit").click()
+    row = page.locator(f'[data-testid="robot-row"][data-robot-id="{demo["robot_id"]}"]')
+    expect(row).to_be_visible()
+    expect(row).to_contain_text(demo["robot_name"])
+    expect(row.get_by_test_id("robot-online")).to_contain_text("online")
+    shot(page, "01-robots")
+
+
+def test_live_map_grows_and_latency_is_measured(page: Any, demo: dict[str, Any]) -> None:
+    open_robot(page, demo)
+    version = tid(page, "map-version")
+    expect(version).to_have_text(re.compile(r"^[1-9][0-9]*$"))
+    first = int(version.inner_text())
+    wait_for("the map to grow", lambda: int(version.inner_text()) >= first + 30, 60)
+    walls = int(tid(page, "map-walls").inner_text())
+    assert walls > 0
+    # What the canvas drew is what the server holds (give or take the versions in flight).
+    drawn = page.evaluate("window.linemapStats.version")
+    assert abs(drawn - robot_state(demo)["map_version"]) < 100
+    # The canvas is not blank: some pixels differ from the background.
+    distinct = page.evaluate(
+        """() => { const c = document.querySelector('[data-testid="map-canvas"]');
+                   const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+                   const seen = new Set();
+                   for (let i = 0; i < d.length; i += 4 * 97) seen.add(d[i] << 16 | d[i+1] << 8 | d[i+2]);
+                   return seen.size; }"""
+    )
+    assert distinct > 3
+    tid(page, "map-fit").click()
+    wait_for(
+        "300 latency samples", lambda: len(page.evaluate("window.linemapStats.latencies_ms")) >= 300, 120
+    )
+    lat = page.evaluate("window.linemapStats.latencies_ms")
+    frames = page.evaluate("window.linemapStats.frame_ms")
+    figures = {
+        "step_to_canvas_ms": {
+            "n": len(lat),
+            "median": statistics.median(lat),
+            "p95": sorted(lat)[int(0.95 * (len(lat) - 1))],
+            "max": max(lat),
+        },
+        "frame_ms_live": {"n": len(frames), "median": statistics.median(frames), "max": max(frames)},
+        "walls": walls,
+    }
+    print("dashboard live map:", figures)
+    save_figures("live-map", figures)
+    assert all(x > 0 for x in lat), "a step is drawn after it happened (clocks of one machine)"
+    shot(page, "02-live-map")
+
+
+def test_tuning_dbscan_epsilon_is_acknowledged_and_in_force(page: Any, demo: dict[str, Any]) -> None:
+    open_robot(page, demo)
+    tid(page, "tab-tune").click()
+    field = tid(page, "param-noise-removal-0-epsilon_m")
+    expect(field).to_be_visible()
+    field.fill("0.04")
+    tid(page, "tune-preview").click()
+    expect(tid(page, "xml-preview")).to_contain_text("<epsilon")
+    expect(tid(page, "xml-preview")).to_contain_text("0.04")
+    shot(page, "03-tune-form")
+    tid(page, "tune-send").click()
+    ack = tid(page, "ack")
+    expect(ack).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    wait_for(
+        "epsilon 0.04 in force on the robot",
+        lambda: robot_state(demo)["config"]["noise_removal"][0]["params"].get("epsilon_m") == 0.04,
+        60,
+    )
+    tid(page, "tab-status").click()
+    cell = page.locator('[data-testid="config-table"] [data-kernel="dbscan"][data-param="epsilon_m"]')
+    expect(cell).to_contain_text("0.04", timeout=30_000)
+    shot(page, "04-tuned")
+
+
+def test_out_of_range_value_is_refused_with_its_name(page: Any, demo: dict[str, Any]) -> None:
+    before = robot_state(demo)["last_seq"]
+    open_robot(page, demo)
+    tid(page, "tab-tune").click()
+    tid(page, "param-noise-removal-0-epsilon_m").fill("-1")
+    tid(page, "tune-send").click()
+    expect(tid(page, "form-error")).to_contain_text("epsilon")
+    assert robot_state(demo)["last_seq"] == before, "nothing was queued"
+
+
+def test_listing_1_pasted_as_is(page: Any, demo: dict[str, Any]) -> None:
+    open_robot(page, demo)
+    tid(page, "tab-tune").click()
+    tid(page, "raw-xml").fill(LISTING_1)
+    tid(page, "raw-send").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+
+    def in_force() -> bool:
+        config = robot_state(demo)["config"]
+        return (
+            config["clustering"]["params"].get("n_clusters") == 50
+            and config["straight_line"]["name"] == "hough"
+            and config["noise_removal"][0]["params"].get("epsilon_m") == 0.05
+        )
+
+    wait_for("Listing 1 in force", in_force, 60)
+
+
+def test_broken_xml_is_rejected_with_the_reason(page: Any, demo: dict[str, Any]) -> None:
+    open_robot(page, demo)
+    tid(page, "tab-tune").click()
+    tid(page, "raw-xml").fill("<xml><message><mode>sideways</mode></message></xml>")
+    tid(page, "raw-send").click()
+    expect(tid(page, "form-error")).to_contain_text("mode")
+
+
+def test_upload_install_and_roll_back_a_signed_kernel(page: Any, demo: dict[str, Any]) -> None:
+    page.goto(f"{demo['url']}#/kernels")
+    tid(page, "kernel-upload-file").set_input_files(demo["example_kernel"])
+    tid(page, "kernel-upload-name").fill("dbscan")
+    tid(page, "kernel-upload-stage").select_option("noise-removal")
+    tid(page, "kernel-upload-version").fill("1.1.0")
+    tid(page, "kernel-upload-signature").fill(demo["example_signature"])
+    tid(page, "kernel-upload-submit").click()
+    row = page.locator('[data-testid="kernel-row"][data-name="dbscan"][data-version="1.1.0"]')
+    expect(row).to_be_visible()
+    shot(page, "05-kernels")
+    row.get_by_test_id("kernel-install").click()
+    tid(page, "kernel-install-robot").select_option(str(demo["robot_id"]))
+    tid(page, "kernel-install-confirm").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    wait_for(
+        "dbscan 1.1.0 running",
+        lambda: robot_state(demo)["active_kernels"].get("noise-removal") == "dbscan@1.1.0",
+        60,
+    )
+
+    open_robot(page, demo)
+    tid(page, "tab-kernels").click()
+    mine = page.locator('[data-testid="robot-kernel-row"][data-name="dbscan"][data-version="1.1.0"]')
+    expect(mine).to_have_attribute("data-state", "active", timeout=30_000)
+    shot(page, "06-robot-kernels")
+    mine.get_by_test_id("robot-kernel-rollback").click()
+    tid(page, "rollback-version").select_option("1.0.0")
+    tid(page, "rollback-confirm").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    wait_for(
+        "dbscan 1.0.0 back",
+        lambda: robot_state(demo)["active_kernels"].get("noise-removal") == "dbscan@1.0.0",
+        60,
+    )
+
+
+def test_history_shows_audit_and_acknowledgements(page: Any, demo: dict[str, Any]) -> None:
+    page.goto(f"{demo['url']}#/history")
+    audit = tid(page, "audit-row")
+    expect(audit.first).to_be_visible()
+    actions = " ".join(audit.all_inner_texts())
+    assert "kernel.upload" in actions and "message" in actions
+    acks = tid(page, "ack-row")
+    expect(acks.first).to_be_visible()
+    texts = acks.all_inner_texts()
+    assert any("applied" in t for t in texts), texts
+    shot(page, "07-history")
+
+
+def test_a_5000_wall_map_draws_in_full(page: Any, demo: dict[str, Any]) -> None:
+    """A second robot with a 5,000-wall map (uploaded through the API, as a robot would) and 20 deltas
+    moving 50 walls each; the page draws every wall. Frame times are recorded as figures."""
+    import httpx
+
+    with operator_client(demo) as op:
+        r = op.post("/robots", json={"name": "big-map"})
+        assert r.status_code == 201, r.text
+        rid, token = r.json()["id"], r.json()["token"]
+    segments = [
+        [i, (i % 100) * 0.5, (i // 100) * 0.5, (i % 100) * 0.5 + 0.4, (i // 100) * 0.5 + 0.1]
+        for i in range(5000)
+    ]
+    with httpx.Client(base_url=demo["url"] + "api/v1", headers={"Authorization": f"Bearer {token}"}) as robot:
+        snap = {"version": 1, "base_version": None, "segments": segments, "pose": [25.0, 12.0, 0.0]}
+        assert robot.post(f"/robots/{rid}/maps", json=snap).status_code == 200
+        page.goto(f"{demo['url']}#/robots/{rid}")
+        expect(tid(page, "map-walls")).to_have_text("5000", timeout=30_000)
+        page.evaluate("window.linemapStats.frame_ms.length = 0")
+        for v in range(2, 22):
+            moved = [
+                [i, s[1], s[2] + 0.01 * v, s[3], s[4] + 0.01 * v] for i, s in enumerate(segments[: 50 * v])
+            ][-50:]
+            delta = {"version": v, "base_version": v - 1, "segments": moved, "pose": [25.0, 12.0, 0.1 * v]}
+            assert robot.post(f"/robots/{rid}/maps", json=delta).status_code == 200
+        expect(tid(page, "map-version")).to_have_text("21", timeout=30_000)
+    expect(tid(page, "map-walls")).to_have_text("5000")
+    frames = page.evaluate("window.linemapStats.frame_ms")
+    figures = {"frames": len(frames), "median_ms": statistics.median(frames), "max_ms": max(frames)}
+    print("dashboard 5,000-wall map:", figures)
+    save_figures("big-map", figures)
+    shot(page, "08-big-map")
