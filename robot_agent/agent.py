@@ -262,6 +262,7 @@ class Agent:
         self.db.record_config(previous.model_dump(mode="json"), f"automatic rollback: {reason}"[:200])
         key = (str(cls.stage), cls.name, cls.version)
         self.db.set_kernel_state(*key, "rejected", reason)
+        self._refresh_kernel_states(previous)
         self._probation.pop(key, None)
         _unregister(*key)
         seq = self._installed_by.pop(key, None)
@@ -299,8 +300,16 @@ class Agent:
         self.db.record_message(prepared.seq, "applied", None, config.model_dump(mode="json"))
         for key in prepared.classes:
             self._installed_by[key] = prepared.seq
-            self.db.set_kernel_state(*key, "active" if _used(config, *key) else "verified")
+        self._refresh_kernel_states(config)
         self._wake_uploader.set()
+
+    def _refresh_kernel_states(self, config: PipelineConfig) -> None:
+        """Every downloaded kernel that passed its checks is ``active`` if ``config`` uses it, else
+        ``verified`` (a version rolled back from stays on the robot, ready, but no longer runs)."""
+        for rec in self.db.kernels(["active", "verified"]):
+            state = "active" if _used(config, rec.stage, rec.name, rec.version) else "verified"
+            if state != rec.state:
+                self.db.set_kernel_state(rec.stage, rec.name, rec.version, state)
 
     def _prepare(self, raw: dict[str, Any]) -> Prepared:
         """Parse a message and download/verify its kernels (network thread; may take seconds)."""

@@ -79,8 +79,13 @@ class _Child:
     def __init__(self, name: str, args: list[str], log: Path) -> None:
         self.name, self.log = name, log
         self._out = log.open("ab")
+        # Own session: a Ctrl-C at the terminal reaches only the demo, which stops the children in order.
         self.proc = subprocess.Popen(
-            [*_linemap(), *args], stdout=self._out, stderr=subprocess.STDOUT, start_new_session=True
+            [*_linemap(), *args],
+            stdout=self._out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=_die_with_parent,
         )
 
     def alive(self) -> bool:
@@ -97,6 +102,16 @@ class _Child:
             code = self.proc.wait()
         self._out.close()
         return code
+
+
+def _die_with_parent() -> None:
+    """In the child before exec (Linux): SIGTERM it if the demo itself dies, even by SIGKILL, so no
+    server or agent outlives it. Elsewhere a no-op."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
 
 
 def _wait_healthy(base: str, server: _Child, timeout_s: float = 60.0) -> None:

@@ -87,6 +87,11 @@ def _noise(op: httpx.Client, rid: int) -> str:
     return str(op.get(f"/robots/{rid}").json()["active_kernels"].get("noise-removal"))
 
 
+def _state(op: httpx.Client, rid: int, version: str) -> str | None:
+    kernels = op.get(f"/robots/{rid}").json()["kernels"] or []
+    return next((k["state"] for k in kernels if k["name"] == "dbscan" and k["version"] == version), None)
+
+
 def _start(live: Live, tmp_path: Path, key: KeyPair) -> tuple[AgentProcess, int, httpx.Client]:
     rid, token = live.new_robot()
     op = live.operator()
@@ -112,11 +117,14 @@ def test_install_use_and_roll_back_a_signed_kernel(live: Live, tmp_path: Path, k
         )
         assert ack["status"] == "applied", ack
         wait_for("dbscan 1.1.0 in use", lambda: _noise(op, rid) == "dbscan@1.1.0")
+        wait_for("1.1.0 reported active", lambda: _state(op, rid, "1.1.0") == "active")
         used_from = op.get(f"/robots/{rid}").json()["map_version"]
         wait_for("steps with 1.1.0", lambda: op.get(f"/robots/{rid}").json()["map_version"] > used_from + 10)
         back = _send(op, rid, '<kernel-rollback stage="noise-removal" name="dbscan" version="1.0.0"/>')
         assert back["status"] == "applied", back
         wait_for("dbscan 1.0.0 back in use", lambda: _noise(op, rid) == "dbscan@1.0.0")
+        # The robot reports its kernel store: 1.1.0 stays there, ready, but no longer runs.
+        wait_for("1.1.0 kept, not active", lambda: _state(op, rid, "1.1.0") == "verified")
     finally:
         assert agent.stop() == 0, agent.output()
 

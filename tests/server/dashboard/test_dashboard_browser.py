@@ -70,7 +70,6 @@ def page(demo: dict[str, Any]) -> Iterator[Any]:
         pg.on(
             "console", lambda m: errors.append(f"console {m.type}: {m.text}") if m.type == "error" else None
         )
-        pg.errors = errors  # type: ignore[attr-defined]
         yield pg
         context.close()
         browser.close()
@@ -199,7 +198,7 @@ def test_listing_1_pasted_as_is(page: Any, demo: dict[str, Any]) -> None:
 
     def in_force() -> bool:
         config = robot_state(demo)["config"]
-        return (
+        return bool(
             config["clustering"]["params"].get("n_clusters") == 50
             and config["straight_line"]["name"] == "hough"
             and config["noise_removal"][0]["params"].get("epsilon_m") == 0.05

@@ -75,3 +75,34 @@ def test_demo_refuses_a_port_in_use(tmp_path: Path) -> None:
         )
     assert r.returncode == 2
     assert f"port {port}" in r.stderr and "in use" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_children_do_not_outlive_a_killed_demo(tmp_path: Path) -> None:
+    """kill -9 of the demo itself: the server and the agent it started stop too (no orphans)."""
+    port = free_port()
+    out = (tmp_path / "demo.out").open("wb")
+    proc = subprocess.Popen(
+        [LINEMAP, "demo", "--dir", str(tmp_path / "d"), "--port", str(port)],
+        stdout=out,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        info_file = tmp_path / "d" / "demo.json"
+        wait_for("demo.json", info_file.is_file, 120)
+        info = json.loads(info_file.read_text())
+        proc.kill()
+        proc.wait(30)
+
+        def gone(pid: int) -> bool:
+            try:
+                return "Z" in Path(f"/proc/{pid}/stat").read_text().split(")")[1].split()[0]
+            except FileNotFoundError:
+                return True
+
+        wait_for(
+            "the server and agent to stop", lambda: gone(info["server_pid"]) and gone(info["agent_pid"]), 60
+        )
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        out.close()
