@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 from shared.metrics import MapLeakError, area_error_pct, line_accuracy
 from shared.pipeline import KernelChoice, Mode, Pipeline, PipelineConfig
-from shared.sim import default_world, simulate_run
+from shared.sim import SimRun, default_world, simulate_run
 
-__all__ = ["PAPER_TABLE3", "Table3Row", "run_table3"]
+__all__ = ["PAPER_TABLE3", "Table3Row", "offline_area", "run_table3"]
 
 #: Table 3 of the paper: area error in % (k-means / FCM rows, CJ / HT / SVD columns, 50 / 60 / 70 clusters).
 PAPER_TABLE3: dict[tuple[str, str, int], float] = {
@@ -67,22 +67,29 @@ def run_table3(
             continue
         if progress is not None:
             progress(f"{clustering} / {lines} / {k} clusters")
-        cfg = PipelineConfig(
-            mode=Mode.OFFLINE,
-            n_smax=len(run.scans),
-            heading_flush_deg=360.0,
-            clustering=KernelChoice(name=clustering, params={"n_clusters": k}),
-            straight_line=KernelChoice(name=lines),
-        )
-        pipe = Pipeline(cfg, laser_offset=run.drive.laser_offset)
-        for scan in run.scans:
-            pipe.step(scan)
-        pipe.flush()
-        snap = pipe.snapshot()
-        try:
-            area: float | None = area_error_pct(snap.segments, world.floor_area_m2, snap.trajectory[:, 1:3])
-        except MapLeakError:
-            area = None
-        acc = line_accuracy(snap.segments, world.walls)
-        rows.append(Table3Row(clustering, lines, k, area, acc.mean_distance_m, acc.completeness, paper))
+        rows.append(offline_area(run, clustering, lines, k, paper))
     return rows
+
+
+def offline_area(run: SimRun, clustering: str, lines: str, k: int, paper: float = float("nan")) -> Table3Row:
+    """One configuration of Table 3 on ``run``: offline over the whole run, then area error and line
+    accuracy against ``run.world``. O(scans x step)."""
+    world = run.world
+    cfg = PipelineConfig(
+        mode=Mode.OFFLINE,
+        n_smax=len(run.scans),
+        heading_flush_deg=360.0,
+        clustering=KernelChoice(name=clustering, params={"n_clusters": k}),
+        straight_line=KernelChoice(name=lines),
+    )
+    pipe = Pipeline(cfg, laser_offset=run.drive.laser_offset)
+    for scan in run.scans:
+        pipe.step(scan)
+    pipe.flush()
+    snap = pipe.snapshot()
+    try:
+        area: float | None = area_error_pct(snap.segments, world.floor_area_m2, snap.trajectory[:, 1:3])
+    except MapLeakError:
+        area = None
+    acc = line_accuracy(snap.segments, world.walls)
+    return Table3Row(clustering, lines, k, area, acc.mean_distance_m, acc.completeness, paper)

@@ -16,6 +16,7 @@ from robot_agent.cli import agent_cmd
 from server.cli import server_app
 from shared.cli.demo import demo_cmd
 from shared.cli.keys import keys_app
+from shared.cli.report import report_cmd
 from shared.errors import LinemapError
 
 __all__ = ["app"]
@@ -33,6 +34,7 @@ app.add_typer(keys_app, name="keys")
 app.add_typer(server_app, name="server")
 app.command("agent")(agent_cmd)
 app.command("demo")(demo_cmd)
+app.command("report")(report_cmd)
 
 # Wide enough for the benchmark table when the output goes to a file or a pipe (rich assumes 80 columns).
 console = Console(width=None if sys.stdout.isatty() else 160)

@@ -1,0 +1,121 @@
+"""``linemap report``: run every experiment and write ``report.md`` with its tables and PNG figures.
+
+:class:`ReportSettings` fixes everything a rerun needs (seeds, step counts, which logs); the report's
+header states them with the versions of linemap and the libraries, so a reader can regenerate it with the
+command it prints. ``quick`` is a small version for tests (one seed, few configurations, short runs).
+"""
+
+from __future__ import annotations
+
+import math
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from shared.bench.table3 import Table3Row
+from shared.report import experiments as ex
+from shared.report.markdown import write_markdown
+from shared.report.plots import plot_area_sweep, plot_maps, plot_timing
+from shared.report.worlds import cluttered_world
+
+__all__ = ["ReportResults", "ReportSettings", "run_report"]
+
+
+@dataclass(frozen=True)
+class ReportSettings:
+    """What the report runs. ``data``: the benchmark logs' folder (skipped when missing)."""
+
+    seeds: tuple[int, ...] = (0, 1, 2)
+    counts: tuple[int, ...] = (30, 40, 50, 60, 70)
+    lines: tuple[str, ...] = ("centroid-join", "hough", "svd")
+    timing_steps: tuple[int, ...] = (400, 4000)
+    timing_log: str | None = "aces"
+    logs: tuple[str, ...] = ("aces", "fr079", "mit")
+    ekf_log_max_scans: int | None = None
+    noise_every: int = 5
+    data: Path | None = None
+    quick: bool = False
+
+    @classmethod
+    def quick_run(cls, data: Path | None = None) -> ReportSettings:
+        """A minute-long version for tests: one seed, SVD only, short timing runs, the smallest log."""
+        return cls(
+            seeds=(0,),
+            counts=(50, 70),
+            lines=("svd",),
+            timing_steps=(100, 400),
+            timing_log=None,
+            logs=("mit",),
+            ekf_log_max_scans=0,
+            noise_every=25,
+            data=data,
+            quick=True,
+        )
+
+
+@dataclass(frozen=True)
+class ReportResults:
+    settings: ReportSettings
+    area: list[Table3Row]
+    timing: list[ex.TimingRun]
+    accuracy: list[ex.AccuracyRow]
+    logs: list[ex.LogRow]
+    noise: list[ex.NoiseRow]
+    seconds: float
+    versions: dict[str, str]
+    started: str
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version(), "machine": f"{platform.machine()}, {platform.system()}"}
+    for dist in ("linemap", "numpy", "scipy", "scikit-learn", "numba", "matplotlib"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = "not installed"
+    return out
+
+
+def run_report(out: Path, settings: ReportSettings, progress: Callable[[str], None] | None = None) -> Path:
+    """Run the experiments of ``settings``, write ``out/report.md`` and its figures; returns the report's
+    path. Several minutes for the full settings on a 2-core machine."""
+    say = progress or (lambda _m: None)
+    out.mkdir(parents=True, exist_ok=True)
+    started = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    t0 = time.perf_counter()
+    area = ex.area_sweep(settings.seeds, settings.counts, settings.lines, say)
+    timing_log = (
+        settings.data / ex.LOGS[settings.timing_log].log if settings.data and settings.timing_log else None
+    )
+    timing = ex.timing_runs(settings.timing_steps, settings.seeds[0], timing_log, say)
+    accuracy = ex.sim_accuracy(settings.seeds, say)
+    logs = (
+        ex.log_accuracy(settings.data, settings.logs, settings.ekf_log_max_scans, say)
+        if settings.data is not None and settings.data.is_dir()
+        else []
+    )
+    noise = ex.noise_removal(settings.seeds[0], settings.noise_every, say)
+    say("figures")
+    plot_area_sweep(area, out / "fig19_area_vs_clusters.png")
+    plot_timing(timing, out / "fig24_time_per_step.png")
+    plot_maps(accuracy, cluttered_world().walls, "cluttered", settings.seeds[0], out / "maps_cluttered.png")
+    results = ReportResults(
+        settings, area, timing, accuracy, logs, noise, time.perf_counter() - t0, _versions(), started
+    )
+    path = out / "report.md"
+    path.write_text(write_markdown(results), encoding="utf-8")
+    return path
+
+
+def window_median(step_ms: np.ndarray, first: bool, n: int = 100) -> float:
+    """Median of the first or last ``n`` steps (the first step, which compiles kernels, is left out)."""
+    xs = step_ms[1:]
+    part = xs[:n] if first else xs[-n:]
+    return float(statistics.median(part)) if len(part) else math.nan
