@@ -4,25 +4,36 @@ Stream events (``text/event-stream``): ``snapshot`` (the whole map, :class:`serv
 and whenever the subscriber must resynchronise, then one ``delta`` per upload, carrying ``version``,
 ``base_version``, changed ``segments``, ``removed`` ids, ``centroids``, ``pose`` and new ``trajectory``
 rows. Each event's ``id`` is the map version. A comment line every 15 s keeps proxies from closing it.
+
+``GET /export?format=geojson|svg|dxf|pgm|yaml`` returns the latest map as a file (the same writers as
+``linemap map``); ``pgm`` and ``yaml`` are the two halves of a ROS map_server map at ``resolution`` metres
+per pixel, named ``robot-<id>-map-v<version>-<resolution>m.pgm/.yaml`` so that the YAML names its image.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import tempfile
 from collections.abc import AsyncIterator
-from typing import Annotated, Any
+from pathlib import Path
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, Header, Query, Request
+import numpy as np
+from fastapi import APIRouter, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 from pydantic import ValidationError
 
 from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access
-from server.errors import InvalidRequestError
+from server.errors import ConflictError, InvalidRequestError
 from server.hub import OVERFLOW
 from server.mapstore import apply_upload, map_version, read_map
 from server.schemas import MapOut, MapUpload, MapUploadOut
+from shared.errors import InvalidInputError
+from shared.export import EmptyMapError
+from shared.pipeline.snapshot import MapSnapshot
+from shared.types import Pose2D
 
 __all__ = ["router"]
 
@@ -144,3 +155,92 @@ async def stream_map(
 
     headers = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
     return StreamingResponse(events(), media_type="text/event-stream", headers=headers)
+
+
+_ExportFormat = Literal["geojson", "svg", "dxf", "pgm", "yaml"]
+_MEDIA_TYPES: dict[str, str] = {
+    "geojson": "application/geo+json",
+    "svg": "image/svg+xml",
+    "dxf": "image/vnd.dxf",
+    "pgm": "image/x-portable-graymap",
+    "yaml": "application/yaml",
+}
+
+
+def _snapshot(m: MapOut) -> MapSnapshot:
+    rows = np.asarray(m.segments, dtype=np.float64).reshape(-1, 5)
+    return MapSnapshot(
+        version=m.version,
+        stamp_s=m.stamp_s,
+        segments=rows[:, 1:],
+        segment_ids=rows[:, 0].astype(np.intp),
+        centroids=np.asarray(m.centroids, dtype=np.float64).reshape(-1, 2),
+        pose=Pose2D(*m.pose),
+        trajectory=np.asarray(m.trajectory, dtype=np.float64).reshape(-1, 4),
+    )
+
+
+def _export_name(m: MapOut, fmt: str, resolution_m: float) -> str:
+    """The download's file name; the two files of a map_server map share one stem."""
+    stem = f"robot-{m.robot_id}-map-v{m.version}"
+    if fmt in ("pgm", "yaml"):
+        stem += f"-{resolution_m:g}m"
+    return f"{stem}.{fmt}"
+
+
+def _export(m: MapOut, fmt: str, resolution_m: float) -> bytes:
+    """The map in ``fmt`` as bytes, written by :mod:`shared.export` (in the thread pool: rasterising and
+    drawing take up to a second for large maps)."""
+    from shared.export import encode_dxf, occupancy_files, rasterise_segments, render_map, write_geojson
+
+    snap = _snapshot(m)
+    if fmt == "dxf":
+        return encode_dxf(snap)
+    if fmt in ("pgm", "yaml"):
+        try:
+            grid = rasterise_segments(
+                snap.segments, resolution_m=resolution_m, inside_xy=snap.trajectory[:, 1:3]
+            )
+        except EmptyMapError:
+            raise ConflictError(
+                f"robot {m.robot_id}'s map (version {m.version}) has no walls yet: nothing to rasterise"
+            ) from None
+        except InvalidInputError as exc:
+            raise InvalidRequestError(str(exc)) from None
+        pgm, text = occupancy_files(grid, _export_name(m, "pgm", resolution_m))
+        return pgm if fmt == "pgm" else text.encode("utf-8")
+    with tempfile.TemporaryDirectory(prefix="linemap-export-") as folder:
+        target = Path(folder) / f"map.{fmt}"
+        if fmt == "geojson":
+            write_geojson(target, snap, extra_properties={"robot_id": m.robot_id})
+        else:
+            render_map(snap, target, title=f"linemap: robot {m.robot_id}, map version {m.version}")
+        return target.read_bytes()
+
+
+@router.get(
+    "/export",
+    response_class=Response,
+    responses={200: {"content": {media: {} for media in _MEDIA_TYPES.values()}}},
+)
+async def export_map(
+    robot_id: int,
+    who: RobotAccess,
+    state: StateDep,
+    fmt: Annotated[
+        _ExportFormat,
+        Query(alias="format", description="geojson, svg, dxf, or pgm / yaml (a ROS map_server map)."),
+    ] = "geojson",
+    resolution: Annotated[
+        float, Query(gt=0.0, le=10.0, description="Metres per pixel of the pgm / yaml occupancy map.")
+    ] = 0.05,
+) -> Response:
+    """The latest map as a file to download. 409 when an occupancy map is asked of a map without walls,
+    422 when the resolution would make a grid of more than 16 M cells."""
+    m = await run_in_threadpool(_read, state, robot_id, None)
+    body = await run_in_threadpool(_export, m, fmt, resolution)
+    headers = {
+        "Content-Disposition": f'attachment; filename="{_export_name(m, fmt, resolution)}"',
+        "X-Map-Version": str(m.version),
+    }
+    return Response(body, media_type=_MEDIA_TYPES[fmt], headers=headers)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 import time
 from pathlib import Path
@@ -168,19 +169,40 @@ def bench_area(seed: Annotated[int, typer.Option(min=0, help="Seed of the simula
 @app.command("map")
 def map_cmd(
     source: Annotated[
-        str, typer.Argument(help="sim, sim:WORLD_FILE, or a log (.clf/.log/.dat, optionally .gz).")
+        str,
+        typer.Argument(help="sim, sim:WORLD_FILE, a log (.clf/.log/.dat[.gz]) or a ROS bag (.bag/.mcap/dir)"),
     ] = "sim",
     out: Annotated[Path, typer.Option("--out", help="GeoJSON map (segments, centroids, trajectory).")] = Path(
         "map.geojson"
     ),
     svg: Annotated[Path | None, typer.Option(help="Also draw the map as SVG.")] = None,
     png: Annotated[Path | None, typer.Option(help="Also draw the map as PNG.")] = None,
+    dxf: Annotated[
+        Path | None, typer.Option(help="Also write the map as DXF (walls, centroids, trajectory; metres).")
+    ] = None,
+    pgm: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also write a ROS map_server occupancy map: PATH.pgm + PATH.yaml (or a .yaml path)."
+        ),
+    ] = None,
+    resolution: Annotated[float, typer.Option(help="Metres per pixel of the --pgm occupancy map.")] = 0.05,
+    mcap: Annotated[
+        Path | None,
+        typer.Option(help="Also write walls, centroids and trajectory as ROS 2 messages in MCAP (Foxglove)."),
+    ] = None,
+    topic: Annotated[
+        str | None, typer.Option(help="ROS bag input: the LaserScan topic (default: the only one).")
+    ] = None,
+    odom_topic: Annotated[
+        str | None, typer.Option(help="ROS bag input: the nav_msgs/Odometry topic (default: /odom, else tf).")
+    ] = None,
     trajectory_out: Annotated[
         Path | None, typer.Option("--trajectory-out", help="CSV of poses: stamp,x,y,theta.")
     ] = None,
     config: Annotated[Path | None, typer.Option(help="Pipeline configuration (.json or .toml).")] = None,
     log_format: Annotated[
-        str | None, typer.Option("--format", help="carmen or breezyslam (default: detect).")
+        str | None, typer.Option("--format", help="carmen, breezyslam or rosbag (default: detect).")
     ] = None,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the simulated run.")] = 0,
     limit: Annotated[int | None, typer.Option(min=1, help="Stop after this many scans.")] = None,
@@ -192,9 +214,12 @@ def map_cmd(
     from shared.cli.render import accuracy_table, run_summary
 
     stopped: MappingStoppedError | None = None
+    if pgm is not None and not (math.isfinite(resolution) and resolution > 0.0):
+        err_console.print(f"[red]error:[/red] --resolution {resolution}: expected metres per pixel > 0")
+        raise typer.Exit(2)
     try:
         cfg = load_config(config)
-        src = open_source(source, log_format=log_format, seed=seed)
+        src = open_source(source, log_format=log_format, seed=seed, scan_topic=topic, odom_topic=odom_topic)
         columns = [
             TextColumn("mapping {task.description}"),
             BarColumn(),
@@ -224,6 +249,10 @@ def map_cmd(
             trajectory=trajectory_out,
             walls=walls,
             title=f"linemap: {src.name}",
+            dxf=dxf,
+            occupancy=pgm,
+            resolution_m=resolution,
+            mcap=mcap,
         )
     except LinemapError as exc:
         err_console.print(f"[red]error:[/red] {exc}")

@@ -1,4 +1,5 @@
-"""``linemap map``: turn a simulated world or a laser log into a line map (GeoJSON, SVG/PNG, trajectory CSV).
+"""``linemap map``: turn a simulated world or a laser log into a line map (GeoJSON, SVG/PNG, DXF, ROS
+occupancy map, trajectory CSV).
 
 The work is split so it can be tested without a terminal: :func:`open_source` resolves ``INPUT`` into a
 stream of scans plus what is known about it (laser offset, ground truth), :func:`map_scans` runs the
@@ -48,8 +49,17 @@ class Source:
     closer: AbstractContextManager[Any] | None = None
 
 
-def open_source(spec: str, *, log_format: str | None = None, seed: int = 0) -> Source:
-    """``sim`` (the default world), ``sim:WORLD_FILE`` (JSON/TOML walls) or a log path (CARMEN or .dat)."""
+def open_source(
+    spec: str,
+    *,
+    log_format: str | None = None,
+    seed: int = 0,
+    scan_topic: str | None = None,
+    odom_topic: str | None = None,
+) -> Source:
+    """``sim`` (the default world), ``sim:WORLD_FILE`` (JSON/TOML walls) or a log path (CARMEN, .dat, or a
+    ROS bag: ROS 1 ``.bag``, rosbag2 folder, ``.db3`` or ``.mcap``; ``scan_topic`` / ``odom_topic`` choose
+    its topics)."""
     if spec == "sim" or spec.startswith("sim:"):
         world = default_world() if spec == "sim" else load_world(Path(spec[4:]))
         run = simulate_run(world, seed=seed)
@@ -63,7 +73,7 @@ def open_source(spec: str, *, log_format: str | None = None, seed: int = 0) -> S
         )
     from shared.io import open_log
 
-    reader = open_log(Path(spec), log_format)
+    reader = open_log(Path(spec), log_format, scan_topic=scan_topic, odom_topic=odom_topic)
     return Source(
         f"{reader.info.format} log {Path(spec).name}", reader, reader.info.laser_offset, None, closer=reader
     )
@@ -177,9 +187,15 @@ def write_outputs(
     trajectory: Path | None = None,
     walls: FloatArray | None = None,
     title: str | None = None,
+    dxf: Path | None = None,
+    occupancy: Path | None = None,
+    resolution_m: float = 0.05,
+    mcap: Path | None = None,
 ) -> list[Path]:
-    """Write the requested files; returns the paths written."""
-    from shared.export import render_map, write_geojson, write_trajectory_csv
+    """Write the requested files; returns the paths written (``occupancy`` gives two: the PGM image and
+    its map_server YAML, see :func:`shared.export.occupancy_paths`; ``resolution_m`` is its metres per
+    pixel)."""
+    from shared.export import render_map, write_dxf, write_geojson, write_occupancy, write_trajectory_csv
 
     written: list[Path] = []
     if geojson is not None:
@@ -192,4 +208,13 @@ def write_outputs(
         if picture is not None:
             render_map(snapshot, picture, walls=walls, title=title)
             written.append(picture)
+    if dxf is not None:
+        write_dxf(dxf, snapshot)
+        written.append(dxf)
+    if occupancy is not None:
+        written.extend(write_occupancy(occupancy, snapshot, resolution_m=resolution_m))
+    if mcap is not None:
+        from shared.export import write_map_mcap
+
+        written.append(write_map_mcap(mcap, snapshot))
     return written

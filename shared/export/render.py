@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike
 from shared.errors import InvalidInputError
 from shared.export.atomic import atomic_write_bytes
 from shared.export.errors import UnsupportedFormatError
+from shared.export.svg_meta import SVG_WALLS_ID, embed_map_metadata
 from shared.export.validate import CheckedSnapshot, check_rows, check_snapshot
 from shared.pipeline.snapshot import MapSnapshot
 from shared.types import FloatArray
@@ -132,7 +133,9 @@ def _draw(ax: Axes, checked: CheckedSnapshot, walls: FloatArray, show_pose: bool
         handles.append(Line2D([], [], color=_TRAJECTORY, lw=1.5, label=label))
     segs = checked.segments
     if segs.shape[0]:
-        ax.add_collection(_lines(segs, _WALL, 2.6, 3))
+        walls_drawn = _lines(segs, _WALL, 2.6, 3)
+        walls_drawn.set_gid(SVG_WALLS_ID)  # <g id="walls"> in SVG, one path per segment in order
+        ax.add_collection(walls_drawn)
         handles.append(Line2D([], [], color=_WALL, lw=2.6, label=f"map segments ({segs.shape[0]})"))
     cents = checked.centroids
     if cents.shape[0]:
@@ -253,5 +256,8 @@ def render_map(
     # a fixed hash salt makes SVG element ids, hence the file, reproducible; rc_context restores it after
     with matplotlib.rc_context({"svg.hashsalt": "linemap"}):
         fig.savefig(buffer, **save_kwargs)
-    atomic_write_bytes(target, buffer.getvalue())
+    data = buffer.getvalue()
+    if fmt == ".svg":  # the walls in metres, for reading back (shared.export.svg_meta); not drawn
+        data = embed_map_metadata(data, checked.segments, checked.segment_ids)
+    atomic_write_bytes(target, data)
     _log.debug("rendered %s: %d segments, %d bytes", target, checked.segments.shape[0], buffer.tell())

@@ -10,7 +10,15 @@ from pathlib import Path
 
 from shared.errors import LinemapError
 
-__all__ = ["LogError", "LogFormatError", "LogNotFoundError", "UnknownLogFormatError"]
+__all__ = [
+    "LogError",
+    "LogFormatError",
+    "LogNotFoundError",
+    "RosbagError",
+    "RosbagMessageError",
+    "RosbagTopicError",
+    "UnknownLogFormatError",
+]
 
 
 class LogError(LinemapError):
@@ -36,3 +44,25 @@ class UnknownLogFormatError(LogError, ValueError):
 
 class LogNotFoundError(LogError, FileNotFoundError):
     """The log file does not exist."""
+
+
+class RosbagError(LogError):
+    """A ROS bag (ROS 1 ``.bag``, rosbag2 folder, ``.db3`` or ``.mcap``) cannot be opened or read: missing,
+    truncated or corrupt, or in a variant the reader does not support."""
+
+
+class RosbagTopicError(RosbagError, LookupError):
+    """The bag lacks the topic needed, has several candidates and none was chosen, or the chosen topic
+    carries the wrong message type. ``candidates`` lists the topics that would fit."""
+
+    def __init__(self, message: str, candidates: tuple[str, ...] = ()) -> None:
+        self.candidates = tuple(candidates)
+        super().__init__(message)
+
+    def __reduce__(self) -> tuple[type[RosbagTopicError], tuple[str, tuple[str, ...]]]:
+        return (type(self), (str(self), self.candidates))
+
+
+class RosbagMessageError(RosbagError, ValueError):
+    """A message of a bag cannot be decoded or does not describe a valid scan or pose (the message names
+    the topic, the 1-based message number on that topic and the bad field)."""

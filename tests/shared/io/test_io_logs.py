@@ -78,8 +78,8 @@ def test_unknown_format_name_and_content(tmp_path: Path) -> None:
     empty.write_text("", encoding="utf-8")
     with pytest.raises(UnknownLogFormatError):
         open_log(empty)
-    with pytest.raises(UnknownLogFormatError, match="'rosbag': expected one of breezyslam, carmen"):
-        open_log(path, format="rosbag")
+    with pytest.raises(UnknownLogFormatError, match="'netcdf': expected one of breezyslam, carmen, rosbag"):
+        open_log(path, format="netcdf")
 
 
 def test_missing_file_and_directory(tmp_path: Path) -> None:
