@@ -23,7 +23,7 @@ from robot_agent.errors import AgentError, KernelRejected, LinkError
 from robot_agent.guard import guarded
 from robot_agent.link import Backoff, ServerLink, UploadConflict
 from robot_agent.models import KernelRecord
-from robot_agent.sources import open_scans
+from robot_agent.sources import is_live, open_scans
 from robot_agent.store import RobotDB, StepRecord
 from shared.control import ControlMessageError, OperationKind, parse_message
 from shared.errors import LinemapError
@@ -61,6 +61,7 @@ class AgentSettings:
     stay: bool = True
     seed: int = 0
     laps: int = 1
+    encoders: str | None = None  # serial device of the wheel-encoder bridge (a ``urg:`` source only)
 
 
 @dataclass
@@ -191,7 +192,12 @@ class Agent:
         own_pace = self.s.rate_hz is None  # the scans' own time stamps (logs) or 10 Hz (simulator)
         period = 0.1 if own_pace else (1.0 / self.s.rate_hz if self.s.rate_hz else None)
         next_at, last_stamp = time.monotonic(), None
-        for index, scan in self._scans():
+        # A replayable source (simulator, log) skips what was mapped before a restart; a live sensor
+        # cannot be replayed, so its scans are all new and its count goes on from there.
+        live = is_live(self.s.source)
+        for index, scan in self._scans(stop):
+            if live:
+                index += resume
             if stop.is_set() or (self.s.max_steps is not None and self.stats.steps >= self.s.max_steps):
                 return
             if index < resume:
@@ -213,8 +219,12 @@ class Agent:
             self._after_step()
             self._wake_uploader.set()
 
-    def _scans(self) -> Iterator[tuple[int, Scan]]:
-        yield from enumerate(open_scans(self.s.source, seed=self.s.seed, laps=self.s.laps))
+    def _scans(self, stop: threading.Event) -> Iterator[tuple[int, Scan]]:
+        if is_live(self.s.source):
+            scans = open_scans(self.s.source, encoders=self.s.encoders, stop=stop)
+        else:
+            scans = open_scans(self.s.source, seed=self.s.seed, laps=self.s.laps, encoders=self.s.encoders)
+        yield from enumerate(scans)
 
     def _record(self, version: int, source_index: int, scan: Scan, pose: Any) -> StepRecord:
         ids, segments = self.pipeline.walls()

@@ -36,6 +36,7 @@ def _file_settings(path: Path | None) -> dict[str, Any]:
         "allow_unsigned",
         "config",
         "laps",
+        "encoders",
     }
     unknown = sorted(set(data) - allowed)
     if unknown:
@@ -63,6 +64,10 @@ def agent_cmd(
     ] = None,
     source: Annotated[
         str | None, typer.Option(help="sim | sim:WORLD_FILE | a log file | urg:/dev/ttyACM0")
+    ] = None,
+    encoders: Annotated[
+        str | None,
+        typer.Option(help="With urg:: the wheel-encoder bridge's serial device, e.g. /dev/ttyUSB0."),
     ] = None,
     db: Annotated[Path | None, typer.Option(help="Robot DB file (SQLite).")] = None,
     rate: Annotated[
@@ -122,6 +127,7 @@ def agent_cmd(
         max_steps=max_steps,
         stay=not exit_at_end,
         laps=laps if laps is not None else int(f.get("laps", 1)),
+        encoders=encoders or f.get("encoders"),
     )
     if settings.allow_unsigned:
         typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)

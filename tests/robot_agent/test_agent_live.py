@@ -151,12 +151,14 @@ def test_server_outage_is_bridged(tmp_path: Path) -> None:
     assert len(stamps) == N_SCANS and stamps == sorted(set(stamps))
 
 
-def test_unknown_source_fails_clearly(tmp_path: Path) -> None:
-    agent = AgentProcess(tmp_path / "r.db", server=None, extra=["--source", "urg:/dev/ttyACM0"])
+def test_a_missing_laser_fails_clearly(tmp_path: Path) -> None:
+    device = tmp_path / "ttyACM9"  # no such device
+    agent = AgentProcess(tmp_path / "r.db", server=None, extra=["--source", f"urg:{device}"])
     code = agent.proc.wait(60)
     out = agent.output()
     assert code == 2, out
-    assert "URG-04LX serial driver" in out and "Traceback" not in out
+    assert "URG-04LX serial driver could not start" in out and str(device) in out
+    assert "Traceback" not in out
 
 
 def test_messages_apply_exactly_once_across_kill_9(live: Live, tmp_path: Path) -> None:

@@ -1,13 +1,19 @@
-"""The agent's scan sources: the simulated robot's patrol is one continuous drive (time and odometry)."""
+"""The agent's scan sources: the simulated robot's patrol is one continuous drive (time and odometry); a
+URG-04LX (emulated on a pty) streams through ``urg:DEVICE``."""
 
 from __future__ import annotations
 
 import itertools
 import math
+import os
+import threading
+from pathlib import Path
 
 import pytest
 
 from robot_agent.errors import SourceError
+from robot_agent.sensors.emulator import UrgEmulator
+from robot_agent.sensors.encoder_emulator import BridgeEmulator, SimOdometry, open_pty
 from robot_agent.sources import open_scans
 from shared.sim import default_world, simulate_run
 
@@ -42,3 +48,61 @@ def test_laps_count_is_kept() -> None:
 def test_laps_on_a_log_is_refused(tmp_path: pytest.TempPathFactory) -> None:
     with pytest.raises(SourceError, match="simulated sources"):
         next(open_scans("some.log", laps=3))
+
+
+def test_urg_without_a_device_is_refused() -> None:
+    with pytest.raises(SourceError, match=r"'urg:': expected 'urg:DEVICE'"):
+        next(open_scans("urg:"))
+
+
+def test_urg_on_a_missing_device_names_it(tmp_path: Path) -> None:
+    spec = f"urg:{tmp_path / 'ttyACM9'}"
+    with pytest.raises(SourceError, match=r"URG-04LX serial driver could not start: .*ttyACM9"):
+        next(open_scans(spec))
+
+
+def test_urg_refuses_laps_and_others_refuse_encoders() -> None:
+    with pytest.raises(SourceError, match="simulated sources"):
+        next(open_scans("urg:/dev/ttyACM0", laps=2))
+    with pytest.raises(SourceError, match="applies to 'urg:DEVICE' only"):
+        next(open_scans("sim", encoders="/dev/ttyUSB0"))
+
+
+def test_urg_with_a_missing_encoder_bridge_names_it(tmp_path: Path) -> None:
+    scans = simulate_run(default_world(), seed=0).scans
+    with UrgEmulator(scans, link=tmp_path / "ttyURG") as emu:
+        source = open_scans("urg:" + emu.path, encoders=str(tmp_path / "ttyUSB7"))
+        with pytest.raises(SourceError, match=r"wheel encoders could not start: .*ttyUSB7"):
+            next(source)
+
+
+def test_urg_scans_take_the_wheel_odometry_and_end_on_stop(tmp_path: Path) -> None:
+    """A laser and an encoder bridge, each emulated on its own pty: the scans come with the bridge's
+    odometry (interpolated at their host time stamps, both on the host clock); stop ends both."""
+    run = simulate_run(default_world(), seed=0)
+    sim = SimOdometry(run, substeps=5)
+    master, slave, bridge_path = open_pty()
+    stop = threading.Event()
+    try:
+        with (
+            UrgEmulator(run.scans, link=tmp_path / "ttyURG") as emu,
+            BridgeEmulator(master, sim.lines(), info=sim.info, pace_s=0.01) as bridge,
+        ):
+            plain = list(itertools.islice(open_scans("urg:" + emu.path), 3))
+            assert [s.odometry for s in plain] == [None, None, None]
+            got = []
+            for scan in open_scans("urg:" + emu.path, encoders=bridge_path, stop=stop):
+                got.append(scan)
+                if len(got) == 20:
+                    stop.set()  # the stream ends at the next frame
+            assert bridge.error is None and bridge.hellos >= 1
+    finally:
+        os.close(slave)
+    assert len(got) == 20
+    with_odometry = [s.odometry for s in got if s.odometry is not None]
+    assert with_odometry, "the scans are paired with the wheel odometry"
+    start = run.odometry_poses[0]  # the bridge's odometry starts at the origin of its own frame
+    rel = [start.between(p) for p in run.odometry_poses]
+    xs, ys = [p.x_m for p in rel], [p.y_m for p in rel]
+    for pose in with_odometry:  # poses the bridge's run passes through, not made up
+        assert min(xs) - 0.01 <= pose.x_m <= max(xs) + 0.01 and min(ys) - 0.01 <= pose.y_m <= max(ys) + 0.01
