@@ -87,9 +87,10 @@ def open_scans(
     from shared.io import open_log
 
     path = Path(spec)
-    if not path.is_file():
+    if not path.exists():  # a file, or a rosbag2 folder
         raise SourceError(
-            f"source {spec!r}: no such file (expected 'sim', 'sim:WORLD_FILE', a log or 'urg:DEVICE')"
+            f"source {spec!r}: no such file (expected 'sim', 'sim:WORLD_FILE', a log, a ROS bag or "
+            "'urg:DEVICE')"
         )
     try:
         with open_log(path, None) as reader:

@@ -165,7 +165,8 @@ class EkfLineSlam:
 
     ``laser_offset`` is the scanner's pose in the robot frame (as for the pipeline; the simulated robot's is
     ``run.drive.laser_offset``). ``initial_pose`` defaults to the first scan's odometry (else the origin).
-    ``step_ms`` holds the wall time of every step (``time.perf_counter``), in milliseconds.
+    ``step_ms`` holds the wall time of every step (``time.perf_counter``), in milliseconds, and
+    ``extract_ms`` the part of it spent in line extraction (the front end; the rest is the filter).
     """
 
     def __init__(
@@ -189,6 +190,7 @@ class EkfLineSlam:
         self.pruned = 0  # landmarks deleted by pruning, all steps
         self._trajectory: list[tuple[float, Pose2D]] = []
         self.step_ms: list[float] = []
+        self.extract_ms: list[float] = []
         self.matched = 0  # observations used in EKF updates, all steps
         self.extent_only = 0  # observations that only extended a landmark already matched in their scan
         self.ignored = 0  # observations between the gates
@@ -264,7 +266,9 @@ class EkfLineSlam:
             self._predict(motion or Pose2D())
         if odom is not None:
             self._prev_odom = odom
+        t_extract = time.perf_counter()
         obs = extract_lines(scan, self.params.extraction)
+        self.extract_ms.append((time.perf_counter() - t_extract) * 1e3)
         if len(obs):
             self._observe(obs)
         self._prune()

@@ -7,17 +7,14 @@ command it prints. ``quick`` is a small version for tests (one seed, few configu
 
 from __future__ import annotations
 
-import math
 import platform
-import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
-
-import numpy as np
+from typing import TypeVar
 
 from shared.bench.table3 import Table3Row
 from shared.report import experiments as ex
@@ -26,6 +23,8 @@ from shared.report.plots import plot_area_sweep, plot_maps, plot_timing
 from shared.report.worlds import cluttered_world
 
 __all__ = ["ReportResults", "ReportSettings", "run_report"]
+
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -71,6 +70,7 @@ class ReportResults:
     seconds: float
     versions: dict[str, str]
     started: str
+    sections_s: dict[str, float]
 
 
 def _versions() -> dict[str, str]:
@@ -90,32 +90,42 @@ def run_report(out: Path, settings: ReportSettings, progress: Callable[[str], No
     out.mkdir(parents=True, exist_ok=True)
     started = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     t0 = time.perf_counter()
-    area = ex.area_sweep(settings.seeds, settings.counts, settings.lines, say)
-    timing_log = (
-        settings.data / ex.LOGS[settings.timing_log].log if settings.data and settings.timing_log else None
-    )
-    timing = ex.timing_runs(settings.timing_steps, settings.seeds[0], timing_log, say)
-    accuracy = ex.sim_accuracy(settings.seeds, say)
+    sections: dict[str, float] = {}
+
+    def timed(name: str, fn: Callable[[], _T]) -> _T:
+        start = time.perf_counter()
+        result = fn()
+        sections[name] = time.perf_counter() - start
+        return result
+
+    s = settings
+    area = timed("Table 3 / Fig. 19", lambda: ex.area_sweep(s.seeds, s.counts, s.lines, say))
+    timing_log = s.data / ex.LOGS[s.timing_log].log if s.data and s.timing_log else None
+    timing = timed("Fig. 24", lambda: ex.timing_runs(s.timing_steps, s.seeds[0], timing_log, say))
+    accuracy = timed("simulated accuracy", lambda: ex.sim_accuracy(s.seeds, say))
+    data = s.data
     logs = (
-        ex.log_accuracy(settings.data, settings.logs, settings.ekf_log_max_scans, say)
-        if settings.data is not None and settings.data.is_dir()
+        timed("benchmark logs", lambda: ex.log_accuracy(data, s.logs, s.ekf_log_max_scans, say))
+        if data is not None and data.is_dir()
         else []
     )
-    noise = ex.noise_removal(settings.seeds[0], settings.noise_every, say)
+    noise = timed("noise removal", lambda: ex.noise_removal(s.seeds[0], s.noise_every, say))
     say("figures")
     plot_area_sweep(area, out / "fig19_area_vs_clusters.png")
     plot_timing(timing, out / "fig24_time_per_step.png")
     plot_maps(accuracy, cluttered_world().walls, "cluttered", settings.seeds[0], out / "maps_cluttered.png")
     results = ReportResults(
-        settings, area, timing, accuracy, logs, noise, time.perf_counter() - t0, _versions(), started
+        settings,
+        area,
+        timing,
+        accuracy,
+        logs,
+        noise,
+        time.perf_counter() - t0,
+        _versions(),
+        started,
+        sections,
     )
     path = out / "report.md"
     path.write_text(write_markdown(results), encoding="utf-8")
     return path
-
-
-def window_median(step_ms: np.ndarray, first: bool, n: int = 100) -> float:
-    """Median of the first or last ``n`` steps (the first step, which compiles kernels, is left out)."""
-    xs = step_ms[1:]
-    part = xs[:n] if first else xs[-n:]
-    return float(statistics.median(part)) if len(part) else math.nan

@@ -25,7 +25,7 @@ from shared.metrics import LineAccuracy, RelationError, line_accuracy, read_rela
 from shared.metrics.distance import nearest_segment
 from shared.report.runs import MapRun, run_ekf, run_linemap
 from shared.report.worlds import CLUTTER_NOISE, cluttered_world
-from shared.sim import RangeNoise, World, default_world, patrol_scans, simulate_run
+from shared.sim import RangeNoise, World, default_world, patrol_lap_steps, patrol_scans, simulate_run
 from shared.types import Pose2D, Scan
 
 __all__ = [
@@ -75,6 +75,7 @@ class TimingRun:
     steps: int
     linemap: MapRun
     ekf: MapRun
+    lap_steps: int | None = None  # a patrol: steps of a later lap (step i is where step i - lap_steps was)
 
 
 def timing_runs(
@@ -89,20 +90,21 @@ def timing_runs(
     landmarks, as in the paper's Fig. 24). O(steps x step)."""
     world = default_world()
     offset = simulate_run(world, seed=seed).drive.laser_offset
-    sources: list[tuple[str, list[Scan], Pose2D | None]] = []
+    sources: list[tuple[str, list[Scan], Pose2D | None, int | None]] = []
     longest = list(itertools.islice(patrol_scans(world, seed=seed), max(steps)))
+    lap = patrol_lap_steps(world)[1]
     for n in steps:
-        sources.append(("simulated patrol", longest[:n], offset))
+        sources.append(("simulated patrol", longest[:n], offset, lap))
     if log is not None and log.is_file():
         scans, log_offset = _log_scans(log, max(steps))
-        sources.append((log.name.split(".")[0].upper(), scans, log_offset))
+        sources.append((log.name.split(".")[0].upper(), scans, log_offset, None))
     out = []
-    for source, scans, off in sources:
+    for source, scans, off, lap_steps in sources:
         progress(f"timing: {source}, {len(scans):,} steps, linemap")
         ours = run_linemap(scans, off)
         progress(f"timing: {source}, {len(scans):,} steps, EKF-SLAM")
         ekf = run_ekf(scans, off)
-        out.append(TimingRun(source, len(scans), ours, ekf))
+        out.append(TimingRun(source, len(scans), ours, ekf, lap_steps))
     return out
 
 

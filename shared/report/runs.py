@@ -23,7 +23,8 @@ __all__ = ["MapRun", "run_ekf", "run_linemap"]
 class MapRun:
     """One mapper's run: ``segments`` ``(L, 4)`` m (world frame), ``stamps_s`` ``(N,)``, robot ``poses``
     ``(N, 3)`` ``[x_m, y_m, theta_rad]``, ``step_ms`` ``(N,)`` (wall-clock time of each step), and for the
-    EKF the number of landmarks after each step."""
+    EKF the number of landmarks after each step and ``filter_ms``, the part of each step spent in the
+    filter (prediction, association, update, augmentation), i.e. without line extraction."""
 
     method: str
     segments: FloatArray
@@ -31,6 +32,7 @@ class MapRun:
     poses: FloatArray
     step_ms: FloatArray
     landmarks: FloatArray | None = None
+    filter_ms: FloatArray | None = None
 
     @property
     def trajectory(self) -> FloatArray:
@@ -84,7 +86,10 @@ def run_ekf(
         poses.append((laser_pose @ back).as_tuple())
         landmarks.append(float(slam.n_landmarks))
     segments = np.asarray(slam.walls(), dtype=np.float64).reshape(-1, 4)
-    return MapRun("ekf-slam", segments, *_arrays(stamps, poses, times), np.asarray(landmarks))
+    filter_ms = np.asarray(slam.step_ms, dtype=np.float64) - np.asarray(slam.extract_ms, dtype=np.float64)
+    return MapRun(
+        "ekf-slam", segments, *_arrays(stamps, poses, times), np.asarray(landmarks), filter_ms.clip(min=0.0)
+    )
 
 
 def _arrays(

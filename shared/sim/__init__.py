@@ -2,7 +2,7 @@
 
 from shared.sim.errors import WorldFileError
 from shared.sim.path import plan_path
-from shared.sim.patrol import patrol_scans
+from shared.sim.patrol import patrol_lap_steps, patrol_scans
 from shared.sim.run import NO_SLIP, SimRun, SlipNoise, simulate_run, wheel_displacements_between
 from shared.sim.runfiles import read_poses, write_run
 from shared.sim.scans import RangeNoise, simulate_scan
@@ -20,6 +20,7 @@ __all__ = [
     "default_path",
     "default_world",
     "load_world",
+    "patrol_lap_steps",
     "patrol_scans",
     "plan_path",
     "polygon_area",

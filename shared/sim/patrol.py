@@ -21,7 +21,7 @@ from shared.sim.scans import RangeNoise
 from shared.sim.world import World
 from shared.types import Pose2D, Scan
 
-__all__ = ["patrol_scans"]
+__all__ = ["patrol_lap_steps", "patrol_scans"]
 
 _TURN_RATE_RADPS = 0.8  # as plan_path turns in place
 _RATE_HZ = 10.0
@@ -32,14 +32,9 @@ def patrol_scans(
 ) -> Iterator[Scan]:
     """Scans of ``laps`` out-and-back patrols of ``world.knots`` (0: forever) at 10 Hz; lap ``n`` draws its
     noise from ``seed + n``. O(beams x walls) per scan."""
-    if world.knots is None:
-        raise InvalidInputError(f"world '{world.name}' has no path knots to patrol")
     if laps < 0:
         raise InvalidInputError(f"patrol laps = {laps}: expected 0 (forever) or a positive count")
-    knots = np.asarray(world.knots, dtype=np.float64)
-    tour = plan_path(np.vstack([knots, knots[-2::-1]]), rate_hz=_RATE_HZ)
-    turn = _turn_in_place(tour[-1], tour[0].theta_rad)
-    lap = [*turn, *tour[1:]]
+    tour, lap = _tour_and_lap(world)
     odo_end: Pose2D | None = None
     stamp0 = 0.0
     n = 0
@@ -52,6 +47,23 @@ def patrol_scans(
         odo_end = _chain(odo_end, first, run.scans[-1].odometry)
         stamp0 += run.scans[-1].stamp_s + 1.0 / _RATE_HZ
         n += 1
+
+
+def patrol_lap_steps(world: World) -> tuple[int, int]:
+    """Scans in the first lap of :func:`patrol_scans` and in every later lap (which starts with the turn
+    in place): step ``i >= first`` is at the same place of the patrol as step ``i - later``."""
+    tour, lap = _tour_and_lap(world)
+    return len(tour), len(lap)
+
+
+def _tour_and_lap(world: World) -> tuple[list[Pose2D], list[Pose2D]]:
+    """The first lap's poses (out and back) and a later lap's (turn in place, then out and back)."""
+    if world.knots is None:
+        raise InvalidInputError(f"world '{world.name}' has no path knots to patrol")
+    knots = np.asarray(world.knots, dtype=np.float64)
+    tour = plan_path(np.vstack([knots, knots[-2::-1]]), rate_hz=_RATE_HZ)
+    turn = _turn_in_place(tour[-1], tour[0].theta_rad)
+    return list(tour), [*turn, *tour[1:]]
 
 
 def _chain(end: Pose2D | None, first: Pose2D | None, pose: Pose2D | None) -> Pose2D | None:

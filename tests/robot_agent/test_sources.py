@@ -106,3 +106,14 @@ def test_urg_scans_take_the_wheel_odometry_and_end_on_stop(tmp_path: Path) -> No
     xs, ys = [p.x_m for p in rel], [p.y_m for p in rel]
     for pose in with_odometry:  # poses the bridge's run passes through, not made up
         assert min(xs) - 0.01 <= pose.x_m <= max(xs) + 0.01 and min(ys) - 0.01 <= pose.y_m <= max(ys) + 0.01
+
+
+def test_a_rosbag2_folder_replays_like_its_scans(tmp_path: Path) -> None:
+    from tests.shared.io.test_io_rosbag import Bag, odometry_at_scans, write_bag
+
+    scans = simulate_run(default_world(), seed=0).scans[:30]
+    bag = write_bag(tmp_path / "run", "sqlite3", Bag({"/scan": scans}, odometry=odometry_at_scans(scans)))
+    assert bag.is_dir()
+    got = list(open_scans(str(bag)))
+    assert [s.stamp_s for s in got] == pytest.approx([s.stamp_s for s in scans], abs=1e-9)
+    assert all(g.odometry is not None for g in got)

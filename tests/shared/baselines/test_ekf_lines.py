@@ -63,7 +63,8 @@ def test_square_room_pose_and_map(square_run: tuple[SimRun, EkfLineSlam]) -> Non
     odo = run.odometry_poses[-1]
     assert err_m < math.hypot(odo.x_m - truth.x_m, odo.y_m - truth.y_m)  # better than dead reckoning
     traj = slam.trajectory
-    assert len(traj) == len(run) == len(slam.step_ms)
+    assert len(traj) == len(run) == len(slam.step_ms) == len(slam.extract_ms)
+    assert all(0.0 <= e <= s for e, s in zip(slam.extract_ms, slam.step_ms, strict=True))
     assert [t for t, _ in traj] == [s.stamp_s for s in run.scans]
     errors = [
         math.hypot(p.x_m - q.x_m, p.y_m - q.y_m) for (_, p), q in zip(traj, run.true_poses, strict=True)
