@@ -91,6 +91,36 @@ def test_regroup_drops_groups_that_are_not_straight() -> None:
     assert np.all(new[80:] == 0)
 
 
+def test_regroup_does_not_chain_perpendicular_walls_through_corner_pieces() -> None:
+    """Short pieces turning 4 degrees at a time round a corner are each collinear with the next; uniting
+    pairs transitively would make both walls one group whose line crosses the room."""
+    from shared.pipeline.regroup import regroup
+
+    wall_a = np.column_stack([np.linspace(0.0, 2.6, 120), np.zeros(120)])
+    wall_b = np.column_stack([np.full(120, 3.0), np.linspace(0.4, 3.0, 120)])
+    pts, grp = [wall_a, wall_b], [np.zeros(120), np.ones(120)]
+    centre, r = np.array([2.6, 0.4]), 0.4
+    for i, ang in enumerate(np.radians(np.arange(0.0, 91.0, 4.0))):
+        foot = centre + r * np.array([np.sin(ang), -np.cos(ang)])
+        tangent = np.array([np.cos(ang), np.sin(ang)])
+        pts.append(foot + np.outer(np.linspace(-0.05, 0.05, 4), tangent))
+        grp.append(np.full(4, 2 + i))
+    new = regroup(np.vstack(pts), np.concatenate(grp).astype(np.intp))
+    assert len(np.unique(new[:120])) == 1 and len(np.unique(new[120:240])) == 1
+    assert new[0] != new[120], "perpendicular walls must stay apart"
+
+
+def test_regroup_joins_two_pieces_of_a_wall_bridged_later() -> None:
+    from shared.pipeline.regroup import regroup
+
+    left = np.column_stack([np.linspace(0.0, 2.0, 100), np.zeros(100)])
+    right = np.column_stack([np.linspace(2.5, 4.0, 90), np.full(90, 0.01)])
+    middle = np.column_stack([np.linspace(1.5, 2.7, 10), np.full(10, 0.005)])
+    groups = np.repeat(np.array([0, 1, 2], dtype=np.intp), [100, 90, 10])
+    new = regroup(np.vstack([left, right, middle]), groups)
+    assert len(np.unique(new)) == 1
+
+
 def test_centroid_join_reaches_the_ends_of_its_wall() -> None:
     chunk = cluster(REGISTRY.create(Stage.CLUSTERING, "kmeans", {"n_clusters": 6}), two_walls(), with_k)
     segs = extract_lines(REGISTRY.create(Stage.STRAIGHT_LINE, "centroid-join"), chunk)
