@@ -10,6 +10,7 @@ benchmark logs they read. Seeds are explicit, so a rerun gives the same maps (ti
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Callable, Iterator
@@ -19,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from shared.bench.table3 import PAPER_TABLE3, Table3Row, offline_area
+from shared.bench.table3 import Table3Row, offline_areas
 from shared.kernels import REGISTRY
 from shared.metrics import LineAccuracy, RelationError, line_accuracy, read_relations, relation_error
 from shared.metrics.distance import nearest_segment
@@ -49,6 +50,10 @@ def _quiet(_msg: str) -> None:
     return None
 
 
+def _prefixed(progress: Progress, prefix: str, msg: str) -> None:
+    progress(prefix + msg)
+
+
 def area_sweep(
     seeds: tuple[int, ...],
     counts: tuple[int, ...] = (30, 40, 50, 60, 70),
@@ -60,10 +65,8 @@ def area_sweep(
     rows = []
     for seed in seeds:
         run = simulate_run(default_world(), seed=seed)
-        for clustering, line, k in itertools.product(("kmeans", "fcm"), lines, counts):
-            progress(f"area: seed {seed}, {clustering} / {line} / {k} clusters")
-            paper = PAPER_TABLE3.get((clustering, line, k), float("nan"))
-            rows.append(offline_area(run, clustering, line, k, paper))
+        configs = list(itertools.product(("kmeans", "fcm"), lines, counts))
+        rows += offline_areas(run, configs, functools.partial(_prefixed, progress, f"area: seed {seed}, "))
     return rows
 
 
