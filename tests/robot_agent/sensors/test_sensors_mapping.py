@@ -104,7 +104,9 @@ def test_a_restarted_agent_maps_every_new_scan_of_a_live_sensor(sim_run: SimRun,
     with UrgEmulator(sim_run.scans, link=tmp_path / "ttyURG", at_end="hold") as emu:
         sent = []
         for run in (1, 2):
-            settings = AgentSettings(source="urg:" + emu.path, db_path=db, rate_hz=0, max_steps=12, stay=False)
+            settings = AgentSettings(
+                source="urg:" + emu.path, db_path=db, rate_hz=0, max_steps=12, stay=False
+            )
             agent = Agent(settings)
             agent.run(threading.Event())
             assert agent.stats.steps == 12, f"run {run} mapped {agent.stats.steps} of 12 live scans"
