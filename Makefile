@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 NUMBA_STAMP := $(VENV)/.numba-cache-stamp
 
-.PHONY: demo map test install lint typecheck pytest bench clean
+.PHONY: demo map test install lint typecheck pytest bench report soak clean
 
 demo: install $(NUMBA_STAMP)  ## server + simulated robot + dashboard on http://127.0.0.1:8000 until Ctrl-C
 	$(BIN)/linemap demo
@@ -37,8 +37,15 @@ $(NUMBA_STAMP): $(shell find shared -name '*.py' 2>/dev/null) | $(STAMP)
 
 # pytest exits 5 when it collected no test: that must fail, never pass silently.
 pytest: install $(NUMBA_STAMP)
-	$(BIN)/python -m pytest -q -p no:cacheprovider; rc=$$?; \
+	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not soak"; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing" >&2; exit 1; fi; exit $$rc
+
+soak: install $(NUMBA_STAMP)  ## the whole reliability suite, long runs included (under 30 min)
+	$(BIN)/python -m pytest -q -p no:cacheprovider tests/reliability; rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing" >&2; exit 1; fi; exit $$rc
+
+report: install $(NUMBA_STAMP)  ## regenerate docs/report/ (the paper's results against EKF-SLAM; ~15 min)
+	$(BIN)/linemap report --out docs/report
 
 bench: install $(NUMBA_STAMP)  ## kernel benchmark with JSON output
 	$(BIN)/linemap bench kernels --json bench-kernels.json
