@@ -181,7 +181,7 @@ def demo_cmd(
         raise LinemapError(f"port {port} on {host} is in use: stop what runs there or pass --port")
     directory.mkdir(parents=True, exist_ok=True)
     if not keep:
-        for pattern in ("server.db*", "robot.db*", "*.log", "demo.json"):
+        for pattern in ("server.db*", "robot.db*", "*.log", "demo.json*"):
             for old in directory.glob(pattern):
                 old.unlink()
     db = directory / "server.db"
@@ -227,8 +227,12 @@ def demo_cmd(
             f"{base}/", op_token, robot_id, ROBOT_NAME, key_file, public_key, example, signature,
             server.proc.pid, agent.proc.pid,
         )  # fmt: skip
-        (directory / "demo.json").write_text(json.dumps(asdict(info), indent=2) + "\n", encoding="utf-8")
         _banner(info, directory)
+        # after the banner (scripts that wait for demo.json find the banner printed) and atomically
+        # (never read half-written)
+        partial = directory / "demo.json.partial"
+        partial.write_text(json.dumps(asdict(info), indent=2) + "\n", encoding="utf-8")
+        partial.replace(directory / "demo.json")
         while not stop.wait(0.5):
             for child in (server, agent):
                 if not child.alive():
