@@ -2,7 +2,9 @@
 ``--db``); here, simulated robots long-poll and upload map deltas, the operator posts control messages to
 long-polling robots and follows robot 0's map stream. Exit 0 when it ran (figures, not pass/fail), 2 when
 the setup failed. Latencies: upload sent -> response; message POST sent -> the robot's poll returns it;
-upload sent -> its SSE event parsed. ``--help`` for the options."""
+upload sent -> its SSE event parsed. The server's RSS is sampled every ``sample_s`` during the load.
+``--help`` for the options. :func:`measure` is the reusable part (the reliability soak runs it for 10 min:
+tests/reliability/test_rel_soak_load.py)."""
 
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Awaitable
+from collections.abc import Awaitable, Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -31,7 +33,7 @@ from rich.logging import RichHandler
 from rich.progress import Progress
 from rich.table import Table
 
-__all__ = ["Config", "Results", "main", "run"]
+__all__ = ["Config", "Results", "Server", "SetupError", "main", "measure", "nearest_rank", "run"]
 
 log = logging.getLogger("server_load")
 API = "/api/v1"
@@ -54,20 +56,25 @@ class Config:
     segments: int = field(default=200, metadata={"help": "walls per upload"})
     messages: int = field(default=50, metadata={"help": "control messages posted during the load"})
     port: int = field(default=0, metadata={"help": "server port (0: a free one)"})
+    sample_s: float = field(default=5.0, metadata={"help": "period of the server RSS samples (s)"})
 
 
 @dataclass
 class Results:
-    """Latencies and CPU times in seconds; errors by kind (upload, long-poll, message, sse)."""
+    """Latencies and CPU times in seconds; errors by kind (upload, long-poll, message, sse). Times of
+    uploads and samples are seconds since the load started (``t0``)."""
 
     upload_s: list[float] = field(default_factory=list)
+    upload_at_s: list[float] = field(default_factory=list)  # when each upload of upload_s was sent
     message_s: list[float] = field(default_factory=list)
     sse_s: list[float] = field(default_factory=list)
     errors: dict[str, int] = field(default_factory=dict)
     skipped_slots: int = 0  # upload slots skipped because the robot's previous upload took > 1 period
+    skipped_messages: int = 0  # control messages not posted: the operator fell behind the load's end
     elapsed_s: float = 0.0
     cpu_s: tuple[float, float] = (0.0, 0.0)  # server, this process
     server_kb: tuple[int, int] = (0, 0)  # RSS at the end, peak RSS
+    rss_samples: list[tuple[float, int]] = field(default_factory=list)  # (time, server RSS kB)
 
     def error(self, kind: str, what: str) -> None:
         self.errors[kind] = self.errors.get(kind, 0) + 1
@@ -113,18 +120,23 @@ class Server:
                 return line.split(TOKEN_MARK, 1)[1].strip()
         raise SetupError("no first-start operator token: the database is not fresh (alembic downgrade base)")
 
-    def usage(self) -> tuple[float, int, int]:
-        """CPU seconds used so far, RSS and peak RSS (kB; RSS by psutil if installed, else /proc)."""
+    def memory_kb(self) -> tuple[int, int]:
+        """RSS and peak RSS of the server process (kB, from /proc/PID/status; OSError once it is gone).
+        Cheap (one small file read): safe to call on the event loop."""
         assert self.proc is not None
-        proc = Path(f"/proc/{self.proc.pid}")
-        stat = (proc / "stat").read_text().rsplit(")", 1)[1].split()
-        status = dict(ln.split(":", 1) for ln in (proc / "status").read_text().splitlines())
+        text = Path(f"/proc/{self.proc.pid}/status").read_text()
+        status = dict(ln.split(":", 1) for ln in text.splitlines() if ":" in ln)
         rss, hwm = (int(status.get(k, "0 kB").split()[0]) for k in ("VmRSS", "VmHWM"))
-        with contextlib.suppress(ImportError):
-            import psutil  # type: ignore[import-untyped,unused-ignore]
+        return rss, hwm
 
-            rss = int(psutil.Process(self.proc.pid).memory_info().rss) // 1024
-        return (int(stat[11]) + int(stat[12])) / os.sysconf("SC_CLK_TCK"), rss, hwm
+    def rss_kb(self) -> int:
+        return self.memory_kb()[0]
+
+    def usage(self) -> tuple[float, int, int]:
+        """CPU seconds used so far, RSS and peak RSS (kB; /proc)."""
+        assert self.proc is not None
+        stat = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(stat[11]) + int(stat[12])) / os.sysconf("SC_CLK_TCK"), *self.memory_kb()
 
     def stop(self, timeout_s: float = 10.0) -> None:
         if self.proc is not None and self.proc.poll() is None:
@@ -146,10 +158,11 @@ class Robot:
 
 
 class Load:
-    """The simulated fleet, the operator's messages and the SSE subscriber, in one event loop."""
+    """The simulated fleet, the operator's messages and the SSE subscriber, in one event loop; ``probe``
+    (optional) returns the server's RSS in kB, sampled every ``cfg.sample_s``."""
 
-    def __init__(self, cfg: Config, base: str, admin: str) -> None:
-        self.cfg, self.base, self.admin = cfg, base + API, admin
+    def __init__(self, cfg: Config, base: str, admin: str, probe: Callable[[], int] | None = None) -> None:
+        self.cfg, self.base, self.admin, self.probe = cfg, base + API, admin, probe
         self.robots, self.res = list[Robot](), Results()
         # version -> perf_counter: robot 0's uploads sent, and their events parsed by the subscriber
         self.sent_at, self.seen_at = dict[int, float](), dict[int, float]()
@@ -209,7 +222,9 @@ class Load:
             if idx == 0:
                 self.sent_at[version + 1] = t_send
             r = await self.call("upload", client.post(url, content=body, headers=headers))
-            self.res.upload_s.extend([] if r is None else [time.perf_counter() - t_send])
+            if r is not None:
+                self.res.upload_s.append(time.perf_counter() - t_send)
+                self.res.upload_at_s.append(t_send - self.t0)
             snapshot = r is None or not r.is_success  # the server's version unknown: send a snapshot next
             version = int(r.json().get("current_version", version)) if r and r.status_code == 409 else version
             version += 0 if snapshot else 1
@@ -237,6 +252,9 @@ class Load:
         for i in range(n):
             await asyncio.sleep(max(0.0, self.t0 + self.cfg.period_s + i * gap - time.perf_counter()))
             now, turn = time.perf_counter(), turn + 1
+            if now >= self.end:  # a starved client: the robots' polls are closing, the rest is not sent
+                self.res.skipped_messages = n - i
+                break
             idle = [r for r in self.robots if not r.message_sent and now - (r.poll_open_since or now) > 0.05]
             if not idle:
                 self.res.error("message", "no robot with an open long-poll")
@@ -266,7 +284,20 @@ class Load:
         finally:
             ready.set()
 
-    async def run(self, progress: Progress) -> Results:
+    def sample(self) -> None:
+        """One RSS sample now (none once the server is gone: :func:`measure` reports its death)."""
+        if self.probe is not None:
+            with contextlib.suppress(OSError):
+                self.res.rss_samples.append((time.perf_counter() - self.t0, self.probe()))
+
+    async def sampler(self) -> None:
+        k = 0
+        while (due := self.t0 + k * self.cfg.sample_s) < self.end:
+            await asyncio.sleep(max(0.0, due - time.perf_counter()))
+            self.sample()
+            k += 1
+
+    async def run(self, progress: Progress | None = None) -> Results:
         # A client per robot, as on real robots: in one pool of 200+ connections httpcore scans the pool on
         # each request (measured: ~70% of this process's CPU in _assign_requests_to_connections).
         async with contextlib.AsyncExitStack() as stack:
@@ -279,15 +310,18 @@ class Load:
             self.end = self.t0 + self.cfg.duration_s
             pairs = list(zip(self.robots, clients, strict=True))
             tasks += [asyncio.create_task(self.poller(*p)) for p in pairs]
+            tasks.append(asyncio.create_task(self.sampler()))
             coros = (*(self.uploader(*p) for p in pairs), self.operator(op))
             workers = [asyncio.create_task(c) for c in coros]
-            bar = progress.add_task("load", total=self.cfg.duration_s)
+            bar = None if progress is None else progress.add_task("load", total=self.cfg.duration_s)
             try:
                 while not all(w.done() for w in workers):
                     await asyncio.sleep(0.25)
                     text = f"uploads {len(self.res.upload_s)}  errors {sum(self.res.errors.values())}"
-                    progress.update(bar, completed=time.perf_counter() - self.t0, description=text)
+                    if progress is not None and bar is not None:
+                        progress.update(bar, completed=time.perf_counter() - self.t0, description=text)
                 self.res.elapsed_s = time.perf_counter() - self.t0
+                self.sample()  # the last one, at the end of the load
                 self.res.cpu_s = (0.0, time.process_time() - cpu0)
                 for w in workers:
                     w.result()  # a bug in the benchmark itself surfaces here
@@ -301,18 +335,25 @@ class Load:
         return self.res
 
 
+def nearest_rank(xs: list[float], q: float) -> float | None:
+    """The nearest-rank ``q``-th percentile (0 < q <= 100) of ``xs``; ``None`` when empty. O(n log n)."""
+    s = sorted(xs)
+    return s[min(len(s) - 1, max(0, math.ceil(q / 100 * len(s)) - 1))] if s else None
+
+
 def report(cfg: Config, res: Results, db_label: str) -> tuple[dict[str, Any], Table]:
     """The figures as JSON and as a table beside the targets (``None`` / ``-``: no sample)."""
 
-    def ms(xs: list[float], q: float) -> float | None:  # nearest-rank percentile
-        s = sorted(xs)
-        return round(1000 * s[min(len(s) - 1, max(0, math.ceil(q / 100 * len(s)) - 1))], 1) if s else None
+    def ms(xs: list[float], q: float) -> float | None:
+        value = nearest_rank(xs, q)
+        return None if value is None else round(1000 * value, 1)
 
     el, up, msg, sse = res.elapsed_s or math.nan, res.upload_s, res.message_s, res.sse_s
     rows: list[tuple[str, str, Any, str]] = [  # JSON key, label, value, target
         ("uploads", "uploads (total)", len(up), ""),
         ("errors", "errors (non-2xx or exception)", sum(res.errors.values()), "0"),
         ("skipped_slots", "upload slots skipped (robot > 1 period behind)", res.skipped_slots, "0"),
+        ("skipped_messages", "messages not sent (operator past the end)", res.skipped_messages, "0"),
         ("upload_p50_ms", "upload latency p50 (ms)", ms(up, 50), ""),
         ("upload_p95_ms", "upload latency p95 (ms)", ms(up, 95), ""),
         ("upload_p99_ms", "upload latency p99 (ms)", ms(up, 99), "<= 100"),
@@ -338,21 +379,30 @@ def report(cfg: Config, res: Results, db_label: str) -> tuple[dict[str, Any], Ta
     for _, label, value, target in rows:
         table.add_row(label, "-" if value is None else str(value), target)
     data = {"config": asdict(cfg) | {"db": db_label}, **{k: v for k, _, v, _ in rows}}
-    return data | {"errors_by_kind": res.errors}, table
+    samples = [[round(t, 1), round(kb / 1024, 1)] for t, kb in res.rss_samples]
+    return data | {"errors_by_kind": res.errors, "server_rss_samples_s_mb": samples}, table
 
 
-def run(cfg: Config, console: Console) -> tuple[dict[str, Any], Table]:
-    """Start the server, load it, stop it; the figures. Raises :class:`SetupError` when it cannot start."""
+def db_label(cfg: Config) -> str:
+    return "SQLite (fresh temp file)" if cfg.db is None else cfg.db.split("://", 1)[0]
+
+
+def measure(cfg: Config, console: Console | None = None) -> Results:
+    """Start the server, load it, stop it: the raw results (with a progress bar on ``console`` if given).
+    Raises :class:`SetupError` when the server cannot start, or dies during the load."""
     with tempfile.TemporaryDirectory(prefix="linemap-load-") as tmp:
         db = cfg.db or f"sqlite:///{Path(tmp) / 'server.db'}"
         server = Server(db, cfg.port, Path(tmp))
         try:
-            load = Load(cfg, server.base, server.start())
+            load = Load(cfg, server.base, server.start(), probe=server.rss_kb)
             load.register()
             log.info("%d robots registered; load for %g s", cfg.robots, cfg.duration_s)
-            with Progress(console=console, transient=True) as progress:
-                cpu0 = server.usage()[0]
-                res = asyncio.run(load.run(progress))
+            cpu0 = server.usage()[0]
+            if console is None:
+                res = asyncio.run(load.run())
+            else:
+                with Progress(console=console, transient=True) as progress:
+                    res = asyncio.run(load.run(progress))
             cpu1, *kb = server.usage()
             res.cpu_s, res.server_kb = (cpu1 - cpu0, res.cpu_s[1]), (kb[0], kb[1])
             if server.proc is not None and server.proc.poll() is not None:
@@ -361,7 +411,12 @@ def run(cfg: Config, console: Console) -> tuple[dict[str, Any], Table]:
             raise SetupError(f"{type(exc).__name__}: {exc}") from exc
         finally:
             server.stop()
-        return report(cfg, res, "SQLite (fresh temp file)" if cfg.db is None else db.split("://", 1)[0])
+        return res
+
+
+def run(cfg: Config, console: Console) -> tuple[dict[str, Any], Table]:
+    """Start the server, load it, stop it; the figures. Raises :class:`SetupError` when it cannot start."""
+    return report(cfg, measure(cfg, console), db_label(cfg))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -377,8 +432,8 @@ def main(argv: list[str] | None = None) -> int:
     level = logging.INFO if a.verbose else logging.WARNING
     logging.basicConfig(level=level, handlers=[handler], format="%(message)s")
     logging.getLogger("httpx").setLevel(logging.WARNING)
-    if min(a.robots, a.period_s, a.duration_s, a.segments) <= 0 or a.messages < 0:
-        p.error("--robots, --period-s, --duration-s and --segments must be positive")
+    if min(a.robots, a.period_s, a.duration_s, a.segments, a.sample_s) <= 0 or a.messages < 0:
+        p.error("--robots, --period-s, --duration-s, --segments and --sample-s must be positive")
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # a KeyboardInterrupt: the server is stopped
     try:
         data, table = run(Config(**{f.name: getattr(a, f.name) for f in fields(Config)}), console)

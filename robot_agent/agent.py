@@ -18,7 +18,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from robot_agent.control import Prepared, apply_message, choices, kernels_in_use, pin_versions
+from robot_agent.control import (
+    Prepared,
+    apply_message,
+    choices,
+    kernels_in_use,
+    kernels_run,
+    pin_versions,
+    refuse_downgrades,
+)
 from robot_agent.errors import AgentError, KernelRejected, LinkError
 from robot_agent.guard import guarded
 from robot_agent.link import Backoff, ServerLink, UploadConflict
@@ -92,6 +100,7 @@ class Agent:
         self._installed_by: dict[tuple[str, str, str], int] = {}
         self._previous: PipelineConfig | None = None
         self._wake_uploader = threading.Event()
+        self._mapping_over = threading.Event()  # set once the mapping thread recorded its last step
         self._stepped: tuple[int, float] = (0, 0.0)
         self._need_snapshot = False
         self.pipeline = Pipeline(self._initial_config())
@@ -114,7 +123,7 @@ class Agent:
             except LinemapError as exc:
                 log.error("stored configuration is invalid (%s); starting from the defaults", exc)
         config = pin_versions(config)
-        self.db.record_config(config.model_dump(mode="json"), "start-up")
+        self.db.record_config(config.model_dump(mode="json"), "start-up", kernels_run(config))
         return config
 
     def _register_record(self, rec: KernelRecord) -> None:
@@ -175,6 +184,7 @@ class Agent:
                 self._apply_pending()
                 stop.wait(0.05)
         finally:
+            self._mapping_over.set()
             stop.set()
             self._wake_uploader.set()
             for t in threads:
@@ -269,7 +279,9 @@ class Agent:
             log.error("rollback configuration failed to build (%s); using the defaults", exc)
             previous = pin_versions(PipelineConfig())
             self.pipeline.reconfigure(previous)
-        self.db.record_config(previous.model_dump(mode="json"), f"automatic rollback: {reason}"[:200])
+        self.db.record_config(
+            previous.model_dump(mode="json"), f"automatic rollback: {reason}"[:200], kernels_run(previous)
+        )
         key = (str(cls.stage), cls.name, cls.version)
         self.db.set_kernel_state(*key, "rejected", reason)
         self._refresh_kernel_states(previous)
@@ -293,24 +305,39 @@ class Agent:
         if self.db.outcome_of(prepared.seq) is not None:
             return  # dealt with already (exactly once)
         if prepared.error is not None:
-            self.db.record_message(prepared.seq, "rejected", prepared.error, None)
-            self._wake_uploader.set()
+            self._reject(prepared.seq, prepared.error)
             return
         t0 = time.perf_counter()
         before = self.pipeline.config
         try:
-            config = apply_message(prepared, before, self._register, _unregister, self.pipeline.reconfigure)
+            config = apply_message(
+                prepared,
+                before,
+                self._register,
+                _unregister,
+                self.pipeline.reconfigure,
+                floors=self.db.run_floors(),
+            )
         except Exception as exc:  # anything the message caused: reject it, keep mapping as before
-            reason = str(exc) if isinstance(exc, LinemapError) else f"{type(exc).__name__}: {exc}"
-            self.db.record_message(prepared.seq, "rejected", reason, None)
-            self._wake_uploader.set()
+            self._reject(
+                prepared.seq, str(exc) if isinstance(exc, LinemapError) else f"{type(exc).__name__}: {exc}"
+            )
             return
         self.stats.swaps_ms.append((time.perf_counter() - t0) * 1e3)
         self._previous = before
-        self.db.record_message(prepared.seq, "applied", None, config.model_dump(mode="json"))
+        self.db.record_message(
+            prepared.seq, "applied", None, config.model_dump(mode="json"), ran=kernels_run(config)
+        )
         for key in prepared.classes:
             self._installed_by[key] = prepared.seq
         self._refresh_kernel_states(config)
+        self._wake_uploader.set()
+
+    def _reject(self, seq: int, reason: str) -> None:
+        """Record message ``seq`` as rejected (acknowledged with ``reason``); it is also the last error."""
+        self.stats.last_error = f"message {seq} rejected: {reason}"
+        log.warning("message %d rejected: %s", seq, reason)
+        self.db.record_message(seq, "rejected", reason, None)
         self._wake_uploader.set()
 
     def _refresh_kernel_states(self, config: PipelineConfig) -> None:
@@ -322,13 +349,19 @@ class Agent:
                 self.db.set_kernel_state(rec.stage, rec.name, rec.version, state)
 
     def _prepare(self, raw: dict[str, Any]) -> Prepared:
-        """Parse a message and download/verify its kernels (network thread; may take seconds)."""
+        """Parse a message and download/verify its kernels (network thread; may take seconds). A download
+        that fails in transit (no answer, 408, 429, 5xx) raises :class:`LinkError`: the poller fetches the
+        message again after a backoff instead of rejecting it for a network fault."""
         seq = int(raw["seq"])
         try:
             msg = parse_message(str(raw["xml"]).encode("utf-8"))
         except ControlMessageError as exc:
             return Prepared(seq, None, str(exc))
         prepared = Prepared(seq, msg)
+        downgrade = refuse_downgrades(msg, self.db.run_floors())  # before downloading anything
+        if downgrade is not None:
+            prepared.error = downgrade
+            return prepared
         for op in msg.operations:
             if op.kind not in (OperationKind.INSTALL, OperationKind.UPDATE):
                 continue
@@ -338,6 +371,8 @@ class Agent:
                 prepared.error = f"<kernel-{op.kind.value}> {op.name} {op.version}: {exc.reason}"
                 return prepared
             except LinkError as exc:
+                if _transient(exc):
+                    raise  # a network fault: the poller fetches the message again after a backoff
                 prepared.error = f"<kernel-{op.kind.value}> {op.name} {op.version}: download failed: {exc}"
                 return prepared
         return prepared
@@ -383,7 +418,7 @@ class Agent:
     # ------------------------------------------------------------------ network threads
     def _poller(self, stop: threading.Event) -> None:
         assert self.link is not None
-        backoff = Backoff()
+        backoff, download_backoff = Backoff(), Backoff()
         while not stop.is_set():
             after = max(self.db.applied_seq(), self._handed)
             try:
@@ -397,7 +432,15 @@ class Agent:
                 return
             for raw in messages:
                 if int(raw["seq"]) > after:
-                    self._inbox.put(self._prepare(raw))
+                    try:
+                        prepared = self._prepare(raw)
+                    except LinkError as exc:  # a kernel download failed in transit: poll it again
+                        self.stats.last_error = str(exc)
+                        log.warning("message %s: kernel download failed, retrying: %s", raw["seq"], exc)
+                        stop.wait(download_backoff.next_delay(exc.retry_after_s))
+                        break
+                    download_backoff.reset()
+                    self._inbox.put(prepared)
                     self._handed = after = int(raw["seq"])
 
     def _uploader(self, stop: threading.Event) -> None:
@@ -412,7 +455,15 @@ class Agent:
                 if stop.wait(backoff.next_delay(exc.retry_after_s)):
                     return
                 continue
-            if stop.is_set() and not busy:
+            except Exception as exc:  # never let the thread die: the robot would go silent while mapping
+                log.exception("upload round failed")
+                self.stats.last_error = f"upload failed: {type(exc).__name__}: {exc}"
+                if stop.wait(backoff.next_delay()):
+                    return
+                continue
+            # ``stop`` may come while a step is still being recorded: the uploader ends only after the
+            # last one, so a clean stop leaves nothing in the outbox.
+            if stop.is_set() and self._mapping_over.is_set() and not busy:
                 return
             if not busy:
                 self._wake_uploader.wait(self.s.upload_period_s)
@@ -433,7 +484,7 @@ class Agent:
             "mode": str(config.mode),
             "active_kernels": kernels_in_use(config),
             "step_ms": median_ms if median_ms == median_ms else None,
-            "last_error": self.stats.last_error,
+            "last_error": _clip(self.stats.last_error, 2000),  # the server takes at most 2000 characters
             "config": config.model_dump(mode="json"),
             "kernels": [
                 {"stage": k.stage, "name": k.name, "version": k.version, "state": k.state, "sha256": k.sha256}
@@ -504,6 +555,15 @@ class Agent:
 
 def _used(config: PipelineConfig, stage: str, name: str, version: str) -> bool:
     return any(c.name == name and c.version == version for c in choices(config, Stage(stage)))
+
+
+def _clip(text: str | None, limit: int) -> str | None:
+    return text if text is None or len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _transient(exc: LinkError) -> bool:
+    """A link failure the next attempt may not meet: no answer at all, 408, 429 or a 5xx."""
+    return exc.status is None or exc.status in (408, 429) or exc.status >= 500
 
 
 def _unregister(stage: str, name: str, version: str) -> None:

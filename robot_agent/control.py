@@ -9,20 +9,41 @@ Kernel operations: ``install`` makes a version available; ``update`` makes it av
 use of that kernel name in its stage to it; ``rollback`` switches every use to the given (registered) version;
 ``delete`` forgets a version that is not in use. Unpinned kernel choices are pinned to the version in use (or
 the highest registered), so installing never changes what runs by accident.
+
+Anti-rollback (SPEC §9): the robot never runs a version lower than one it has already run for the same
+kernel unless a message says rollback. The agent keeps the highest version put in force per
+``(stage, name)`` (its *floor*, in the Robot DB); :func:`refuse_downgrades` rejects an install or update below
+the floor, and a configuration that would newly run a version below it, unless the same message carries a
+``<kernel-rollback>`` to exactly that version (which may come with an install of it). A replayed, validly
+signed old artifact is therefore refused: a fixed kernel ships as a new, higher version.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from shared.control import ControlMessage, KernelOperation, OperationKind, to_config
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Kernel, Stage
+from shared.kernels.base import parse_version
 from shared.pipeline import KernelChoice, PipelineConfig
 
-__all__ = ["Prepared", "apply_message", "choices", "kernels_in_use", "pin_versions", "retarget"]
+__all__ = [
+    "Floors",
+    "Prepared",
+    "apply_message",
+    "choices",
+    "kernels_in_use",
+    "kernels_run",
+    "pin_versions",
+    "refuse_downgrades",
+    "retarget",
+]
+
+#: ``(stage, name) -> version``: the highest version of each kernel the robot has put in force.
+Floors = Mapping[tuple[str, str], str]
 
 _FIELDS = {
     Stage.SEGMENTATION: "segmentation",
@@ -62,6 +83,60 @@ def kernels_in_use(config: PipelineConfig) -> dict[str, str]:
         if used:
             out[stage.value] = ", ".join(used)
     return out
+
+
+def kernels_run(config: PipelineConfig) -> list[tuple[str, str, str]]:
+    """``(stage, name, version)`` of every pinned kernel choice ``config`` runs (what raises the floors)."""
+    return [(stage.value, c.name, c.version) for stage in Stage for c in choices(config, stage) if c.version]
+
+
+def _below(version: str, floor: str | None) -> bool:
+    try:
+        return floor is not None and parse_version(version) < parse_version(floor)
+    except ValueError:  # an unparsable version cannot be registered anyway; the registry names it
+        return False
+
+
+def _downgrade(where: str, stage: str, name: str, version: str, floor: str) -> str:
+    return (
+        f"{where} {stage}/{name} {version}: version {version} is lower than {floor}, which this robot has"
+        f" already run (rollback attack?); send <kernel-rollback> to go back to {version} on purpose"
+    )
+
+
+def refuse_downgrades(
+    msg: ControlMessage,
+    floors: Floors,
+    current: PipelineConfig | None = None,
+    config: PipelineConfig | None = None,
+) -> str | None:
+    """Why ``msg`` would take a kernel below its floor, or ``None`` when it does not (SPEC §9).
+
+    Checked: every install and update operation; and, given the configuration in force (``current``) and
+    the one the message leads to (``config``, versions pinned), every kernel choice ``config`` newly runs.
+    A version that a ``<kernel-rollback>`` of the same message names is allowed (explicit rollback).
+    The reason names the element, the kernel, its version and the floor. O(operations + choices).
+    """
+    ops = msg.operations
+    allowed = {(op.stage.value, op.name, op.version) for op in ops if op.kind is OperationKind.ROLLBACK}
+    for op in ops:
+        key = (op.stage.value, op.name, op.version)
+        floor = floors.get(key[:2])
+        installs = op.kind in (OperationKind.INSTALL, OperationKind.UPDATE)
+        if installs and key not in allowed and floor is not None and _below(op.version, floor):
+            return _downgrade(f"<kernel-{op.kind.value}>", *key, floor)
+    if config is None:
+        return None
+    for stage in Stage:
+        before = {(c.name, c.version) for c in choices(current, stage)}
+        for c in choices(config, stage):
+            new = (c.name, c.version) not in before and (stage.value, c.name, c.version) not in allowed
+            if c.version is None or not new:
+                continue
+            floor = floors.get((stage.value, c.name))
+            if floor is not None and _below(c.version, floor):
+                return _downgrade(f"<{stage.value}>", stage.value, c.name, c.version, floor)
+    return None
 
 
 def _replace(
@@ -104,9 +179,12 @@ def apply_message(
     register: Callable[[type[Kernel[Any]]], None],
     unregister: Callable[[str, str, str], None],
     build: Callable[[PipelineConfig], None],
+    floors: Floors | None = None,
 ) -> PipelineConfig:
     """The configuration after ``prepared``, already built and put in force by ``build`` (the pipeline's
-    ``reconfigure``). On any error everything is undone and a :class:`LinemapError` names the reason."""
+    ``reconfigure``). On any error everything is undone and a :class:`LinemapError` names the reason.
+    With ``floors`` (the robot's anti-rollback floors), a message that would go below one is refused
+    (:func:`refuse_downgrades`) before anything is built."""
     msg = prepared.message
     assert msg is not None and prepared.error is None
     added: list[tuple[str, str, str]] = []
@@ -123,6 +201,10 @@ def apply_message(
             elif op.kind is OperationKind.DELETE:
                 deletions.append(op)
         config = pin_versions(config, current)
+        if floors is not None:
+            why = refuse_downgrades(msg, floors, current, config)
+            if why is not None:
+                raise LinemapError(why)
         for op in deletions:
             if any(c.name == op.name and c.version == op.version for c in choices(config, op.stage)):
                 raise LinemapError(

@@ -4,7 +4,8 @@ Tables: ``meta`` (key -> JSON: robot id, versions, the configuration in force), 
 kernel artifacts and their state), ``config_history``, ``map_versions`` (each step's map change),
 ``walls`` (the current map, for restarts), ``poses`` (trajectory), ``outbox`` (map versions not yet
 acknowledged by the server), ``applied_messages`` (control messages applied or rejected, and whether the
-server has the acknowledgement). Lengths metres, angles radians, times UTC.
+server has the acknowledgement), ``kernels_run`` (the highest version of each kernel ever put in force: the
+anti-rollback floor of SPEC §9). Lengths metres, angles radians, times UTC.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ __all__ = [
     "OutboxEntry",
     "PoseRecord",
     "RobotBase",
+    "RunFloor",
     "Wall",
     "utcnow",
 ]
@@ -131,3 +133,17 @@ class AppliedMessage(RobotBase):
     reason: Mapped[str | None] = mapped_column(Text, default=None)
     applied_at: Mapped[datetime] = mapped_column(default=utcnow)
     acked_at: Mapped[datetime | None] = mapped_column(default=None)
+
+
+class RunFloor(RobotBase):
+    """The highest version of kernel ``stage``/``name`` this robot has ever put in force (SPEC §9: it never
+    runs a lower one unless a message says rollback). Only ever raised; ``seq`` is the message whose
+    configuration raised it (null: start-up or automatic rollback)."""
+
+    __tablename__ = "kernels_run"
+
+    stage: Mapped[str] = mapped_column(String(32), primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    version: Mapped[str] = mapped_column(String(32))
+    seq: Mapped[int | None] = mapped_column(Integer, default=None)
+    at: Mapped[datetime] = mapped_column(default=utcnow)

@@ -30,11 +30,16 @@ from robot_agent.models import (
     Meta,
     OutboxEntry,
     PoseRecord,
+    RunFloor,
     Wall,
     utcnow,
 )
+from shared.kernels.base import parse_version
 
-__all__ = ["MIGRATIONS_DIR", "PendingUpload", "RobotDB", "StepRecord"]
+__all__ = ["MIGRATIONS_DIR", "PendingUpload", "Ran", "RobotDB", "StepRecord"]
+
+#: Kernel versions a configuration puts in force: ``(stage, name, version)``.
+Ran = Sequence[tuple[str, str, str]]
 
 log = logging.getLogger(__name__)
 
@@ -267,20 +272,37 @@ class RobotDB:
             return s.get(AppliedMessage, seq)
 
     def record_message(
-        self, seq: int, outcome: str, reason: str | None, config: dict[str, Any] | None, note: str = ""
+        self,
+        seq: int,
+        outcome: str,
+        reason: str | None,
+        config: dict[str, Any] | None,
+        note: str = "",
+        ran: Ran = (),
     ) -> None:
-        """A message's outcome, and the configuration it put in force, in one transaction."""
+        """A message's outcome, the configuration it put in force and the kernel versions that configuration
+        runs (``ran``, raising their anti-rollback floors), in one transaction."""
         with self.tx() as s:
             s.add(AppliedMessage(seq=seq, outcome=outcome, reason=reason))
             if config is not None:
                 s.add(ConfigRecord(seq=seq, config=config, note=note))
                 _put(s, "config", config)
+                _raise_floors(s, ran, seq)
 
-    def record_config(self, config: dict[str, Any], note: str) -> None:
-        """A configuration put in force without a message (start-up, automatic rollback)."""
+    def record_config(self, config: dict[str, Any], note: str, ran: Ran = ()) -> None:
+        """A configuration put in force without a message (start-up, automatic rollback), and the kernel
+        versions it runs."""
         with self.tx() as s:
             s.add(ConfigRecord(seq=None, config=config, note=note))
             _put(s, "config", config)
+            _raise_floors(s, ran, None)
+
+    def run_floors(self) -> dict[tuple[str, str], str]:
+        """``(stage, name) -> version``: the highest version of each kernel this robot has put in force
+        (SPEC §9 anti-rollback floor; kept across restarts). One read of a table with a row per kernel name.
+        """
+        with self._factory() as s:
+            return {(r.stage, r.name): r.version for r in s.scalars(select(RunFloor))}
 
     def mark_rolled_back(self, seq: int, reason: str) -> None:
         """The kernel message ``seq`` brought in failed at run time: report it again as rolled back."""
@@ -338,6 +360,17 @@ class RobotDB:
             if states is not None:
                 q = q.where(KernelRecord.state.in_(list(states)))
             return list(s.scalars(q))
+
+
+def _raise_floors(s: Session, ran: Ran, seq: int | None) -> None:
+    """Raise each ``(stage, name)`` floor to ``version`` if that is higher (never lowers one)."""
+    for stage, name, version in ran:
+        row = s.get(RunFloor, (stage, name))
+        if row is None:
+            s.add(RunFloor(stage=stage, name=name, version=version, seq=seq))
+            s.flush()
+        elif parse_version(version) > parse_version(row.version):
+            row.version, row.seq, row.at = version, seq, utcnow()
 
 
 def _put(s: Session, key: str, value: Any) -> None:

@@ -3,12 +3,19 @@
 Credentials: ``Authorization: Bearer <token>`` (operator token ``lmo_...`` or robot token ``lmr_...``), or
 the browser's session cookie (operators only). Lookups go by the token's SHA-256; a small cache (a few
 seconds) spares the database a read per request, so a revoked token stops working within that time.
+
+:class:`AuthLimiter` counts failed authentications per client address (issue 9 item 5): after
+``auth_fail_limit`` failures within ``auth_fail_window_s`` the address is refused with 429 for
+``auth_block_s`` (enforced by :class:`server.app.AuthFailureLimit`).
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
+from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Annotated, Literal
@@ -28,12 +35,14 @@ from server.writer import WriteBatcher
 __all__ = [
     "SESSION_COOKIE",
     "AppState",
+    "AuthLimiter",
     "OperatorDep",
     "Principal",
     "PrincipalDep",
     "RobotSelf",
     "StateDep",
     "require_operator",
+    "retry_after_header",
     "robot_access",
     "robot_self",
 ]
@@ -56,6 +65,100 @@ class Principal:
         return f"{self.kind}:{self.name}"
 
 
+class AuthLimiter:
+    """Failed authentications per client address, in memory (one server process), with a sliding window.
+
+    :meth:`failed` notes one failure of ``client``; when ``limit`` of them fall within ``window_s`` seconds,
+    the client is blocked for ``block_s`` seconds and its count starts again afterwards. :meth:`retry_after`
+    says how many seconds of a block are left (``None``: not blocked). Successful authentications neither
+    count nor reset the count (a valid token cannot be used to keep guessing another). ``limit`` 0 disables
+    it. Memory: at most ``max_clients`` addresses tracked (expired ones are pruned first, then the oldest
+    dropped, then the blocks that end first); ``limit`` times per address. Each call is O(1) amortised
+    (O(max_clients) when pruning), under a lock (thread-safe). ``clock`` (seconds, monotonic) can be
+    replaced, e.g. by a test that steps time.
+    """
+
+    def __init__(
+        self,
+        limit: int,
+        window_s: float,
+        block_s: float,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        max_clients: int = 10_000,
+    ) -> None:
+        self.limit, self.window_s, self.block_s = limit, window_s, block_s
+        self.clock = clock
+        self.max_clients = max_clients
+        self._fails: dict[str, deque[float]] = {}
+        self._blocked: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> AuthLimiter:
+        return cls(settings.auth_fail_limit, settings.auth_fail_window_s, settings.auth_block_s)
+
+    @property
+    def enabled(self) -> bool:
+        return self.limit > 0
+
+    def retry_after(self, client: str) -> float | None:
+        """Seconds until ``client`` may try again, or ``None`` when it is not blocked."""
+        if not self.enabled:
+            return None
+        with self._lock:
+            until = self._blocked.get(client)
+            if until is None:
+                return None
+            left = until - self.clock()
+            if left <= 0:
+                del self._blocked[client]
+                return None
+            return left
+
+    def failed(self, client: str) -> None:
+        """Note a failed authentication by ``client``; block it when that makes ``limit`` in the window."""
+        if not self.enabled:
+            return
+        now = self.clock()
+        with self._lock:
+            times = self._fails.setdefault(client, deque())
+            times.append(now)
+            while times and times[0] <= now - self.window_s:
+                times.popleft()
+            if len(times) >= self.limit:
+                del self._fails[client]
+                self._blocked[client] = now + self.block_s
+            if len(self._fails) + len(self._blocked) > self.max_clients:
+                self._prune(now)
+
+    def tracked(self) -> int:
+        """How many client addresses are held in memory (counting or blocked)."""
+        with self._lock:
+            return len(self._fails) + len(self._blocked)
+
+    def clear(self) -> None:
+        """Forget every count and block."""
+        with self._lock:
+            self._fails.clear()
+            self._blocked.clear()
+
+    def _prune(self, now: float) -> None:
+        for client in [c for c, t in self._fails.items() if not t or t[-1] <= now - self.window_s]:
+            del self._fails[client]
+        for client in [c for c, until in self._blocked.items() if until <= now]:
+            del self._blocked[client]
+        while self._fails and len(self._fails) + len(self._blocked) > self.max_clients:
+            del self._fails[next(iter(self._fails))]  # the longest-tracked address goes first
+        while len(self._blocked) > self.max_clients:
+            del self._blocked[next(iter(self._blocked))]  # the block that ends first
+
+
+def retry_after_header(seconds: float) -> str:
+    """``Retry-After`` value: whole seconds, rounded up (at least 1)."""
+    return str(max(1, math.ceil(seconds)))
+
+
 @dataclass
 class AppState:
     """Everything a request handler needs, created once per application."""
@@ -64,10 +167,14 @@ class AppState:
     db: Database
     writer: WriteBatcher
     hub: Hub = field(default_factory=Hub)
+    limiter: AuthLimiter = field(init=False)
     _cache: dict[str, tuple[float, Principal | None]] = field(default_factory=dict)
     _seen: dict[int, datetime] = field(default_factory=dict)
     _unflushed: dict[int, datetime] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def __post_init__(self) -> None:
+        self.limiter = AuthLimiter.from_settings(self.settings)
 
     def forget_credentials(self) -> None:
         """Drop cached lookups (after a token is revoked or a session closed)."""

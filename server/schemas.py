@@ -10,6 +10,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
+from fastapi import Path
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 __all__ = [
@@ -35,6 +36,13 @@ __all__ = [
 ]
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._ -]{0,99}$"
+
+#: Largest integer a database column holds (signed 64 bits). Ids, sequence numbers, versions and counts in
+#: requests are bounded by it, so an oversized number is a 422, not a database driver's overflow (500).
+DB_INT_MAX = 2**63 - 1
+#: An id or sequence number in a URL path.
+DbIdPath = Annotated[int, Path(ge=0, le=DB_INT_MAX)]
+DbInt = Annotated[int, Field(ge=0, le=DB_INT_MAX)]
 
 
 # Rows are checked by pydantic-core itself (finite floats, exact length): no Python call per row.
@@ -159,14 +167,14 @@ class MapUpload(_In):
     snapshot; new or changed walls for a delta); ``removed`` the ids that are gone; ``trajectory`` rows
     ``[stamp_s, x_m, y_m, theta_rad]`` since ``base_version`` (all of them for a snapshot)."""
 
-    version: int = Field(ge=1)
-    base_version: int | None = Field(None, ge=0)
+    version: int = Field(ge=1, le=DB_INT_MAX)
+    base_version: int | None = Field(None, ge=0, le=DB_INT_MAX)
     stamp_s: Finite = 0.0
     wall_time_s: Finite | None = Field(
         None, description="Unix time (s) at which the robot finished the step of this version (for latency)."
     )
     segments: list[SegmentRow] = Field(default_factory=list, max_length=200_000)
-    removed: list[int] = Field(default_factory=list, max_length=200_000)
+    removed: list[DbInt] = Field(default_factory=list, max_length=200_000)
     centroids: list[PointRow] = Field(default_factory=list, max_length=100_000)
     pose: PoseRow = Field(default_factory=lambda: [0.0, 0.0, 0.0])
     trajectory: list[TrajRow] = Field(default_factory=list, max_length=1_000_000)
@@ -179,8 +187,8 @@ class MapUpload(_In):
         if self.base_version is None and self.removed:
             raise ValueError("a snapshot (base_version null) cannot remove segments")
         for row in self.segments:
-            if row[0] != int(row[0]) or row[0] < 0:
-                raise ValueError(f"segment id must be a non-negative integer, got {row[0]}")
+            if row[0] != int(row[0]) or not 0 <= row[0] <= DB_INT_MAX:
+                raise ValueError(f"segment id must be an integer in 0..2**63-1, got {row[0]}")
         return self
 
 

@@ -29,3 +29,16 @@ class Settings(BaseSettings):
     online_window_s: float = Field(10.0, gt=0, description="A robot seen within this window is online.")
     session_ttl_s: float = Field(12 * 3600.0, gt=0, description="Lifetime of a browser session cookie.")
     secure_cookies: bool = Field(False, description="Mark the session cookie Secure (behind HTTPS).")
+    auth_fail_limit: int = Field(
+        50,
+        ge=0,
+        description="Failed authentications (a wrong, revoked or expired token or session, a failed login) "
+        "one client address may make within auth_fail_window_s; beyond it the address's API requests that "
+        "carry a credential get 429 for auth_block_s. 0 switches the limit off.",
+    )
+    auth_fail_window_s: float = Field(
+        60.0, gt=0, le=86_400, description="Sliding window in which failed authentications are counted."
+    )
+    auth_block_s: float = Field(
+        60.0, gt=0, le=86_400, description="How long a client over the limit is refused (its Retry-After)."
+    )

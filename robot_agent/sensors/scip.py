@@ -235,6 +235,8 @@ def parse_reply(block: bytes) -> Reply:
         raise ScipError(_line_error(echo, 2, status_line, "expected a status of 2 characters and a checksum"))
     if checksum(status_line[:2]) != status_line[2]:
         raise ScipChecksumError(_line_error(echo, 2, status_line, "status checksum does not match"))
+    if not status_line[:2].isascii():
+        raise ScipError(_line_error(echo, 2, status_line, "expected a status of 2 ASCII characters"))
     info = echo[:2].decode("ascii", "replace") in INFO_COMMANDS
     data: list[bytes] = []
     for n, line in enumerate(lines[2:], start=3):

@@ -128,11 +128,11 @@ URG04LX_PARAMS = SensorParams("URG-04LX(Hokuyo Automatic Co.,Ltd.)", 20, 5600, 1
 def _leading_int(reply: Reply, label: str, text: str) -> int:
     digits = ""
     for ch in text.strip():
-        if not ch.isdigit():
+        if not "0" <= ch <= "9":  # not str.isdigit(): '²' is a digit to it, but not to int()
             break
         digits += ch
-    if not digits:
-        raise ScipError(f"{reply.command} {label}:{text!r}: expected a number")
+    if not digits or len(digits) > 18:
+        raise ScipError(f"{reply.command} {label}:{text[:40]!r}: expected a number (at most 18 digits)")
     return int(digits)
 
 

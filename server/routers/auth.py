@@ -12,7 +12,7 @@ from server.audit import record
 from server.deps import SESSION_COOKIE, OperatorDep, PrincipalDep, StateDep
 from server.errors import AuthError, NotFoundError
 from server.models import AuditEntry, OperatorToken, Session, utcnow
-from server.schemas import AuditOut, LoginIn, TokenCreate, TokenCreated, WhoAmI
+from server.schemas import DB_INT_MAX, AuditOut, DbIdPath, LoginIn, TokenCreate, TokenCreated, WhoAmI
 from server.security import OPERATOR_PREFIX, SESSION_PREFIX, hash_token, new_token
 
 __all__ = ["create_operator_token", "router"]
@@ -82,7 +82,7 @@ def create_token(body: TokenCreate, who: OperatorDep, state: StateDep) -> TokenC
 
 
 @router.delete("/tokens/{token_id}", status_code=status.HTTP_204_NO_CONTENT)
-def revoke_token(token_id: int, who: OperatorDep, state: StateDep) -> None:
+def revoke_token(token_id: DbIdPath, who: OperatorDep, state: StateDep) -> None:
     """Revoke an operator token (and the sessions opened with it)."""
     with state.db.session() as s:
         row = s.get(OperatorToken, token_id)
@@ -100,7 +100,7 @@ def audit_log(
     state: StateDep,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     before: Annotated[
-        int | None, Query(ge=1, description="Only entries with id below this (paging).")
+        int | None, Query(ge=1, le=DB_INT_MAX, description="Only entries with id below this (paging).")
     ] = None,
 ) -> list[AuditOut]:
     """Operator actions, newest first."""

@@ -29,7 +29,7 @@ from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access
 from server.errors import ConflictError, InvalidRequestError
 from server.hub import OVERFLOW
 from server.mapstore import apply_upload, map_version, read_map
-from server.schemas import MapOut, MapUpload, MapUploadOut
+from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapUpload, MapUploadOut
 from shared.errors import InvalidInputError
 from shared.export import EmptyMapError
 from shared.pipeline.snapshot import MapSnapshot
@@ -52,7 +52,7 @@ _UPLOAD_BODY = {
 
 @router.post("", response_model=MapUploadOut, openapi_extra=_UPLOAD_BODY)
 async def upload_map(
-    robot_id: int,
+    robot_id: DbIdPath,
     request: Request,
     who: RobotSelf,
     state: StateDep,
@@ -93,10 +93,12 @@ def _version(state: AppState, robot_id: int) -> int:
 
 @router.get("/latest", response_model=MapOut)
 async def latest_map(
-    robot_id: int,
+    robot_id: DbIdPath,
     who: RobotAccess,
     state: StateDep,
-    trajectory: Annotated[int | None, Query(ge=0, description="Only the last N trajectory poses.")] = None,
+    trajectory: Annotated[
+        int | None, Query(ge=0, le=DB_INT_MAX, description="Only the last N trajectory poses.")
+    ] = None,
 ) -> MapOut:
     """The whole current map (version 0 and empty before the first upload)."""
     return await run_in_threadpool(_read, state, robot_id, trajectory)
@@ -110,12 +112,12 @@ def _sse(event: str, data: Any, version: int) -> bytes:
     "/stream", response_class=StreamingResponse, responses={200: {"content": {"text/event-stream": {}}}}
 )
 async def stream_map(
-    robot_id: int,
+    robot_id: DbIdPath,
     request: Request,
     who: RobotAccess,
     state: StateDep,
     trajectory: Annotated[
-        int | None, Query(ge=0, description="Trajectory poses in snapshots (last N).")
+        int | None, Query(ge=0, le=DB_INT_MAX, description="Trajectory poses in snapshots (last N).")
     ] = None,
 ) -> StreamingResponse:
     """Server-sent events: a ``snapshot``, then a ``delta`` per upload (see the module docstring)."""
@@ -224,7 +226,7 @@ def _export(m: MapOut, fmt: str, resolution_m: float) -> bytes:
     responses={200: {"content": {media: {} for media in _MEDIA_TYPES.values()}}},
 )
 async def export_map(
-    robot_id: int,
+    robot_id: DbIdPath,
     who: RobotAccess,
     state: StateDep,
     fmt: Annotated[

@@ -23,7 +23,7 @@ from server.deps import AppState, OperatorDep, Principal, RobotSelf, StateDep, r
 from server.errors import ConflictError, InvalidRequestError, NotFoundError, TooLargeError
 from server.models import KernelArtifact, Message, Robot, utcnow
 from server.routers.robots import get_robot
-from server.schemas import AckIn, MessageList, MessageOut
+from server.schemas import DB_INT_MAX, AckIn, DbIdPath, MessageList, MessageOut
 from shared.control import (
     MAX_MESSAGE_BYTES,
     ControlMessage,
@@ -109,7 +109,7 @@ def _queue(
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=MessageOut, openapi_extra=XML_BODY)
 async def post_message(
-    robot_id: int, request: Request, who: OperatorDep, state: StateDep
+    robot_id: DbIdPath, request: Request, who: OperatorDep, state: StateDep
 ) -> dict[str, object]:
     """Queue a control message (XML body, SPEC §6); 422 names the element and the reason if it is rejected."""
     body = await request.body()
@@ -146,11 +146,11 @@ def _read(state: AppState, robot_id: int, after: int, limit: int) -> dict[str, o
 
 @router.get("", response_model=MessageList)
 async def list_messages(
-    robot_id: int,
+    robot_id: DbIdPath,
     request: Request,
     who: Annotated[Principal, Depends(robot_access)],
     state: StateDep,
-    after: Annotated[int, Query(ge=0, description="Return messages with seq above this.")] = 0,
+    after: Annotated[int, Query(ge=0, le=DB_INT_MAX, description="Return messages with seq above this.")] = 0,
     wait: Annotated[float, Query(ge=0, description="Long-poll: wait up to this many seconds.")] = 0.0,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> dict[str, object]:
@@ -171,7 +171,7 @@ async def list_messages(
 
 @router.get("/{seq}", response_model=MessageOut)
 def read_message(
-    robot_id: int, seq: int, who: Annotated[Principal, Depends(robot_access)], state: StateDep
+    robot_id: DbIdPath, seq: DbIdPath, who: Annotated[Principal, Depends(robot_access)], state: StateDep
 ) -> dict[str, object]:
     with state.db.read() as s:
         m = s.scalars(select(Message).where(Message.robot_id == robot_id, Message.seq == seq)).first()
@@ -200,7 +200,7 @@ def _ack(state: AppState, robot_id: int, seq: int, outcome: str, reason: str | N
 
 @router.post("/{seq}/ack", response_model=MessageOut)
 async def acknowledge(
-    robot_id: int, seq: int, body: AckIn, who: RobotSelf, state: StateDep
+    robot_id: DbIdPath, seq: DbIdPath, body: AckIn, who: RobotSelf, state: StateDep
 ) -> dict[str, object]:
     """The robot reports what became of message ``seq``: applied, or rejected with the reason."""
     out = await run_in_threadpool(_ack, state, robot_id, seq, body.outcome, body.reason)

@@ -14,7 +14,7 @@ from server.audit import record
 from server.deps import AppState, OperatorDep, Principal, StateDep, robot_access
 from server.errors import ConflictError, NotFoundError
 from server.models import Message, Robot, utcnow
-from server.schemas import RobotCreate, RobotCreated, RobotOut
+from server.schemas import DbIdPath, RobotCreate, RobotCreated, RobotOut
 from server.security import ROBOT_PREFIX, hash_token, new_token
 
 __all__ = ["get_robot", "router"]
@@ -85,14 +85,16 @@ def list_robots(who: OperatorDep, state: StateDep) -> list[RobotOut]:
 
 
 @router.get("/{robot_id}", response_model=RobotOut)
-def read_robot(robot_id: int, who: Annotated[Principal, Depends(robot_access)], state: StateDep) -> RobotOut:
+def read_robot(
+    robot_id: DbIdPath, who: Annotated[Principal, Depends(robot_access)], state: StateDep
+) -> RobotOut:
     with state.db.read() as s:
         robot = get_robot(s, robot_id)
         return _out(state, robot, _pending(s, [robot_id]).get(robot_id, 0))
 
 
 @router.delete("/{robot_id}", status_code=status.HTTP_204_NO_CONTENT)
-def delete_robot(robot_id: int, who: OperatorDep, state: StateDep) -> None:
+def delete_robot(robot_id: DbIdPath, who: OperatorDep, state: StateDep) -> None:
     """Forget a robot, its messages and its map; its token stops working."""
     with state.db.session() as s:
         robot = get_robot(s, robot_id)

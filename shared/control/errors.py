@@ -2,14 +2,19 @@
 
 A rejected message raises :class:`ControlMessageError`; its text names the element (with its 1-based line in
 the document when known) and the reason, e.g. ``line 9 <minpts>: 'fifteen' is not an integer``. The robot
-keeps running on the settings it had and reports ``reason`` in its acknowledgement (SPEC §9).
+keeps running on the settings it had and reports ``reason`` in its acknowledgement (SPEC §9). A reason
+longer than :data:`MAX_REASON_CHARS` (a value quoted from a 64 KiB message) is cut in the middle, so an
+error never echoes a hostile document back into logs and acknowledgements.
 """
 
 from __future__ import annotations
 
 from shared.errors import LinemapError
 
-__all__ = ["ControlMessageError"]
+__all__ = ["MAX_REASON_CHARS", "ControlMessageError"]
+
+#: Longest ``reason`` kept (characters); longer ones keep their start and end.
+MAX_REASON_CHARS = 300
 
 
 class ControlMessageError(LinemapError, ValueError):
@@ -20,6 +25,7 @@ class ControlMessageError(LinemapError, ValueError):
     """
 
     def __init__(self, reason: str, *, element: str | None = None, line: int | None = None) -> None:
+        reason = _clip(reason)
         self.reason = reason
         self.element = element
         self.line = line
@@ -28,6 +34,14 @@ class ControlMessageError(LinemapError, ValueError):
 
     def __reduce__(self) -> tuple[object, ...]:
         return (_rebuild, (self.reason, self.element, self.line))
+
+
+def _clip(reason: str) -> str:
+    """``reason`` cut to at most :data:`MAX_REASON_CHARS` characters, its start and end kept. O(len)."""
+    if len(reason) <= MAX_REASON_CHARS:
+        return reason
+    head, tail = reason[:170], reason[-100:]
+    return f"{head}...({len(reason) - 270} characters cut)...{tail}"
 
 
 def _rebuild(reason: str, element: str | None, line: int | None) -> ControlMessageError:

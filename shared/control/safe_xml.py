@@ -1,7 +1,9 @@
 """Load untrusted XML safely (SPEC §6): bounded size, UTF-8 only, no DTD, no entities, no network.
 
 Checked in this order: input larger than :data:`MAX_MESSAGE_BYTES` is refused before anything else; the
-bytes must be UTF-8 (a declared encoding other than UTF-8/ASCII is refused); any ``<!DOCTYPE`` or
+bytes must be UTF-8 without NUL (a declared encoding other than UTF-8/ASCII is refused; so is a NUL byte,
+which XML never allows and which is how UTF-16/UTF-32 without a byte-order mark look: lxml would guess such
+an encoding and the DTD check below would not see ``<!DOCTYPE``); any ``<!DOCTYPE`` or
 ``<!ENTITY`` is refused before lxml sees the document, so "billion laughs" and external ``SYSTEM`` entities
 are never expanded or fetched; lxml then parses with entity resolution, DTD loading and network access off,
 ``huge_tree`` off (libxml2's depth and size limits stay on), dropping comments and processing instructions.
@@ -51,6 +53,11 @@ def _checked_bytes(data: bytes | str) -> bytes:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ControlMessageError(f"byte {exc.start} is not UTF-8: control messages are UTF-8") from None
+    nul = raw.find(b"\x00")
+    if nul >= 0:
+        raise ControlMessageError(
+            f"byte {nul} is NUL: control messages are UTF-8 text (no NUL, no UTF-16 or UTF-32)"
+        )
     declared = _ENCODING.match(text)
     if declared and declared.group(1).lower().replace("_", "-") not in _UTF8:
         raise ControlMessageError(

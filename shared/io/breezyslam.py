@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from shared.errors import InvalidInputError
 from shared.io.errors import LogFormatError
 from shared.io.reader import LogInfo, LogReader, parse_floats
 from shared.odometry import MINES_ROVER, DiffDrive
@@ -86,7 +87,15 @@ class BreezySlamReader(LogReader):
                 no_return = ~(ranges_mm > URG_ERROR_MAX_MM)
             ranges_m = ranges_mm / 1000.0
             ranges_m[no_return] = np.nan
-            pose = Pose2D() if pose is None else robot.step_ticks(pose, left - q_left, right - q_right)
+            try:
+                pose = Pose2D() if pose is None else robot.step_ticks(pose, left - q_left, right - q_right)
+            except (InvalidInputError, ValueError):  # tick steps near 1e308: no finite pose
+                raise LogFormatError(
+                    path,
+                    line_no,
+                    f"BreezySLAM encoder ticks Q1 = {fields[2]}, Q2 = {fields[3]} after {q_left:g}, "
+                    f"{q_right:g}: the odometry step is not a finite number",
+                ) from None
             q_left, q_right = left, right
             yield Scan(
                 stamp_us / 1e6,

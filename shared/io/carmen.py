@@ -216,8 +216,18 @@ class CarmenReader(LogReader):
             self._flaser_geometry[beam_count] = layout
         return layout
 
-    def _remember_offset(self, laser: tuple[float, float, float], robot: Pose2D) -> None:
-        rel = robot.between(Pose2D(*laser))
+    def _remember_offset(
+        self, line_no: int, name: str, laser: tuple[float, float, float], robot: Pose2D
+    ) -> None:
+        try:
+            rel = robot.between(Pose2D(*laser))
+        except InvalidInputError:  # finite poses whose difference overflows (|x| near 1e308)
+            raise LogFormatError(
+                self.path,
+                line_no,
+                f"{name} laser pose {laser} is too far from robot pose {robot.as_tuple()}: their offset is "
+                "not a finite number",
+            ) from None
         self._laser_offset = Pose2D(
             round(rel.x_m, _OFFSET_DECIMALS) + 0.0,
             round(rel.y_m, _OFFSET_DECIMALS) + 0.0,
@@ -259,7 +269,7 @@ class CarmenReader(LogReader):
         x, y, th, ox, oy, oth, stamp = tail[:7].tolist()
         robot = Pose2D(ox, oy, oth)
         if self._laser_offset is None:
-            self._remember_offset((x, y, th), robot)
+            self._remember_offset(line_no, name, (x, y, th), robot)
         start, inc, max_range = self._flaser_layout(n)
         ranges = _no_return_to_nan(nums[:n], min(max_range, SICK_ERROR_MIN_M))
         return Scan(stamp, start, inc, 0.0, max_range, ranges, odometry=robot)
@@ -279,7 +289,7 @@ class CarmenReader(LogReader):
                 f"(expected at least {n + 24} fields: {ROBOTLASER_LAYOUT})",
             )
         token = fields[9 + n]
-        n_rem = int(token) if token.isdigit() else -1
+        n_rem = int(token) if token.isascii() and token.isdigit() else -1  # not '²': isdigit, no int
         if n_rem < 0:
             raise LogFormatError(
                 path,
@@ -311,6 +321,13 @@ class CarmenReader(LogReader):
         nums = parse_floats(path, line_no, fields, spans, name_of)
         self._finite_or_raise(line_no, fields, nums[:5], 2, _ROBOTLASER_HEAD[1:])
         start, _fov, res, max_range, _accuracy = nums[:5].tolist()
+        if not math.isfinite(start + res * max(n - 1, 0)):
+            raise LogFormatError(
+                path,
+                line_no,
+                f"{name} start_angle {fields[2]!r} + {n - 1} x angular_res {fields[4]!r}: expected beam "
+                "angles that are finite numbers",
+            )
         if res == 0.0 or max_range <= 0.0:
             i, what = (4, "a non-zero angle") if res == 0.0 else (5, "a positive range (m)")
             raise LogFormatError(
@@ -321,7 +338,7 @@ class CarmenReader(LogReader):
         lx, ly, lth, rx, ry, rth = tail[:6].tolist()
         robot = Pose2D(rx, ry, rth)
         if self._laser_offset is None:
-            self._remember_offset((lx, ly, lth), robot)
+            self._remember_offset(line_no, name, (lx, ly, lth), robot)
         intensities = None
         if n_rem:
             if n_rem == n:

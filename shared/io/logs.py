@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import re
+import zlib
 from pathlib import Path
 
 from shared.io.breezyslam import FIRST_RANGE_FIELD, BreezySlamReader
@@ -90,7 +91,7 @@ def _sniff(path: Path) -> str:
                     return "breezyslam"
                 if seen >= _SNIFF_LINES:
                     break
-    except (OSError, EOFError, UnicodeDecodeError) as exc:
+    except (OSError, EOFError, UnicodeDecodeError, zlib.error) as exc:
         raise UnknownLogFormatError(f"{path}: cannot read it as text to tell its format ({exc})") from exc
     raise UnknownLogFormatError(
         f"{path}: cannot tell the log format from its name or first lines: expected a CARMEN log "

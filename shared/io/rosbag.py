@@ -357,7 +357,13 @@ class RosbagReader(LogReader):
             raise RosbagMessageError(f"{self.path.name}: {conn.topic} message {n}: {exc}") from exc
 
     def _with_odometry(self, track: OdometryTrack, stamp_ns: int, scan: Scan) -> Scan:
-        found = track.pose_at(stamp_ns)
+        try:
+            found = track.pose_at(stamp_ns)
+        except InvalidInputError as exc:  # finite poses whose interpolation overflows (|x| near 1e308)
+            raise RosbagMessageError(
+                f"{self.path.name}: scan at {scan.stamp_s:.9f} s: the odometry interpolated at its stamp is "
+                f"not finite ({exc})"
+            ) from exc
         if found is None:
             return scan
         pose, inside = found

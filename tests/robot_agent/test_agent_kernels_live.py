@@ -100,7 +100,7 @@ def _start(live: Live, tmp_path: Path, key: KeyPair) -> tuple[AgentProcess, int,
         server=live.base_url,
         robot_id=rid,
         token=token,
-        extra=["--rate", "20", "--trust-key", key.public_b64],
+        extra=["--rate", "20", "--laps", "0", "--trust-key", key.public_b64],  # patrol until stopped
     )
     wait_for("first map", lambda: op.get(f"/robots/{rid}").json()["map_version"] > 0)
     return agent, rid, op

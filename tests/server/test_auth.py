@@ -1,16 +1,25 @@
-"""Who may call what: an endpoint-by-credential matrix generated from the route table, sessions, tokens,
-body limits and the audit log, all through the real server."""
+"""Who may call what: an endpoint-by-credential matrix generated from the route table (no credential, an
+unknown token, an expired session, a revoked token, the robot's own token, another robot's token, an operator
+token, an operator session), sessions, tokens, body limits and the audit log, all through the real server.
+The brute-force limit (429) is tested in tests/reliability/test_rel_auth_limits.py."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import timedelta
 from typing import Any
 
 import pytest
 from fastapi.routing import APIRoute
+from sqlalchemy import select
 
 from server.app import ROUTERS
-from server.deps import get_principal, require_operator, robot_access, robot_self
+from server.deps import SESSION_COOKIE, get_principal, require_operator, robot_access, robot_self
+from server.models import Session as DbSession
+from server.models import utcnow
+from server.security import hash_token
 from tests.server.live import Live
 
 PUBLIC = {
@@ -67,13 +76,27 @@ def _fill(path: str, robot_id: int) -> str:
     )
 
 
-def _call(live: Live, token: str | None, method: str, path: str) -> int:
-    with live.client(token) as c:
+def _call(
+    live: Live, token: str | None, method: str, path: str, cookies: dict[str, str] | None = None
+) -> tuple[int, str]:
+    """(status, detail of an error) of one request. The brute-force limit is reset first: the matrix makes
+    one failed attempt per route on purpose (the limit has its own tests in
+    tests/reliability/test_rel_auth_limits.py)."""
+    live.state.limiter.clear()
+    with live.client(token, cookies=cookies) as c:
         url = path.removeprefix("/api/v1") if path.startswith("/api/v1") else live.base_url + path
         if method == "GET" and path.endswith("/stream"):
             with c.stream(method, url, timeout=10) as r:
-                return r.status_code
-        return c.request(method, url, params={"wait": 0}).status_code
+                return r.status_code, (_detail(r.read()) if r.status_code >= 400 else "")
+        r = c.request(method, url, params={"wait": 0})
+        return r.status_code, (_detail(r.content) if r.status_code >= 400 else "")
+
+
+def _detail(body: bytes) -> str:
+    try:
+        return str(json.loads(body).get("detail", ""))
+    except (ValueError, AttributeError):
+        return body.decode(errors="replace")
 
 
 def test_every_route_is_protected_or_listed_public(live: Live) -> None:
@@ -84,40 +107,102 @@ def test_every_route_is_protected_or_listed_public(live: Live) -> None:
     assert served == {(m, p) for m, p, _ in routes(live)}
 
 
-def test_matrix_without_credentials(live: Live) -> None:
-    rid, _ = live.new_robot()
+# --------------------------------------------------------------------- the endpoint-by-credential matrix
+#: Every credential a caller can present. "other-robot" is robot B's valid token on robot A's routes.
+CREDENTIALS = [
+    "none",
+    "unknown-token",
+    "expired-session",
+    "revoked-token",
+    "own-robot",
+    "other-robot",
+    "operator-token",
+    "operator-session",
+]
+_REFUSED = {"none", "unknown-token", "expired-session", "revoked-token"}
+
+
+def expected(credential: str, access: str) -> str | None:
+    """What ``credential`` must get on a route with ``access``: "401", "403", "ok" (neither), or None
+    (public routes: not checked)."""
+    if access == "public":
+        return None
+    if credential in _REFUSED:
+        return "401"
+    if credential == "own-robot":
+        return "403" if access == "operator" else "ok"
+    if credential == "other-robot":
+        return "ok" if access == "any" else "403"
+    return "403" if access == "robot-self" else "ok"  # an operator
+
+
+@dataclass
+class Caller:
+    """How to present one credential, and the robot whose routes are called."""
+
+    token: str | None
+    cookies: dict[str, str] | None
+    robot_id: int
+    detail: str  # part of the detail every 401/403 of this credential must contain
+
+
+def _login(live: Live, token: str) -> str:
+    with live.client() as browser:
+        r = browser.post("/session", json={"token": token})
+        assert r.status_code == 200, r.text
+        return str(r.cookies[SESSION_COOKIE])
+
+
+def _caller(live: Live, credential: str) -> Caller:
+    rid, own = live.new_robot()
+    if credential == "none":
+        return Caller(None, None, rid, "no credential")
+    if credential == "unknown-token":
+        return Caller("lmo_not-a-real-token", None, rid, "unknown or revoked token")
+    if credential == "expired-session":
+        sid = _login(live, live.admin_token)
+        with live.state.db.session() as s:  # white-box: the session's lifetime ends now
+            row = s.scalars(select(DbSession).where(DbSession.token_hash == hash_token(sid))).one()
+            row.expires_at = utcnow() - timedelta(seconds=1)
+        live.state.forget_credentials()
+        return Caller(None, {SESSION_COOKIE: sid}, rid, "session expired or unknown: log in again")
+    if credential == "revoked-token":
+        with live.operator() as op:
+            made = op.post("/tokens", json={"name": "revoked"}).json()
+            assert op.delete(f"/tokens/{made['id']}").status_code == 204
+        return Caller(made["token"], None, rid, "unknown or revoked token")
+    if credential == "own-robot":
+        return Caller(own, None, rid, "this route is for operators")
+    if credential == "other-robot":
+        _other, theirs = live.new_robot()
+        return Caller(theirs, None, rid, "not robot")  # "...belongs to robot B, not robot A" / "operators"
+    if credential == "operator-token":
+        return Caller(live.admin_token, None, rid, f"only robot {rid}'s own token")
+    assert credential == "operator-session"
+    return Caller(
+        None, {SESSION_COOKIE: _login(live, live.admin_token)}, rid, f"only robot {rid}'s own token"
+    )
+
+
+@pytest.mark.parametrize("credential", CREDENTIALS)
+def test_matrix(live: Live, credential: str) -> None:
+    """Every route (from the route table) with every credential: refused with 401 or 403 and the reason,
+    or let through, as ``expected`` says; a new route is in the matrix by construction."""
+    caller = _caller(live, credential)
+    wrong = []
     for method, path, access in routes(live):
-        if access == "public":
+        want = expected(credential, access)
+        if want is None:
             continue
-        assert _call(live, None, method, _fill(path, rid)) == 401, (method, path)
-        assert _call(live, "lmo_not-a-real-token", method, _fill(path, rid)) == 401, (method, path)
-
-
-def test_matrix_robot_tokens(live: Live) -> None:
-    rid, token = live.new_robot()
-    other, _ = live.new_robot()
-    for method, path, access in routes(live):
-        own = _call(live, token, method, _fill(path, rid))
-        theirs = _call(live, token, method, _fill(path, other))
-        if access == "operator":
-            assert own == 403, (method, path)
-        elif access in ("robot-self", "robot-or-operator"):
-            assert own not in (401, 403), (method, path, own)
-            assert theirs == 403, (method, path, theirs)
-        elif access == "any":
-            assert own not in (401, 403), (method, path, own)
-
-
-def test_matrix_operator(live: Live) -> None:
-    rid, _ = live.new_robot()
-    for method, path, access in routes(live):
-        if (method, path) == ("DELETE", "/api/v1/session"):
-            continue
-        code = _call(live, live.admin_token, method, _fill(path, rid))
-        if access == "robot-self":
-            assert code == 403, (method, path)
-        else:
-            assert code not in (401, 403), (method, path, code)
+        code, detail = _call(live, caller.token, method, _fill(path, caller.robot_id), caller.cookies)
+        ok = code not in (401, 403) if want == "ok" else code == int(want)
+        if want == "403" and credential == "other-robot" and access == "operator":
+            ok = ok and "this route is for operators" in detail
+        elif want != "ok":
+            ok = ok and caller.detail in detail
+        if not ok:
+            wrong.append((method, path, access, want, code, detail))
+    assert wrong == [], f"{credential}: (method, path, access, expected, got, detail): {wrong}"
 
 
 def test_session_cookie_login_and_logout(live: Live) -> None:

@@ -1,0 +1,142 @@
+"""Anti-rollback floors (SPEC §9: a robot never runs a version lower than one it has already run for the
+same name unless a message says rollback): the rule itself, its record in the Robot DB (kept across
+restarts, only ever raised, backfilled by the migration), without processes. The same rule against a real
+server and agent is in test_rel_supply_live.py."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+import pytest
+from alembic import command
+from alembic.config import Config
+from sqlalchemy import create_engine
+
+from robot_agent.control import Prepared, apply_message, kernels_run, pin_versions, refuse_downgrades
+from robot_agent.store import MIGRATIONS_DIR, RobotDB
+from shared.control import parse_message
+from shared.errors import LinemapError
+from shared.pipeline import KernelChoice, PipelineConfig
+
+SHA = "ab" * 32
+FLOOR = {("noise-removal", "dbscan"): "1.2.0"}
+
+
+def msg(body: str) -> bytes:
+    return f"<xml><message>{body}</message></xml>".encode()
+
+
+def op(kind: str, version: str) -> str:
+    sha = f' sha256="{SHA}"' if kind in ("install", "update") else ""
+    return f'<kernel-{kind} stage="noise-removal" name="dbscan" version="{version}"{sha}/>'
+
+
+def running(version: str) -> PipelineConfig:
+    """The default pipeline, pinned, with dbscan at ``version`` (built without registry checks)."""
+    base = pin_versions(PipelineConfig())
+    return base.model_copy(update={"noise_removal": (KernelChoice(name="dbscan", version=version),)})
+
+
+@pytest.mark.parametrize("kind", ["install", "update"])
+def test_install_or_update_below_the_floor_is_refused_naming_both_versions(kind: str) -> None:
+    why = refuse_downgrades(parse_message(msg(op(kind, "1.1.0"))), FLOOR)
+    assert why == (
+        f"<kernel-{kind}> noise-removal/dbscan 1.1.0: version 1.1.0 is lower than 1.2.0, which this robot"
+        " has already run (rollback attack?); send <kernel-rollback> to go back to 1.1.0 on purpose"
+    )
+
+
+@pytest.mark.parametrize("version", ["1.2.0", "1.2.1", "2.0.0"])
+def test_the_floor_itself_and_higher_versions_pass(version: str) -> None:
+    assert refuse_downgrades(parse_message(msg(op("update", version))), FLOOR) is None
+
+
+def test_other_kernels_and_unknown_floors_pass() -> None:
+    other = '<kernel-update stage="clustering" name="kmeans" version="0.1.0" sha256="' + SHA + '"/>'
+    assert refuse_downgrades(parse_message(msg(other)), FLOOR) is None
+    assert refuse_downgrades(parse_message(msg(op("update", "0.0.1"))), {}) is None
+
+
+def test_an_explicit_rollback_may_go_below_and_may_bring_its_version() -> None:
+    assert refuse_downgrades(parse_message(msg(op("rollback", "1.0.0"))), FLOOR) is None
+    both = parse_message(msg(op("install", "1.1.0") + op("rollback", "1.1.0")))
+    assert refuse_downgrades(both, FLOOR) is None
+    # ... but only to the version it names
+    mixed = parse_message(msg(op("install", "1.0.5") + op("rollback", "1.1.0")))
+    assert "1.0.5 is lower than 1.2.0" in (refuse_downgrades(mixed, FLOOR) or "")
+
+
+def test_a_configuration_may_not_newly_select_a_version_below_the_floor() -> None:
+    chosen = parse_message(msg("<noise-removal><dbscan><version>1.0.0</version></dbscan></noise-removal>"))
+    new = running("1.0.0")
+    why = refuse_downgrades(chosen, FLOOR, running("1.2.0"), new)
+    assert why is not None and why.startswith("<noise-removal> noise-removal/dbscan 1.0.0: version 1.0.0")
+    # Already running it (after an explicit rollback): other settings may change without a new rollback.
+    mode_only = parse_message(msg("<mode>offline</mode>"))
+    assert refuse_downgrades(mode_only, FLOOR, running("1.0.0"), new) is None
+
+
+def test_apply_message_refuses_before_building_anything() -> None:
+    current = pin_versions(PipelineConfig())  # built-in dbscan 1.0.0
+    built: list[PipelineConfig] = []
+    prepared = Prepared(7, parse_message(msg(op("update", "1.0.0"))))
+    with pytest.raises(LinemapError, match=r"1\.0\.0 is lower than 1\.2\.0.*rollback attack\?"):
+        apply_message(prepared, current, lambda c: None, lambda *k: None, built.append, floors=FLOOR)
+    assert built == []
+    rollback = Prepared(8, parse_message(msg(op("rollback", "1.0.0"))))
+    config = apply_message(rollback, current, lambda c: None, lambda *k: None, built.append, floors=FLOOR)
+    assert built == [config] and ("noise-removal", "dbscan", "1.0.0") in kernels_run(config)
+
+
+def test_floors_only_rise_and_survive_reopening(tmp_path: Path) -> None:
+    path = tmp_path / "robot.db"
+    db = RobotDB(path)
+    try:
+        db.record_config({"mode": "online"}, "start-up", [("noise-removal", "dbscan", "1.0.0")])
+        db.record_message(3, "applied", None, {"mode": "online"}, ran=[("noise-removal", "dbscan", "1.10.0")])
+        db.record_message(4, "applied", None, {"mode": "online"}, ran=[("noise-removal", "dbscan", "1.9.0")])
+        db.record_message(5, "rejected", "why", None, ran=[("noise-removal", "dbscan", "9.0.0")])  # not run
+        db.record_config({"mode": "online"}, "automatic rollback", [("noise-removal", "dbscan", "1.0.0")])
+    finally:
+        db.close()
+    db = RobotDB(path)
+    try:
+        assert db.run_floors() == {("noise-removal", "dbscan"): "1.10.0"}  # numeric order, not text
+    finally:
+        db.close()
+    with sqlite3.connect(path) as conn:
+        assert conn.execute("SELECT seq FROM kernels_run").fetchall() == [(3,)]
+
+
+def test_the_migration_backfills_floors_from_the_configuration_history(tmp_path: Path) -> None:
+    path = tmp_path / "robot.db"
+    engine = create_engine(f"sqlite:///{path}")
+    cfg = Config()
+    cfg.set_main_option("script_location", str(MIGRATIONS_DIR))
+    with engine.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.upgrade(cfg, "r0001")  # a Robot DB from before the floors existed
+    engine.dispose()
+    history = [
+        '{"noise_removal": [{"name": "dbscan", "version": "1.1.0"}], "clustering": {"name": "kmeans"}}',
+        '{"noise_removal": [{"name": "dbscan", "version": "1.0.0"}, {"name": "erosion", "version": "1.0.0"}],'
+        ' "segmentation": {"name": "abd-iepf", "version": "1.0.0"}, "scan_matching": null}',
+        '"not a configuration"',
+        "{broken json",
+    ]
+    with sqlite3.connect(path) as conn:
+        conn.executemany(
+            "INSERT INTO config_history (at, seq, config, note) VALUES ('2026-01-01 00:00:00', NULL, ?, '')",
+            [(h,) for h in history],
+        )
+    db = RobotDB(path)  # migrates to head
+    try:
+        assert db.run_floors() == {
+            ("noise-removal", "dbscan"): "1.1.0",
+            ("noise-removal", "erosion"): "1.0.0",
+            ("segmentation", "abd-iepf"): "1.0.0",
+        }
+        assert db.integrity_ok()
+    finally:
+        db.close()
