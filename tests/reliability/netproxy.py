@@ -305,10 +305,12 @@ class FaultProxy:
         if fault == "duplicate":
             self.count(f"{kind}.forwarded", 2)
             if size < 0.5:  # ... the original and its copy at once, or one after the other
+                self.count(f"{kind}.duplicate.concurrent")
                 _first, response = await asyncio.gather(
                     self._forward(request, method), self._forward(request, method)
                 )
             else:
+                self.count(f"{kind}.duplicate.sequential")
                 await self._forward(request, method)
                 response = await self._forward(request, method)
         else:
@@ -323,7 +325,8 @@ class FaultProxy:
             writer.write(raw[: len(raw) // 2])
             await writer.drain()
             return False
+        # counted before the bytes leave: a client that has read the response sees it counted
+        self.count(f"{kind}.delivered")
         writer.write(raw)
         await writer.drain()
-        self.count(f"{kind}.delivered")
         return _headers(response.head).get("connection", "").lower() != "close"

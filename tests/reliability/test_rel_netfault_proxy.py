@@ -70,9 +70,12 @@ def test_each_fault_does_what_it_says(live: Live, fault: str) -> None:
             else:
                 r = _upload(client, rid, 1, "k1")
                 assert r.status_code == 200, r.text
-                # The client sees the second copy's answer: the server recognised the retry.
-                assert r.json() == {"version": 1, "duplicate": fault == "duplicate"}
+                assert r.json()["version"] == 1
         counts = proxy.snapshot()
+        # The client sees the second copy's answer: the server recognised the retry. (When both copies go
+        # at once, which one the server takes second is a race: either answer is right then.)
+        if fault in ("delay", "duplicate") and not counts.get("upload.duplicate.concurrent"):
+            assert r.json() == {"version": 1, "duplicate": fault == "duplicate"}
     records = upload_records(live, rid)
     assert counts["upload.received"] == 1 and counts[f"upload.{fault}"] == 1
     if fault == "drop":
