@@ -13,7 +13,7 @@ import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -64,12 +64,15 @@ class AgentSettings:
     upload_batch: int = 50
     probation_steps: int = 20
     kernel_budget_ms: float = 200.0
+    kernel_hang_s: float = 5.0  # a call of a downloaded kernel longer than this is stuck (see guard.py)
+    kernel_memory_mb: float = 256.0  # ... and so is one that grows the process by more than this
     dry_run_budget_s: float = 5.0
     max_steps: int | None = None
     stay: bool = True
     seed: int = 0
     laps: int = 1
     encoders: str | None = None  # serial device of the wheel-encoder bridge (a ``urg:`` source only)
+    retry_base_s: float = 0.5  # first delay after a network fault (doubles per failure, capped at 30 s)
 
 
 @dataclass
@@ -81,16 +84,32 @@ class AgentStats:
 
 
 class Agent:
-    """One robot's daemon. ``run(stop)`` blocks until the source ends (or ``stop`` is set)."""
+    """One robot's daemon. ``run(stop)`` blocks until the source ends (or ``stop`` is set).
 
-    def __init__(self, settings: AgentSettings, link: ServerLink | None = None) -> None:
+    ``restart``, if given, is called (and does not return) when a downloaded kernel got stuck in service
+    (hung, or allocating without bound: :mod:`robot_agent.guard`), once its rollback is in the Robot DB:
+    the stuck thread cannot be stopped otherwise. The CLI passes one that re-executes the agent in place;
+    it resumes from the Robot DB as after a power cut. Without it the thread is left behind, logged."""
+
+    def __init__(
+        self,
+        settings: AgentSettings,
+        link: ServerLink | None = None,
+        restart: Callable[[str], None] | None = None,
+    ) -> None:
         self.s = settings
+        self._restart = restart
+        self._stuck: str | None = None
         self.db = RobotDB(settings.db_path)
         self.link = link
         if link is None and settings.server_url:
             self.link = ServerLink(settings.server_url, settings.robot_id, settings.token)
         self.trusted = [load_public_key(k) for k in settings.trusted_keys]
         self.stats = AgentStats()
+        restarted = self.db.get("restart_reason")
+        if restarted:
+            self.stats.last_error = str(restarted)
+            self.db.put("restart_reason", None)
         self._inbox: queue.Queue[Prepared] = queue.Queue()
         self._handed = 0
         self._recent: deque[Scan] = deque(maxlen=10)
@@ -142,7 +161,15 @@ class Agent:
             pass
         prev = self.pipeline.config if hasattr(self, "pipeline") else None
         REGISTRY.register(
-            guarded(cls, self._fallback_for(cls, prev), self._on_kernel_failure, self.s.kernel_budget_ms)
+            guarded(
+                cls,
+                self._fallback_for(cls, prev),
+                self._on_kernel_failure,
+                self.s.kernel_budget_ms,
+                hang_s=self.s.kernel_hang_s,
+                memory_mb=self.s.kernel_memory_mb,
+                on_stuck=self._on_kernel_stuck,
+            )
         )
         self._probation[key] = self.s.probation_steps
 
@@ -169,6 +196,9 @@ class Agent:
 
     def _on_kernel_failure(self, cls: type[Kernel[Any]], reason: str) -> None:
         self._failures.append((cls, reason))
+
+    def _on_kernel_stuck(self, cls: type[Kernel[Any]], reason: str) -> None:
+        self._stuck = reason
 
     # ------------------------------------------------------------------ main loop
     def run(self, stop: threading.Event) -> None:
@@ -261,11 +291,27 @@ class Agent:
             cls, reason = self._failures[0]
             self._failures.clear()
             self._roll_back(cls, reason)
+            if self._stuck is not None:
+                self._after_stuck(self._stuck)
             return
         for key in list(self._probation):
             self._probation[key] -= 1
             if self._probation[key] <= 0:
                 del self._probation[key]
+
+    def _after_stuck(self, reason: str) -> None:
+        """A kernel's call is stuck on its thread (rolled back already, recorded in the Robot DB)."""
+        self._stuck = None
+        if self._restart is None:
+            log.error("%s: its thread cannot be stopped and stays busy until the agent restarts", reason)
+            return
+        log.error(
+            "%s: restarting the agent in place to free its thread (it resumes from the Robot DB)", reason
+        )
+        # The operator keeps seeing why: the next process reports this as its last error.
+        why = f"{self.stats.last_error}; the agent restarted itself to free the thread"
+        self.db.put("restart_reason", why)
+        self._restart(reason)
 
     def _roll_back(self, cls: type[Kernel[Any]], reason: str) -> None:
         """Put the configuration before ``cls`` came in back in force (between two steps)."""
@@ -418,7 +464,7 @@ class Agent:
     # ------------------------------------------------------------------ network threads
     def _poller(self, stop: threading.Event) -> None:
         assert self.link is not None
-        backoff, download_backoff = Backoff(), Backoff()
+        backoff, download_backoff = Backoff(self.s.retry_base_s), Backoff(self.s.retry_base_s)
         while not stop.is_set():
             after = max(self.db.applied_seq(), self._handed)
             try:
@@ -445,7 +491,7 @@ class Agent:
 
     def _uploader(self, stop: threading.Event) -> None:
         assert self.link is not None
-        backoff = Backoff()
+        backoff = Backoff(self.s.retry_base_s)
         while True:
             try:
                 busy = self._send_acks() | self._send_maps()

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import logging
+import os
 import signal
+import sys
 import threading
 import tomllib
 from pathlib import Path
@@ -37,11 +39,29 @@ def _file_settings(path: Path | None) -> dict[str, Any]:
         "config",
         "laps",
         "encoders",
+        "retry_base",
     }
     unknown = sorted(set(data) - allowed)
     if unknown:
         raise LinemapError(f"agent file {path}: unknown keys {unknown}; expected some of {sorted(allowed)}")
     return data
+
+
+def _retry_base(value: Any, path: Path | None) -> float:
+    """``retry_base`` from the agent file: a number of seconds in [0.001, 60]."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0.001 <= value <= 60:
+        raise LinemapError(f"agent file {path}: retry_base = {value!r}: expected seconds in [0.001, 60]")
+    return float(value)
+
+
+def restart_in_place(reason: str) -> None:
+    """Replace this process by a new ``linemap agent`` with the same arguments (same PID: a supervisor
+    sees no exit). Used when a kernel got stuck in service: its thread cannot be stopped otherwise. What
+    was in flight is resumed from the Robot DB, exactly as after a power cut."""
+    typer.echo(f"linemap agent: restarting in place: {reason}", err=True)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(sys.executable, [sys.executable, *sys.orig_argv[1:]])
 
 
 def _key_text(value: str) -> str:
@@ -99,6 +119,15 @@ def agent_cmd(
     exit_at_end: Annotated[
         bool, typer.Option(help="Exit when the source ends (default: keep serving).")
     ] = False,
+    retry_base: Annotated[
+        float | None,
+        typer.Option(
+            min=0.001,
+            max=60,
+            help="First retry delay after a network fault, s (doubles per failure up to 30 s, full jitter) "
+            "[0.5].",
+        ),
+    ] = None,
 ) -> None:
     """Map from SOURCE and follow the server: apply control messages between steps, hot-swap verified
     kernels, upload every map version (kept in the Robot DB until the server has it)."""
@@ -128,10 +157,11 @@ def agent_cmd(
         stay=not exit_at_end,
         laps=laps if laps is not None else int(f.get("laps", 1)),
         encoders=encoders or f.get("encoders"),
+        retry_base_s=retry_base if retry_base is not None else _retry_base(f.get("retry_base", 0.5), file),
     )
     if settings.allow_unsigned:
         typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)
-    agent = Agent(settings)
+    agent = Agent(settings, restart=restart_in_place)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -89,6 +89,7 @@ class Case:
     tamper: str | None = None  # "bytes" (after signing) or "bytes+digest" (the stored sha256 too)
     any_of: tuple[str, ...] = ()  # the reason must contain one of these too (when there is more than one)
     soak: bool = False  # only in make soak: the fast part keeps one case of each kind
+    restarts: bool = False  # stuck in service: the agent restarts itself in place to free the thread
 
 
 CASES = [
@@ -150,6 +151,27 @@ CASES = [
         "nan",
         after=40,
     ),
+    # Stuck in service: the step is answered by the kernel it replaced, the rollback is recorded, and the
+    # agent re-executes itself (same PID) because the stuck thread cannot be stopped; it resumes.
+    Case(
+        "hangs-in-service",
+        "3.0.3",
+        "rolled-back",
+        ("dbscan 3.0.3 did not return within 5 s (hung)",),
+        "hangs",
+        after=40,
+        restarts=True,
+    ),
+    Case(
+        "allocates-in-service",
+        "3.0.4",
+        "rolled-back",
+        ("dbscan 3.0.4 allocated", "in one call (and counting), over its 256 MB limit"),
+        "allocates",
+        after=40,
+        restarts=True,
+        soak=True,
+    ),
 ]
 
 
@@ -181,6 +203,8 @@ def _prepare(live: Live, key: KeyPair, case: Case) -> str:
 def test_supply_chain_matrix(live: Live, key: KeyPair, robot: Robot, case: Case) -> None:
     digest = _prepare(live, key, case)
     before = robot.map_version()
+    pid = robot.agent.proc.pid
+    restarts_before = robot.agent.output().count("linemap agent: restarting in place")
     ack = st.send(robot.op, robot.rid, UPDATE.format(v=case.version, d=digest))
     seq = int(ack["seq"])
     if case.outcome == "rolled-back":
@@ -210,6 +234,12 @@ def test_supply_chain_matrix(live: Live, key: KeyPair, robot: Robot, case: Case)
         f"{case.version} reported rejected in the kernel store",
         lambda: st.state(robot.op, robot.rid, case.version) == "rejected",
     )
+    out = robot.agent.output()
+    restarts = out.count("linemap agent: restarting in place") - restarts_before
+    assert restarts == (1 if case.restarts else 0), out[-3000:]
+    assert robot.agent.proc.poll() is None and robot.agent.proc.pid == pid  # the same process, running
+    if case.restarts:
+        assert f"restarting in place: {case.reason[0]}" in out, out[-3000:]
     _record(case, ack, before)
 
 
