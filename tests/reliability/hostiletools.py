@@ -52,7 +52,7 @@ def fast_examples(default: int = 300) -> int:
     return int(os.environ.get(FAST_ENV, default))
 
 
-def soak_examples(default: int = 5000) -> int:
+def soak_examples(default: int = 1000) -> int:
     """Examples per fuzz target in the soak part (``LINEMAP_SOAK_FUZZ_EXAMPLES`` overrides ``default``)."""
     return int(os.environ.get(SOAK_ENV, default))
 
