@@ -184,8 +184,14 @@ class RobotDB:
             return [list(r) for r in rows]
 
     def snapshot(self) -> dict[str, Any] | None:
-        """The whole map at the latest recorded version, read in one transaction (a snapshot upload)."""
-        with self._factory() as s, s.begin():
+        """The whole map at the latest recorded version (a snapshot upload), consistent with that version.
+
+        pysqlite runs SELECTs outside a transaction, so each statement here would see the newest commit:
+        a step recorded in between put its pose into a snapshot labelled one version earlier, and the next
+        delta sent that pose again (the server held one pose more than map versions). So the read holds the
+        writers' lock (this process is the Robot DB's only writer) and the trajectory stops at the
+        snapshot's version."""
+        with self._lock, self._factory() as s, s.begin():
             latest = s.scalar(select(func.max(MapVersion.version)))
             if latest is None:
                 return None
@@ -196,9 +202,9 @@ class RobotDB:
                 select(Wall.segment_id, Wall.x0_m, Wall.y0_m, Wall.x1_m, Wall.y1_m).order_by(Wall.segment_id)
             )
             traj = s.execute(
-                select(PoseRecord.stamp_s, PoseRecord.x_m, PoseRecord.y_m, PoseRecord.theta_rad).order_by(
-                    PoseRecord.version
-                )
+                select(PoseRecord.stamp_s, PoseRecord.x_m, PoseRecord.y_m, PoseRecord.theta_rad)
+                .where(PoseRecord.version <= latest)
+                .order_by(PoseRecord.version)
             )
             return {
                 "version": int(latest),

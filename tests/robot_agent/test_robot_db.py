@@ -70,3 +70,34 @@ def test_message_outcome_and_config_commit_together(tmp_path: Path) -> None:
         assert [(m.seq, m.outcome) for m in db.unacked()] == [(4, "rolled-back"), (5, "rejected")]
     finally:
         db.close()
+
+
+def test_a_snapshot_holds_exactly_its_versions_while_a_step_lands(tmp_path: Path) -> None:
+    """A step committed while a snapshot is read (found by the kill -9 soak: the server ended with one
+    pose more than map versions): the snapshot's trajectory stops at its own version, so the next delta
+    does not send that pose twice. pysqlite runs SELECTs outside a transaction, so each of the snapshot's
+    statements sees the newest commit; here a second writer commits between two of them."""
+    from sqlalchemy import event
+
+    path = tmp_path / "robot.db"
+    db, other = RobotDB(path), RobotDB(path)
+    try:
+        for v in range(1, 6):
+            db.record_step(_step(v))
+        landed: list[int] = []
+
+        def step_lands(_conn: object, _cursor: object, statement: str, *_args: object) -> None:
+            if not landed and "FROM poses" in statement and "max(" not in statement:
+                other.record_step(_step(6))
+                landed.append(6)
+
+        event.listen(db.engine, "before_cursor_execute", step_lands)
+        snap = db.snapshot()
+        event.remove(db.engine, "before_cursor_execute", step_lands)
+        assert landed == [6], "the step was not committed during the snapshot"
+        assert snap is not None
+        assert len(snap["trajectory"]) == snap["version"], (snap["version"], len(snap["trajectory"]))
+        assert [p[0] for p in snap["trajectory"]] == [v * 0.1 for v in range(1, snap["version"] + 1)]
+    finally:
+        other.close()
+        db.close()
