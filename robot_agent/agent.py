@@ -26,6 +26,7 @@ from robot_agent.control import (
     kernels_run,
     pin_versions,
     refuse_downgrades,
+    swap_version,
 )
 from robot_agent.errors import AgentError, KernelRejected, LinkError
 from robot_agent.guard import guarded
@@ -73,6 +74,7 @@ class AgentSettings:
     laps: int = 1
     encoders: str | None = None  # serial device of the wheel-encoder bridge (a ``urg:`` source only)
     retry_base_s: float = 0.5  # first delay after a network fault (doubles per failure, capped at 30 s)
+    stop_grace_s: float = 10.0  # after a stop, the uploader keeps retrying this long to empty the outbox
 
 
 @dataclass
@@ -117,9 +119,12 @@ class Agent:
         self._failures: list[tuple[type[Kernel[Any]], str]] = []
         self._probation: dict[tuple[str, str, str], int] = {}
         self._installed_by: dict[tuple[str, str, str], int] = {}
+        # the configuration each downloaded kernel was installed over
+        self._came_over: dict[tuple[str, str, str], PipelineConfig | None] = {}
         self._previous: PipelineConfig | None = None
         self._wake_uploader = threading.Event()
         self._mapping_over = threading.Event()  # set once the mapping thread recorded its last step
+        self._stop_deadline: float | None = None  # the uploader's last try after a stop
         self._stepped: tuple[int, float] = (0, 0.0)
         self._need_snapshot = False
         self.pipeline = Pipeline(self._initial_config())
@@ -160,6 +165,7 @@ class Agent:
         except LinemapError:
             pass
         prev = self.pipeline.config if hasattr(self, "pipeline") else None
+        self._came_over[key] = prev
         REGISTRY.register(
             guarded(
                 cls,
@@ -178,15 +184,7 @@ class Agent:
 
         def make() -> Kernel[Any]:
             if not cache:
-                version = None
-                if prev is not None:
-                    for c in choices(prev, Stage(cls.stage)):
-                        if c.name == cls.name and c.version != cls.version:
-                            version = c.version
-                builtin = [
-                    i for i in REGISTRY.list(cls.stage) if i.name == cls.name and i.version != cls.version
-                ]
-                version = version or (builtin[0].version if builtin else None)
+                version = _replaced_version(cls, prev)
                 if version is None:
                     raise AgentError(f"no fallback for {cls.name} {cls.version}")
                 cache.append(REGISTRY.create(cls.stage, cls.name, None, version))
@@ -318,7 +316,16 @@ class Agent:
         self.stats.rollbacks += 1
         self.stats.last_error = f"rolled back: {reason}"
         log.error("kernel %s %s failed, rolling back: %s", cls.name, cls.version, reason)
+        key = (str(cls.stage), cls.name, cls.version)
         previous = self._previous or PipelineConfig()
+        if key in kernels_run(previous):
+            # Messages came after the kernel's (its configuration is no longer the one before the last
+            # message): keep what they set and only put back the version the kernel replaced.
+            version = _replaced_version(cls, self._came_over.get(key))
+            if version is not None:
+                previous = swap_version(
+                    self.pipeline.config, Stage(cls.stage), cls.name, cls.version, version
+                )
         try:
             self.pipeline.reconfigure(previous)
         except LinemapError as exc:
@@ -328,7 +335,6 @@ class Agent:
         self.db.record_config(
             previous.model_dump(mode="json"), f"automatic rollback: {reason}"[:200], kernels_run(previous)
         )
-        key = (str(cls.stage), cls.name, cls.version)
         self.db.set_kernel_state(*key, "rejected", reason)
         self._refresh_kernel_states(previous)
         self._probation.pop(key, None)
@@ -493,27 +499,44 @@ class Agent:
         assert self.link is not None
         backoff = Backoff(self.s.retry_base_s)
         while True:
+            over = self._mapping_over.is_set()  # before the round: a step recorded during it is seen next
             try:
                 busy = self._send_acks() | self._send_maps()
                 backoff.reset()
             except LinkError as exc:
                 self.stats.last_error = str(exc)
-                if stop.wait(backoff.next_delay(exc.retry_after_s)):
+                if self._give_up(stop, backoff.next_delay(exc.retry_after_s)):
                     return
                 continue
             except Exception as exc:  # never let the thread die: the robot would go silent while mapping
                 log.exception("upload round failed")
                 self.stats.last_error = f"upload failed: {type(exc).__name__}: {exc}"
-                if stop.wait(backoff.next_delay()):
+                if self._give_up(stop, backoff.next_delay()):
                     return
                 continue
-            # ``stop`` may come while a step is still being recorded: the uploader ends only after the
-            # last one, so a clean stop leaves nothing in the outbox.
-            if stop.is_set() and self._mapping_over.is_set() and not busy:
+            # ``stop`` may come while a step is still being recorded: the uploader ends only after a
+            # round that began once the last one was recorded found nothing to send, so a clean stop
+            # leaves nothing in the outbox.
+            if stop.is_set() and over and not busy:
                 return
             if not busy:
                 self._wake_uploader.wait(self.s.upload_period_s)
                 self._wake_uploader.clear()
+
+    def _give_up(self, stop: threading.Event, delay_s: float) -> bool:
+        """Wait ``delay_s`` before the next try after a failed round; True when the uploader should end.
+        Once stopped it goes on trying for ``stop_grace_s`` (a clean stop should leave nothing in the
+        outbox: one failed round just then, e.g. a connection the network had cut, left the last steps
+        behind), then ends: what is left is sent at the next start."""
+        if not stop.wait(delay_s):
+            return False
+        now = time.monotonic()
+        if self._stop_deadline is None:
+            self._stop_deadline = now + self.s.stop_grace_s
+        if now >= self._stop_deadline:
+            return True
+        time.sleep(min(delay_s, self._stop_deadline - now))
+        return False
 
     def _send_acks(self) -> bool:
         assert self.link is not None
@@ -614,3 +637,14 @@ def _transient(exc: LinkError) -> bool:
 
 def _unregister(stage: str, name: str, version: str) -> None:
     REGISTRY.unregister(stage, name, version)
+
+
+def _replaced_version(cls: type[Kernel[Any]], prev: PipelineConfig | None) -> str | None:
+    """The version of kernel ``cls`` that it replaced: the one ``prev`` (the configuration it was
+    installed over) ran, else a built-in one; None when there is none."""
+    if prev is not None:
+        for c in choices(prev, Stage(cls.stage)):
+            if c.name == cls.name and c.version != cls.version:
+                return c.version
+    builtin = [i for i in REGISTRY.list(cls.stage) if i.name == cls.name and i.version != cls.version]
+    return builtin[0].version if builtin else None

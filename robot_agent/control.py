@@ -40,6 +40,7 @@ __all__ = [
     "pin_versions",
     "refuse_downgrades",
     "retarget",
+    "swap_version",
 ]
 
 #: ``(stage, name) -> version``: the highest version of each kernel the robot has put in force.
@@ -147,6 +148,16 @@ def _replace(
         return config
     new = tuple(fix(c) for c in value) if isinstance(value, tuple) else fix(value)
     return config.model_copy(update={_FIELDS[stage]: new})
+
+
+def swap_version(config: PipelineConfig, stage: Stage, name: str, old: str, new: str) -> PipelineConfig:
+    """``config`` with every ``stage`` choice of kernel ``name`` at version ``old`` set to ``new`` (its
+    parameters kept): how a failed kernel is taken out while later settings stay."""
+    return _replace(
+        config,
+        stage,
+        lambda c: c.model_copy(update={"version": new}) if c.name == name and c.version == old else c,
+    )
 
 
 def pin_versions(config: PipelineConfig, current: PipelineConfig | None = None) -> PipelineConfig:

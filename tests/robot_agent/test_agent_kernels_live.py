@@ -200,3 +200,33 @@ def test_wrong_sha256_and_unsigned_uploads_never_reach_a_robot(live: Live, key: 
             files={"file": ("dbscan.py", GOOD, "text/x-python")},
         )
         assert unsigned.status_code == 422 and "signature" in unsigned.json()["detail"]
+
+
+LATE = FLAKY.replace(b"1.2.0", b"1.4.0").replace(b"Dbscan120", b"Dbscan140").replace(b"> 400", b"> 200")
+
+
+def test_a_rollback_keeps_the_settings_of_later_messages(live: Live, tmp_path: Path, key: KeyPair) -> None:
+    """A kernel that fails after other messages were applied is taken out alone: the robot runs the
+    version it replaced with the later settings kept, and later messages still apply (found by the
+    network-fault soak: the rollback put back the configuration before the *last* message, which still
+    selected the failed kernel, so every later message was rejected with "has no version")."""
+    with live.operator() as op:
+        assert op.post("/keys", json={"name": "ops", "public_key": key.public_b64}).status_code in (201, 409)
+        digest = _upload(op, key, LATE, "1.4.0")
+    agent, rid, op = _start(live, tmp_path, key)
+    try:
+        update = f'<kernel-update stage="noise-removal" name="dbscan" version="1.4.0" sha256="{digest}"/>'
+        assert _send(op, rid, update)["status"] == "applied"
+        seq = op.get(f"/robots/{rid}").json()["last_seq"]
+        assert _send(op, rid, "<n-smax>7</n-smax>")["status"] == "applied"  # after the kernel's message
+        wait_for(
+            "automatic rollback",
+            lambda: op.get(f"/robots/{rid}/messages/{seq}").json()["status"] == "rolled-back",
+            120,
+        )
+        wait_for("dbscan 1.0.0 in use again", lambda: _noise(op, rid) == "dbscan@1.0.0")
+        assert op.get(f"/robots/{rid}").json()["config"]["n_smax"] == 7, "the later setting was lost"
+        later = _send(op, rid, "<n-smax>9</n-smax>")
+        assert later["status"] == "applied", later
+    finally:
+        assert agent.stop() == 0, agent.output()
