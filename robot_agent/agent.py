@@ -312,20 +312,22 @@ class Agent:
         self._restart(reason)
 
     def _roll_back(self, cls: type[Kernel[Any]], reason: str) -> None:
-        """Put the configuration before ``cls`` came in back in force (between two steps)."""
+        """Take ``cls`` out (between two steps): the configuration in force, with the version it replaced
+        (or a built-in one) instead of it; every other setting stays, also those of messages applied after
+        the kernel's. The kernel leaves the registry first, so nothing below can pick it again."""
         self.stats.rollbacks += 1
         self.stats.last_error = f"rolled back: {reason}"
         log.error("kernel %s %s failed, rolling back: %s", cls.name, cls.version, reason)
         key = (str(cls.stage), cls.name, cls.version)
-        previous = self._previous or PipelineConfig()
+        _unregister(*key)
+        previous = self.pipeline.config
         if key in kernels_run(previous):
-            # Messages came after the kernel's (its configuration is no longer the one before the last
-            # message): keep what they set and only put back the version the kernel replaced.
             version = _replaced_version(cls, self._came_over.get(key))
-            if version is not None:
-                previous = swap_version(
-                    self.pipeline.config, Stage(cls.stage), cls.name, cls.version, version
-                )
+            previous = (
+                swap_version(previous, Stage(cls.stage), cls.name, cls.version, version)
+                if version is not None
+                else pin_versions(PipelineConfig())
+            )
         try:
             self.pipeline.reconfigure(previous)
         except LinemapError as exc:
@@ -338,7 +340,6 @@ class Agent:
         self.db.set_kernel_state(*key, "rejected", reason)
         self._refresh_kernel_states(previous)
         self._probation.pop(key, None)
-        _unregister(*key)
         seq = self._installed_by.pop(key, None)
         if seq is not None:
             self.db.mark_rolled_back(seq, reason)
@@ -640,11 +641,14 @@ def _unregister(stage: str, name: str, version: str) -> None:
 
 
 def _replaced_version(cls: type[Kernel[Any]], prev: PipelineConfig | None) -> str | None:
-    """The version of kernel ``cls`` that it replaced: the one ``prev`` (the configuration it was
-    installed over) ran, else a built-in one; None when there is none."""
-    if prev is not None:
-        for c in choices(prev, Stage(cls.stage)):
-            if c.name == cls.name and c.version != cls.version:
+    """A registered version of kernel ``cls`` to go back to: the one ``prev`` (the configuration it was
+    installed over) ran, if it is still registered, else a built-in one; None when there is none."""
+    for c in choices(prev, Stage(cls.stage)):
+        if c.name == cls.name and c.version not in (None, cls.version):
+            try:
+                REGISTRY.get(cls.stage, c.name, c.version)
                 return c.version
+            except LinemapError:
+                break  # taken out meanwhile (rolled back itself)
     builtin = [i for i in REGISTRY.list(cls.stage) if i.name == cls.name and i.version != cls.version]
     return builtin[0].version if builtin else None

@@ -112,6 +112,10 @@ def power_cut(agent: AgentProcess) -> list[str]:
     resource tracker): as a power cut would. The agent dies first, so it records nothing about its
     children's end. Returns what the killed children were (``dry run``, ``resource tracker``, ``other``)."""
     kids = [(pid, cmdline(pid)) for pid in descendants(agent.proc.pid)]
+    # The whole process group at once (the agent runs in its own session): a child spawned just after the
+    # listing above dies too, instead of living on with its parent gone.
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(agent.proc.pid, signal.SIGKILL)
     agent.kill()
     for pid, _ in kids:
         with contextlib.suppress(ProcessLookupError):

@@ -205,9 +205,13 @@ class Crasher:
     def finish(self) -> int:
         """The episode's last run: the agent resumes, catches up and stops cleanly; then the end checks.
         Returns the episode's map versions."""
-        self.agent = self.rig.start()
         rig = self.rig
+        before = _meta(rig, "map_version")
+        self.agent = rig.start()
         try:
+            # Started (signal handlers installed, mapping): a SIGINT before that would meet the interpreter
+            # still importing its site module, which no program can handle.
+            self.wait("the agent maps again", lambda: _meta(rig, "map_version") > before)
             self.wait(
                 "every message dealt with",
                 lambda: all(m["status"] != "queued" for m in server_messages(rig.op, rig.rid)),

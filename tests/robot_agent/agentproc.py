@@ -47,7 +47,10 @@ class AgentProcess:
             args += ["--server", server, "--robot-id", str(robot_id), "--token", token]
         self.log = db.with_suffix(".log")
         self._out = self.log.open("ab")
-        self.proc = subprocess.Popen(args, stdout=self._out, stderr=subprocess.STDOUT, env={**os.environ})
+        # Its own process group: a power cut (tests/reliability) kills it and every child it started at once.
+        self.proc = subprocess.Popen(
+            args, stdout=self._out, stderr=subprocess.STDOUT, env={**os.environ}, start_new_session=True
+        )
 
     def stop(self, timeout_s: float = 60.0) -> int:
         if self.proc.poll() is None:
