@@ -121,7 +121,6 @@ class Agent:
         self._installed_by: dict[tuple[str, str, str], int] = {}
         # the configuration each downloaded kernel was installed over
         self._came_over: dict[tuple[str, str, str], PipelineConfig | None] = {}
-        self._previous: PipelineConfig | None = None
         self._wake_uploader = threading.Event()
         self._mapping_over = threading.Event()  # set once the mapping thread recorded its last step
         self._stop_deadline: float | None = None  # the uploader's last try after a stop
@@ -377,7 +376,6 @@ class Agent:
             )
             return
         self.stats.swaps_ms.append((time.perf_counter() - t0) * 1e3)
-        self._previous = before
         self.db.record_message(
             prepared.seq, "applied", None, config.model_dump(mode="json"), ran=kernels_run(config)
         )
