@@ -98,21 +98,27 @@ class _Blocking(Dbscan):
         return super().apply(points)
 
 
-def _stuck_run(hold_mb: int, memory_mb: float, hang_s: float) -> tuple[list[str], list[str], Any, Any]:
-    _Blocking.release = threading.Event()
-    _Blocking.hold_mb, _Blocking.calls = hold_mb, 0
+def _guard(cls: type[Dbscan], **limits: float) -> tuple[Any, Dbscan, list[str], list[str]]:
+    """``cls`` guarded with a built-in DBSCAN as its fallback and no time budget: the kernel, the fallback,
+    and the lists its failures and stuck reports go to."""
     failures: list[str] = []
     stuck: list[str] = []
     fallback = Dbscan()
     kernel: Any = guarded(
-        _Blocking,
+        cls,
         lambda: fallback,
         lambda c, why: failures.append(why),
         1e9,
-        hang_s=hang_s,
-        memory_mb=memory_mb,
         on_stuck=lambda c, why: stuck.append(why),
+        **limits,
     )()
+    return kernel, fallback, failures, stuck
+
+
+def _stuck_run(hold_mb: int, memory_mb: float, hang_s: float) -> tuple[list[str], list[str], Any, Any]:
+    _Blocking.release = threading.Event()
+    _Blocking.hold_mb, _Blocking.calls = hold_mb, 0
+    kernel, fallback, failures, stuck = _guard(_Blocking, hang_s=hang_s, memory_mb=memory_mb)
     points = _points()
     try:
         first = kernel.apply(points)
@@ -146,16 +152,7 @@ def test_an_exception_from_the_worker_thread_is_a_failure_not_stuck() -> None:
         def apply(self, points: Any) -> NoiseResult:
             raise ZeroDivisionError("planted")
 
-    failures: list[str] = []
-    stuck: list[str] = []
-    fallback = Dbscan()
-    kernel: Any = guarded(
-        Raises,
-        lambda: fallback,
-        lambda c, why: failures.append(why),
-        1e9,
-        on_stuck=lambda c, why: stuck.append(why),
-    )()
+    kernel, _, failures, stuck = _guard(Raises)
     kernel.apply(_points())
     assert failures == ["dbscan 9.0.5 raised ZeroDivisionError: planted"] and stuck == []
 
