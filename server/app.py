@@ -22,12 +22,15 @@ from starlette.requests import cookie_parser
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server import dashboard
+from server.csrf import OriginGuard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState, AuthLimiter, retry_after_header
 from server.errors import ServerError
+from server.mediatype import MediaTypeGuard
 from server.migrate import upgrade
 from server.routers import auth, control, kernels, maps, messages, meta, robots
 from server.settings import Settings
+from server.shutdown import DisconnectOnShutdown, ShutdownSignal
 from server.writer import WriteBatcher
 
 __all__ = ["API_PREFIX", "ROUTERS", "create_app"]
@@ -61,6 +64,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         tasks = [asyncio.create_task(_flush_seen(state)), asyncio.create_task(_checkpoint(state))]
         yield
+        _app.state.shutdown.set()
         for task in tasks:
             task.cancel()
         await run_in_threadpool(state.flush_seen)
@@ -74,10 +78,14 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
         lifespan=lifespan,
     )
     app.state.linemap = state
+    app.state.shutdown = ShutdownSignal()  # set by ``linemap server`` when it begins to stop
     app.add_exception_handler(ServerError, _server_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(HTTPException, _http_error)
     app.add_exception_handler(Exception, _unexpected_error)
+    app.add_middleware(DisconnectOnShutdown, signal=app.state.shutdown)
+    app.add_middleware(MediaTypeGuard, routes=app.router.routes)  # 415 (server.mediatype)
+    app.add_middleware(OriginGuard, trusted_origins=settings.csrf_trusted_origins)  # CSRF (server.csrf)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(AuthFailureLimit, limiter=state.limiter)  # outermost: before the body is read
     for router, prefix in ROUTERS:

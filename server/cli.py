@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import sys
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -57,7 +58,33 @@ def serve(
     typer.echo(f"linemap server on {base}  (API docs: {base}/docs, database: {app.state.linemap.db.url})")
     sys.stdout.flush()  # a pipe or log file must see these lines before the server blocks
     _tune_gc()
-    uvicorn.run(app, host=host, port=port, log_level="warning", timeout_graceful_shutdown=5)
+    config = uvicorn.Config(app, host=host, port=port, log_level="warning", timeout_graceful_shutdown=5)
+    server = _server_class()(config, app.state.shutdown)
+    with contextlib.suppress(KeyboardInterrupt):  # uvicorn re-raises the Ctrl-C it handled, once stopped
+        server.run()
+    if not server.started:
+        typer.echo(f"linemap server could not listen on {host}:{port} (see the message above)", err=True)
+        raise typer.Exit(3)
+
+
+def _server_class() -> Any:
+    """uvicorn's server whose exit handler (SIGINT, SIGTERM) also ends the app's long-polls and streams
+    (:mod:`server.shutdown`), so Ctrl-C stops at once, cleanly, instead of cancelling them after the
+    graceful timeout with a traceback each."""
+    import uvicorn
+
+    from server.shutdown import ShutdownSignal
+
+    class Server(uvicorn.Server):
+        def __init__(self, config: uvicorn.Config, stopping: ShutdownSignal) -> None:
+            super().__init__(config)
+            self.stopping = stopping
+
+        def handle_exit(self, sig: int, frame: object) -> None:
+            self.stopping.set()
+            super().handle_exit(sig, frame)  # type: ignore[arg-type]
+
+    return Server
 
 
 def _tune_gc() -> None:

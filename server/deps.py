@@ -24,6 +24,7 @@ from fastapi import Depends, Request
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import Connection, bindparam, select, update
 
+from server.csrf import CSRF_HEADER, require_csrf_token
 from server.database import Database
 from server.errors import AuthError, ForbiddenError
 from server.hub import Hub
@@ -265,7 +266,9 @@ StateDep = Annotated[AppState, Depends(get_state)]
 
 async def get_principal(request: Request, state: StateDep) -> Principal:
     """The caller, from the bearer token or else the session cookie; 401 when neither is valid. Runs on
-    the event loop; only a cache miss reads the database (in the thread pool)."""
+    the event loop; only a cache miss reads the database (in the thread pool). The cookie holds session
+    ids only, and a state-changing request authenticated by it needs its CSRF token (:mod:`server.csrf`,
+    403 otherwise)."""
     header = request.headers.get("authorization")
     if header:
         scheme, _, credential = header.partition(" ")
@@ -276,6 +279,10 @@ async def get_principal(request: Request, state: StateDep) -> Principal:
         credential = request.cookies.get(SESSION_COOKIE) or ""
         if not credential:
             raise AuthError("no credential: send 'Authorization: Bearer <token>' or log in")
+        if not credential.startswith(SESSION_PREFIX):  # a token belongs in Authorization, never a cookie
+            raise AuthError(
+                f"the session cookie holds a session id ({SESSION_PREFIX}...), not a token: log in again"
+            )
     _key, found, hit = state.cached(credential)
     if not hit:
         found = await run_in_threadpool(state.lookup, credential)
@@ -283,6 +290,8 @@ async def get_principal(request: Request, state: StateDep) -> Principal:
         raise AuthError("unknown or revoked token" if header else "session expired or unknown: log in again")
     if not header and found.kind != "operator":
         raise AuthError("session expired or unknown: log in again")
+    if not header:  # the cookie authenticates: a state-changing request must prove it is the dashboard's
+        require_csrf_token(request.method, credential, request.headers.get(CSRF_HEADER))
     if found.kind == "robot":
         state.mark_seen(found.id)
     return found

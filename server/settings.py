@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 __all__ = ["DEFAULT_DATABASE_URL", "Settings"]
@@ -28,7 +28,17 @@ class Settings(BaseSettings):
     )
     online_window_s: float = Field(10.0, gt=0, description="A robot seen within this window is online.")
     session_ttl_s: float = Field(12 * 3600.0, gt=0, description="Lifetime of a browser session cookie.")
-    secure_cookies: bool = Field(False, description="Mark the session cookie Secure (behind HTTPS).")
+    secure_cookies: bool = Field(
+        False,
+        description="Always mark the session cookie Secure (it is whenever the request came over HTTPS; set "
+        "this behind a TLS-terminating proxy that forwards plain HTTP).",
+    )
+    csrf_trusted_origins: tuple[str, ...] = Field(
+        (),
+        description="Origins (scheme://host[:port]) besides the server's own from which the dashboard may "
+        "make state-changing requests with its session cookie, e.g. a reverse proxy's public origin "
+        "(JSON list in the environment). See docs/reliability/csrf.md.",
+    )
     auth_fail_limit: int = Field(
         50,
         ge=0,
@@ -42,3 +52,17 @@ class Settings(BaseSettings):
     auth_block_s: float = Field(
         60.0, gt=0, le=86_400, description="How long a client over the limit is refused (its Retry-After)."
     )
+
+    @field_validator("csrf_trusted_origins")
+    @classmethod
+    def _origins(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        from server.csrf import normalize_origin
+
+        out = []
+        for origin in value:
+            norm = normalize_origin(origin)
+            if norm is None:
+                raise ValueError(f"{origin[:100]!r} is not an origin: expected scheme://host[:port], e.g. "
+                                 "https://linemap.example.org")
+            out.append(norm)
+        return tuple(out)

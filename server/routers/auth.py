@@ -5,17 +5,19 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response, status
+from pydantic import Field
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
 from server.audit import record
-from server.deps import SESSION_COOKIE, OperatorDep, PrincipalDep, StateDep
+from server.csrf import CSRF_HEADER, csrf_token, require_csrf_token
+from server.deps import SESSION_COOKIE, AppState, OperatorDep, PrincipalDep, StateDep
 from server.errors import AuthError, NotFoundError
 from server.models import AuditEntry, OperatorToken, Session, utcnow
 from server.schemas import DB_INT_MAX, AuditOut, DbIdPath, LoginIn, TokenCreate, TokenCreated, WhoAmI
 from server.security import OPERATOR_PREFIX, SESSION_PREFIX, hash_token, new_token
 
-__all__ = ["create_operator_token", "router"]
+__all__ = ["SessionOut", "create_operator_token", "router"]
 
 router = APIRouter(tags=["auth"])
 
@@ -29,9 +31,24 @@ def create_operator_token(db_session: DbSession, name: str) -> tuple[int, str]:
     return row.id, token
 
 
-@router.post("/session", response_model=WhoAmI)
-def login(body: LoginIn, response: Response, state: StateDep) -> WhoAmI:
-    """Exchange an operator token for a session cookie (HttpOnly, SameSite=Strict) for the dashboard."""
+class SessionOut(WhoAmI):
+    """The logged-in operator and the CSRF token the dashboard sends with each state-changing request."""
+
+    csrf_token: str | None = Field(
+        description=f"Value of the header {CSRF_HEADER} for state-changing requests made with this session's "
+        "cookie; null when the caller authenticated with a bearer token (which needs none)."
+    )
+
+
+def _secure(request: Request, state: AppState) -> bool:
+    """Whether the session cookie is marked Secure: over HTTPS always, or when the operator says so."""
+    return state.settings.secure_cookies or request.url.scheme == "https"
+
+
+@router.post("/session", response_model=SessionOut)
+def login(body: LoginIn, request: Request, response: Response, state: StateDep) -> SessionOut:
+    """Exchange an operator token for a session cookie (HttpOnly, SameSite=Strict, Secure over HTTPS) for the
+    dashboard; the answer holds the session's CSRF token."""
     who = state.lookup(body.token) if body.token.startswith(OPERATOR_PREFIX) else None
     if who is None or who.kind != "operator":
         raise AuthError("not a valid operator token")
@@ -49,22 +66,33 @@ def login(body: LoginIn, response: Response, state: StateDep) -> WhoAmI:
         max_age=int(state.settings.session_ttl_s),
         httponly=True,
         samesite="strict",
-        secure=state.settings.secure_cookies,
+        secure=_secure(request, state),
         path="/",
     )
-    return WhoAmI(kind=who.kind, id=who.id, name=who.name)
+    return SessionOut(kind=who.kind, id=who.id, name=who.name, csrf_token=csrf_token(sid))
+
+
+@router.get("/session", response_model=SessionOut)
+def current_session(request: Request, who: PrincipalDep) -> SessionOut:
+    """Who is asking and, for a session cookie, its CSRF token (the dashboard reads it after a reload)."""
+    sid = None if request.headers.get("authorization") else request.cookies.get(SESSION_COOKIE)
+    return SessionOut(kind=who.kind, id=who.id, name=who.name, csrf_token=csrf_token(sid) if sid else None)
 
 
 @router.delete("/session", status_code=status.HTTP_204_NO_CONTENT)
 def logout(request: Request, response: Response, state: StateDep) -> None:
+    """End the browser's session and clear its cookie (with the session's CSRF token, as every change)."""
     sid = request.cookies.get(SESSION_COOKIE)
     if sid:
+        require_csrf_token(request.method, sid, request.headers.get(CSRF_HEADER))
         with state.db.session() as s:
             row = s.scalars(select(Session).where(Session.token_hash == hash_token(sid))).first()
             if row is not None:
                 s.delete(row)
         state.forget_credentials()
-    response.delete_cookie(SESSION_COOKIE, path="/")
+    response.delete_cookie(
+        SESSION_COOKIE, path="/", httponly=True, samesite="strict", secure=_secure(request, state)
+    )
 
 
 @router.get("/whoami", response_model=WhoAmI)
