@@ -13,7 +13,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
-from fastapi import APIRouter, FastAPI, Request
+from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -26,7 +26,7 @@ from server.csrf import OriginGuard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState, AuthLimiter, retry_after_header
 from server.errors import ServerError
-from server.mediatype import MediaTypeGuard
+from server.mediatype import require_media_type
 from server.migrate import upgrade
 from server.routers import auth, control, kernels, maps, messages, meta, robots
 from server.settings import Settings
@@ -76,6 +76,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
         summary="Kernels, robots, control messages and live line maps (SPEC §7).",
         version="1",
         lifespan=lifespan,
+        dependencies=[Depends(require_media_type)],  # 415 on every route (server.mediatype)
     )
     app.state.linemap = state
     app.state.shutdown = ShutdownSignal()  # set by ``linemap server`` when it begins to stop
@@ -84,7 +85,6 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     app.add_exception_handler(HTTPException, _http_error)
     app.add_exception_handler(Exception, _unexpected_error)
     app.add_middleware(DisconnectOnShutdown, signal=app.state.shutdown)
-    app.add_middleware(MediaTypeGuard, routes=app.router.routes)  # 415 (server.mediatype)
     app.add_middleware(OriginGuard, trusted_origins=settings.csrf_trusted_origins)  # CSRF (server.csrf)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(AuthFailureLimit, limiter=state.limiter)  # outermost: before the body is read

@@ -20,6 +20,7 @@ __all__ = [
     "ServerError",
     "TooLargeError",
     "UnavailableError",
+    "UnsupportedMediaTypeError",
 ]
 
 
@@ -78,6 +79,13 @@ class GoneError(ServerError):
 class TooLargeError(ServerError):
     status = 413
     code = "too_large"
+
+
+class UnsupportedMediaTypeError(ServerError):
+    """A request body of a type the route does not take (415; ``expected`` lists the types it takes)."""
+
+    status = 415
+    code = "unsupported_media_type"
 
 
 class UnavailableError(ServerError):

@@ -15,15 +15,14 @@ cross-origin "simple" request (``text/plain``, no CORS preflight) riding on the 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 
-from fastapi import params
-from fastapi.responses import JSONResponse
+from fastapi import Request, params
 from fastapi.routing import APIRoute
-from starlette.routing import BaseRoute, Match, Route
-from starlette.types import ASGIApp, Receive, Scope, Send
+from starlette.routing import BaseRoute
 
-__all__ = ["MediaTypeGuard", "accepted_media_types", "media_type"]
+from server.errors import UnsupportedMediaTypeError
+
+__all__ = ["accepted_media_types", "media_type", "require_media_type"]
 
 log = logging.getLogger(__name__)
 
@@ -61,56 +60,36 @@ def accepted_media_types(route: BaseRoute) -> tuple[str, ...]:
     return tuple(dict.fromkeys(out))
 
 
-def _has_body(headers: dict[bytes, bytes]) -> bool:
-    if b"transfer-encoding" in headers:
+def _has_body(request: Request) -> bool:
+    if "transfer-encoding" in request.headers:
         return True
-    length = headers.get(b"content-length", b"").strip()
-    return bool(length) and length != b"0"
+    length = request.headers.get("content-length", "").strip()
+    return bool(length) and length != "0"
 
 
-class MediaTypeGuard:
-    """ASGI middleware: 415 naming the expected types when a body's ``Content-Type`` is not one its route
-    takes. ``routes`` is the application's route list (read at each request, so routes added later are
-    covered); the route is found as the router finds it (first full match), which costs O(routes) per
-    request with a body; a request no route matches is left to the router (404 or 405)."""
+async def require_media_type(request: Request) -> None:
+    """Dependency of every route (set on the application): :class:`UnsupportedMediaTypeError` (415) naming
+    the expected types when the request has a body whose ``Content-Type`` the route does not take. Runs
+    before the route's own dependencies (authentication) and its handler; O(1) after the route's first
+    request (its accepted types are cached)."""
+    if not _has_body(request):
+        return
+    route = request.scope.get("route")
+    if route is None:
+        return
+    key = id(route)
+    expected = _ACCEPTED.get(key)
+    if expected is None:
+        expected = _ACCEPTED[key] = accepted_media_types(route)
+    raw = request.headers.get("content-type")
+    if raw is not None and media_type(raw) in expected:
+        return
+    what = f"{request.method} {getattr(route, 'path', request.url.path)}"
+    sent = f"Content-Type {raw[:80]!r}" if raw is not None else "no Content-Type"
+    if not expected:
+        raise UnsupportedMediaTypeError(f"{what} takes no request body (got one with {sent})", expected=[])
+    raise UnsupportedMediaTypeError(f"{sent}: {what} takes {' or '.join(expected)}", expected=list(expected))
 
-    def __init__(self, app: ASGIApp, routes: Sequence[BaseRoute]) -> None:
-        self.app = app
-        self.routes = routes
-        self._accepted: dict[int, tuple[str, ...]] = {}
 
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] == "http":
-            headers: dict[bytes, bytes] = {}
-            for name, value in scope["headers"]:
-                headers.setdefault(name.lower(), value)
-            if _has_body(headers):
-                problem = self.problem(scope, headers)
-                if problem is not None:
-                    detail, expected = problem
-                    body = JSONResponse(
-                        {"error": "unsupported_media_type", "detail": detail, "expected": list(expected)},
-                        status_code=415,
-                    )
-                    await send({"type": "http.response.start", "status": 415, "headers": body.raw_headers})
-                    await send({"type": "http.response.body", "body": body.body})
-                    return
-        await self.app(scope, receive, send)
-
-    def problem(self, scope: Scope, headers: dict[bytes, bytes]) -> tuple[str, tuple[str, ...]] | None:
-        route = next((r for r in self.routes if r.matches(scope)[0] == Match.FULL), None)
-        if route is None or not isinstance(route, Route):
-            return None  # unknown path or wrong method (the router answers), or a mount (static files)
-        key = id(route)
-        if key not in self._accepted:
-            self._accepted[key] = accepted_media_types(route)
-        expected = self._accepted[key]
-        raw = headers.get(b"content-type")
-        given = media_type(raw.decode("latin-1")) if raw is not None else None
-        if given is not None and given in expected:
-            return None
-        what = f"{scope.get('method')} {getattr(route, 'path', scope.get('path'))}"
-        sent = f"Content-Type {raw.decode('latin-1')[:80]!r}" if raw is not None else "no Content-Type"
-        if not expected:
-            return f"{what} takes no request body (got one with {sent})", expected
-        return f"{sent}: {what} takes {' or '.join(expected)}", expected
+#: Accepted media types by ``id(route)`` (routes live as long as the application).
+_ACCEPTED: dict[int, tuple[str, ...]] = {}

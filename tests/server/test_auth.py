@@ -16,6 +16,7 @@ from fastapi.routing import APIRoute
 from sqlalchemy import select
 
 from server.app import ROUTERS
+from server.csrf import CSRF_HEADER
 from server.deps import SESSION_COOKIE, get_principal, require_operator, robot_access, robot_self
 from server.models import Session as DbSession
 from server.models import utcnow
@@ -77,13 +78,19 @@ def _fill(path: str, robot_id: int) -> str:
 
 
 def _call(
-    live: Live, token: str | None, method: str, path: str, cookies: dict[str, str] | None = None
+    live: Live,
+    token: str | None,
+    method: str,
+    path: str,
+    cookies: dict[str, str] | None = None,
+    headers: dict[str, str] | None = None,
 ) -> tuple[int, str]:
     """(status, detail of an error) of one request. The brute-force limit is reset first: the matrix makes
     one failed attempt per route on purpose (the limit has its own tests in
     tests/reliability/test_rel_auth_limits.py)."""
     live.state.limiter.clear()
     with live.client(token, cookies=cookies) as c:
+        c.headers.update(headers or {})
         url = path.removeprefix("/api/v1") if path.startswith("/api/v1") else live.base_url + path
         if method == "GET" and path.endswith("/stream"):
             with c.stream(method, url, timeout=10) as r:
@@ -144,13 +151,15 @@ class Caller:
     cookies: dict[str, str] | None
     robot_id: int
     detail: str  # part of the detail every 401/403 of this credential must contain
+    headers: dict[str, str] | None = None  # a session's CSRF header, as the dashboard sends it
 
 
-def _login(live: Live, token: str) -> str:
+def _login_csrf(live: Live, token: str) -> tuple[str, dict[str, str]]:
+    """(session id, the CSRF header of that session) from a login."""
     with live.client() as browser:
         r = browser.post("/session", json={"token": token})
         assert r.status_code == 200, r.text
-        return str(r.cookies[SESSION_COOKIE])
+        return str(r.cookies[SESSION_COOKIE]), {CSRF_HEADER: r.json()["csrf_token"]}
 
 
 def _caller(live: Live, credential: str) -> Caller:
@@ -160,12 +169,12 @@ def _caller(live: Live, credential: str) -> Caller:
     if credential == "unknown-token":
         return Caller("lmo_not-a-real-token", None, rid, "unknown or revoked token")
     if credential == "expired-session":
-        sid = _login(live, live.admin_token)
+        sid, csrf = _login_csrf(live, live.admin_token)
         with live.state.db.session() as s:  # white-box: the session's lifetime ends now
             row = s.scalars(select(DbSession).where(DbSession.token_hash == hash_token(sid))).one()
             row.expires_at = utcnow() - timedelta(seconds=1)
         live.state.forget_credentials()
-        return Caller(None, {SESSION_COOKIE: sid}, rid, "session expired or unknown: log in again")
+        return Caller(None, {SESSION_COOKIE: sid}, rid, "session expired or unknown: log in again", csrf)
     if credential == "revoked-token":
         with live.operator() as op:
             made = op.post("/tokens", json={"name": "revoked"}).json()
@@ -179,9 +188,8 @@ def _caller(live: Live, credential: str) -> Caller:
     if credential == "operator-token":
         return Caller(live.admin_token, None, rid, f"only robot {rid}'s own token")
     assert credential == "operator-session"
-    return Caller(
-        None, {SESSION_COOKIE: _login(live, live.admin_token)}, rid, f"only robot {rid}'s own token"
-    )
+    sid, csrf = _login_csrf(live, live.admin_token)
+    return Caller(None, {SESSION_COOKIE: sid}, rid, f"only robot {rid}'s own token", csrf)
 
 
 @pytest.mark.parametrize("credential", CREDENTIALS)
@@ -194,7 +202,9 @@ def test_matrix(live: Live, credential: str) -> None:
         want = expected(credential, access)
         if want is None:
             continue
-        code, detail = _call(live, caller.token, method, _fill(path, caller.robot_id), caller.cookies)
+        code, detail = _call(
+            live, caller.token, method, _fill(path, caller.robot_id), caller.cookies, caller.headers
+        )
         ok = code not in (401, 403) if want == "ok" else code == int(want)
         if want == "403" and credential == "other-robot" and access == "operator":
             ok = ok and "this route is for operators" in detail
@@ -213,7 +223,7 @@ def test_session_cookie_login_and_logout(live: Live) -> None:
         cookie = r.headers["set-cookie"].lower()
         assert "httponly" in cookie and "samesite=strict" in cookie
         assert browser.get("/robots").status_code == 200
-        assert browser.delete("/session").status_code == 204
+        assert browser.delete("/session", headers={CSRF_HEADER: r.json()["csrf_token"]}).status_code == 204
         assert browser.get("/robots").status_code == 401
 
 

@@ -1,7 +1,24 @@
 // The server API (/api/v1) over fetch with the session cookie. Errors become ApiError with the
 // server's `detail`; any 401 sends the browser to the login page with a message.
+// Every state-changing request carries the session's CSRF token in X-Linemap-CSRF (the server refuses
+// it without; see docs/reliability/csrf.md): the token comes with the login, or from GET /session after
+// a reload, and is fetched again once if the server says it no longer matches (a login in another tab).
 
 export const BASE = "/api/v1";
+export const CSRF_HEADER = "X-Linemap-CSRF";
+const SAFE = new Set(["GET", "HEAD", "OPTIONS"]);
+let csrfToken = null;
+
+/** Forget the CSRF token (logged out, or the session changed). */
+export function clearCsrf() {
+  csrfToken = null;
+}
+
+async function refreshCsrf(auth401) {
+  const s = await request("GET", "/session", { auth401 });
+  csrfToken = s && s.csrf_token ? s.csrf_token : null;
+  return csrfToken;
+}
 
 export class ApiError extends Error {
   constructor(status, code, detail, body) {
@@ -30,6 +47,12 @@ export async function request(method, path, opts = {}) {
     headers["Content-Type"] = "application/json";
     body = JSON.stringify(opts.json);
   }
+  // Logging in needs no token (there is no session yet); every other change does.
+  const needsToken = !SAFE.has(method.toUpperCase()) && !(method.toUpperCase() === "POST" && path === "/session");
+  if (needsToken) {
+    if (csrfToken === null) await refreshCsrf(opts.auth401);
+    if (csrfToken !== null) headers[CSRF_HEADER] = csrfToken;
+  }
   let res;
   try {
     res = await fetch(BASE + path, { method, headers, body, credentials: "same-origin" });
@@ -40,6 +63,10 @@ export async function request(method, path, opts = {}) {
   let data = null;
   if (text) {
     try { data = JSON.parse(text); } catch { data = text; }
+  }
+  if (res.status === 403 && needsToken && !opts.csrfRetried && data && data.reason === "csrf") {
+    await refreshCsrf(opts.auth401); // the session changed (e.g. a login in another tab): once more
+    return request(method, path, { ...opts, csrfRetried: true });
   }
   if (!res.ok) {
     const code = data && typeof data === "object" ? data.error : null;
@@ -60,8 +87,18 @@ const q = (params) => {
 };
 
 export const api = {
-  login: (token) => request("POST", "/session", { json: { token }, auth401: false }),
-  logout: () => request("DELETE", "/session", { auth401: false }),
+  login: async (token) => {
+    const who = await request("POST", "/session", { json: { token }, auth401: false });
+    csrfToken = who && who.csrf_token ? who.csrf_token : null;
+    return who;
+  },
+  logout: async () => {
+    try {
+      await request("DELETE", "/session", { auth401: false });
+    } finally {
+      csrfToken = null;
+    }
+  },
   whoami: (auth401 = true) => request("GET", "/whoami", { auth401 }),
 
   robots: () => request("GET", "/robots"),
