@@ -21,7 +21,7 @@ from starlette.exceptions import HTTPException
 from starlette.requests import cookie_parser
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from server import dashboard
+from server import apidocs, dashboard
 from server.csrf import OriginGuard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState, AuthLimiter, retry_after_header
@@ -77,6 +77,8 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
         version="1",
         lifespan=lifespan,
         dependencies=[Depends(require_media_type)],  # 415 on every route (server.mediatype)
+        docs_url=None,  # server.apidocs serves /docs when settings.api_docs says so
+        redoc_url=None,
     )
     app.state.linemap = state
     app.state.shutdown = ShutdownSignal()  # set by ``linemap server`` when it begins to stop
@@ -91,6 +93,8 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     for router, prefix in ROUTERS:
         app.include_router(router, prefix=prefix)
     dashboard.mount(app)
+    if settings.api_docs:
+        apidocs.mount(app)
     return app
 
 

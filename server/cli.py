@@ -55,7 +55,8 @@ def serve(
     base = f"http://{host}:{port}"
     if token is not None:
         typer.echo(f"First start: operator token 'admin' (shown once, keep it): {token}")
-    typer.echo(f"linemap server on {base}  (API docs: {base}/docs, database: {app.state.linemap.db.url})")
+    docs = f"{base}/docs" if settings.api_docs else f"{base}/openapi.json"
+    typer.echo(f"linemap server on {base}  (API: {docs}, database: {app.state.linemap.db.url})")
     sys.stdout.flush()  # a pipe or log file must see these lines before the server blocks
     _tune_gc()
     config = uvicorn.Config(app, host=host, port=port, log_level="warning", timeout_graceful_shutdown=5)

@@ -33,6 +33,11 @@ class Settings(BaseSettings):
         description="Always mark the session cookie Secure (it is whenever the request came over HTTPS; set "
         "this behind a TLS-terminating proxy that forwards plain HTTP).",
     )
+    api_docs: bool = Field(
+        False,
+        description="Serve the interactive API docs at /docs (Swagger UI from a CDN, pinned by version and "
+        "integrity hash, under a strict Content-Security-Policy); /openapi.json is always served.",
+    )
     csrf_trusted_origins: tuple[str, ...] = Field(
         (),
         description="Origins (scheme://host[:port]) besides the server's own from which the dashboard may "
