@@ -24,6 +24,7 @@ Bearer-token clients (robots, scripts) are not affected: a browser never adds ``
 from __future__ import annotations
 
 import base64
+import functools
 import hashlib
 import hmac
 import logging
@@ -82,6 +83,7 @@ def require_csrf_token(method: str, session_id: str, presented: str | None) -> N
         )
 
 
+@functools.lru_cache(maxsize=1024)  # a server sees few distinct origins; bounded whatever it is sent
 def normalize_origin(origin: str) -> str | None:
     """``scheme://host[:port]`` in lower case with the scheme's default port left out, or ``None`` when
     ``origin`` is not a web origin (``null``, a path, user info, an unknown scheme, a bad port)."""
