@@ -20,8 +20,9 @@ from hypothesis import strategies as st
 
 from server.app import create_app
 from server.bootstrap import ensure_admin_token
-from server.csrf import CSRF_HEADER, csrf_token, normalize_origin
+from server.csrf import CSRF_HEADER, csrf_token, normalize_origin, require_csrf_token
 from server.deps import SESSION_COOKIE
+from server.errors import ForbiddenError
 from server.settings import Settings
 from tests.robot_agent.agentproc import wait_for
 from tests.server.live import Live, start_live
@@ -300,3 +301,19 @@ def test_normalize_origin_never_raises_and_is_idempotent(text: str) -> None:
 )
 def test_normalize_origin(origin: str, expected: str | None) -> None:
     assert normalize_origin(origin) == expected
+
+
+@given(
+    st.text(min_size=1, max_size=60),
+    st.text(max_size=60),
+    st.sampled_from(["POST", "DELETE", "PUT", "patch"]),
+)
+def test_only_the_session_own_token_passes(session_tail: str, presented: str, method: str) -> None:
+    sid = "lms_" + session_tail
+    require_csrf_token(method, sid, csrf_token(sid))
+    require_csrf_token("GET", sid, None)  # reads need none
+    if presented.strip() != csrf_token(sid):
+        with pytest.raises(ForbiddenError) as exc:
+            require_csrf_token(method, sid, presented)
+        assert CSRF_HEADER in str(exc.value) and exc.value.extra["reason"] == "csrf"
+    assert csrf_token(sid) != csrf_token(sid + "x") and sid not in csrf_token(sid)
