@@ -328,7 +328,11 @@ class AuthFailureLimit:
             if replaced:
                 return  # the 401's body: a 429 went out instead
             if message["type"] == "http.response.start" and message["status"] == 401:
-                wait = await asyncio.to_thread(self.limiter.failed, source)
+                try:
+                    wait = await asyncio.to_thread(self.limiter.failed, source)
+                except Exception:  # the count is lost, the 401 still goes out (never a 500 for it)
+                    log.exception("could not count a failed authentication of %s", source)
+                    wait = None
                 if wait is not None:
                     replaced = True
                     await self.limiter.refuse(send, source, wait)

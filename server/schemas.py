@@ -88,6 +88,9 @@ class RobotOut(BaseModel):
     map_version: int
     last_seq: int = Field(description="Sequence number of the newest control message queued.")
     pending_messages: int = Field(description="Messages not yet acknowledged by the robot.")
+    token_revoked_at: datetime | None = Field(
+        None, description="When the robot's token was revoked (with its issuer); POST /robots/{id}/token."
+    )
 
 
 class RobotCreated(BaseModel):

@@ -49,6 +49,7 @@ def _out(state: AppState, robot: Robot, pending: int) -> RobotOut:
         map_version=robot.map_version,
         last_seq=robot.last_seq,
         pending_messages=pending,
+        token_revoked_at=robot.token_revoked_at,
     )
 
 
