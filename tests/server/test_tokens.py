@@ -144,3 +144,29 @@ def test_revoking_a_token_revokes_what_it_created(live: Live) -> None:
             mine = c.post(f"/robots/{bot['id']}/token").json()["token"]
         assert op.delete(f"/tokens/{t4['id']}", params={"keep_robot_tokens": True}).status_code == 204
     assert _works(live, mine) and not _works(live, t4["token"])
+
+
+def test_a_long_poll_begun_before_a_rotation_does_not_hand_out_messages(live: Live) -> None:
+    """The robot's token is rotated while it long-polls; a message queued then is not given to the old
+    token (401), and the new token gets it."""
+    rid, old = live.new_robot()
+    answer: list[httpx.Response] = []
+
+    def poll() -> None:
+        with live.client(old) as c:
+            answer.append(c.get(f"/robots/{rid}/messages", params={"after": 0, "wait": 30}))
+
+    poller = threading.Thread(target=poll)
+    poller.start()
+    deadline = datetime.now(UTC) + timedelta(seconds=30)
+    while live.state.hub.subscribers(f"messages:{rid}") == 0:  # the poll is waiting (white-box)
+        assert datetime.now(UTC) < deadline
+    with live.operator() as op:
+        new = op.post(f"/robots/{rid}/token").json()["token"]
+        xml = "<xml><message><mode>online</mode></message></xml>"
+        r = op.post(f"/robots/{rid}/messages", content=xml, headers={"Content-Type": "application/xml"})
+        assert r.status_code == 201, r.text
+    poller.join(40)
+    assert answer and answer[0].status_code == 401, answer and answer[0].text
+    with live.client(new) as robot:
+        assert [m["seq"] for m in robot.get(f"/robots/{rid}/messages").json()["messages"]] == [1]
