@@ -34,7 +34,9 @@ def upgrade() -> None:
     with op.batch_alter_table("robots", schema=None) as batch_op:
         batch_op.add_column(sa.Column("token_issued_by_id", sa.Integer(), nullable=True))
         batch_op.add_column(sa.Column("token_revoked_at", sa.DateTime(timezone=True), nullable=True))
-        batch_op.create_index(batch_op.f("ix_robots_token_issued_by_id"), ["token_issued_by_id"], unique=False)
+        batch_op.create_index(
+            batch_op.f("ix_robots_token_issued_by_id"), ["token_issued_by_id"], unique=False
+        )
         batch_op.create_foreign_key(
             batch_op.f("fk_robots_token_issued_by_id_operator_tokens"),
             "operator_tokens",
@@ -55,7 +57,9 @@ def upgrade() -> None:
 def downgrade() -> None:
     op.drop_table("auth_failures")
     with op.batch_alter_table("robots", schema=None) as batch_op:
-        batch_op.drop_constraint(batch_op.f("fk_robots_token_issued_by_id_operator_tokens"), type_="foreignkey")
+        batch_op.drop_constraint(
+            batch_op.f("fk_robots_token_issued_by_id_operator_tokens"), type_="foreignkey"
+        )
         batch_op.drop_index(batch_op.f("ix_robots_token_issued_by_id"))
         batch_op.drop_column("token_revoked_at")
         batch_op.drop_column("token_issued_by_id")
