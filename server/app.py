@@ -1,5 +1,5 @@
 """The FastAPI application: routers under ``/api/v1``, error translation, the request-size limit (413) and
-the failed-authentication limit (429).
+the failed-authentication limit (429, :mod:`server.limiter`).
 
 ``create_app(settings)`` migrates the database to the newest schema (Alembic) unless told not to, and
 returns the app; ``linemap server`` serves it with uvicorn.
@@ -18,15 +18,15 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
-from starlette.requests import cookie_parser
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server import apidocs, dashboard
 from server.csrf import OriginGuard
 from server.database import Database
-from server.deps import SESSION_COOKIE, AppState, AuthLimiter, retry_after_header
+from server.deps import SESSION_COOKIE, AppState
 from server.errors import ServerError
 from server.mediatype import require_media_type
+from server.limiter import AuthFailureLimit
 from server.migrate import upgrade
 from server.routers import auth, control, kernels, maps, messages, meta, robots
 from server.settings import Settings
@@ -89,7 +89,15 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     app.add_middleware(DisconnectOnShutdown, signal=app.state.shutdown)
     app.add_middleware(OriginGuard, trusted_origins=settings.csrf_trusted_origins)  # CSRF (server.csrf)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
-    app.add_middleware(AuthFailureLimit, limiter=state.limiter)  # outermost: before the body is read
+    app.add_middleware(  # outermost: a blocked source's invalid credential is refused before the body is read
+        AuthFailureLimit,
+        limiter=state.limiter,
+        authenticate=state.authenticate,
+        cookie=SESSION_COOKIE,
+        api_prefix=API_PREFIX,
+        networks=settings.trusted_networks(),
+        header=settings.trusted_proxy_header,
+    )
     for router, prefix in ROUTERS:
         app.include_router(router, prefix=prefix)
     dashboard.mount(app)
@@ -235,60 +243,3 @@ class _TooLarge(HTTPException):
     def __init__(self, size: int) -> None:
         super().__init__(413, f"request body of {size}+ bytes is over the limit")
         self.size = size
-
-
-class AuthFailureLimit:
-    """429 for a client address that failed authentication too often (issue 9 item 5; :class:`AuthLimiter`).
-
-    Looks only at API requests (``/api/v1``) that carry a credential: an ``Authorization`` header, the
-    session cookie, or a login (``POST /api/v1/session``). Such a request answered 401 counts as one failed
-    authentication of its client address; while the address is blocked, such requests get 429 with
-    ``Retry-After`` before the credential is looked at (so guessing cannot go on, whatever the guess).
-    Requests without a credential (answered 401 at no cost), public pages and other addresses are not
-    affected. Behind a reverse proxy every client has the proxy's address: size the limit for that.
-    """
-
-    def __init__(self, app: ASGIApp, limiter: AuthLimiter) -> None:
-        self.app = app
-        self.limiter = limiter
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or not self.limiter.enabled or not _presents_credential(scope):
-            await self.app(scope, receive, send)
-            return
-        client = scope["client"][0] if scope.get("client") else "unknown"
-        wait = self.limiter.retry_after(client)
-        if wait is not None:
-            seconds = retry_after_header(wait)
-            body = JSONResponse(
-                {
-                    "error": "too_many_requests",
-                    "detail": f"too many failed authentications from {client}: try again in {seconds} s",
-                },
-                status_code=429,
-                headers={"Retry-After": seconds},
-            )
-            await send({"type": "http.response.start", "status": 429, "headers": body.raw_headers})
-            await send({"type": "http.response.body", "body": body.body})
-            return
-
-        async def watching_send(message: Message) -> None:
-            if message["type"] == "http.response.start" and message["status"] == 401:
-                self.limiter.failed(client)
-            await send(message)
-
-        await self.app(scope, receive, watching_send)
-
-
-def _presents_credential(scope: Scope) -> bool:
-    path: str = scope.get("path", "")
-    if not path.startswith(API_PREFIX + "/"):
-        return False
-    if scope.get("method") == "POST" and path == API_PREFIX + "/session":
-        return True
-    for name, value in scope["headers"]:
-        if name == b"authorization":
-            return True
-        if name == b"cookie" and SESSION_COOKIE in cookie_parser(value.decode("latin-1")):
-            return True
-    return False

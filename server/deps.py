@@ -1,33 +1,31 @@
 """Typed dependencies: the application state, and who is asking (operator or robot) with what access.
 
 Credentials: ``Authorization: Bearer <token>`` (operator token ``lmo_...`` or robot token ``lmr_...``), or
-the browser's session cookie (operators only). Lookups go by the token's SHA-256; a small cache (a few
-seconds) spares the database a read per request, so a revoked token stops working within that time.
+the browser's session cookie (operators only). Lookups go by the token's SHA-256 (an indexed read); a
+cache of at most ``credential_cache_s`` (<= 1 s) spares the database a read per request, so a token
+revoked or expired on any server process stops working everywhere within that time (in the revoking
+process at once). Streams re-check their credential bypassing the cache (:func:`still_valid`).
 
-:class:`AuthLimiter` counts failed authentications per client address (issue 9 item 5): after
-``auth_fail_limit`` failures within ``auth_fail_window_s`` the address is refused with 429 for
-``auth_block_s`` (enforced by :class:`server.app.AuthFailureLimit`).
+The failed-authentication limit lives in :mod:`server.limiter`.
 """
 
 from __future__ import annotations
 
-import math
 import threading
 import time
-from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Annotated, Literal
 
 from fastapi import Depends, Request
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import Connection, bindparam, select, update
+from sqlalchemy import Connection, bindparam, or_, select, update
 
 from server.csrf import CSRF_HEADER, require_csrf_token
 from server.database import Database
 from server.errors import AuthError, ForbiddenError
 from server.hub import Hub
+from server.limiter import AuthLimiter, retry_after_header
 from server.models import OperatorToken, Robot, Session, utcnow
 from server.security import OPERATOR_PREFIX, ROBOT_PREFIX, SESSION_PREFIX, hash_token
 from server.settings import Settings
@@ -46,10 +44,10 @@ __all__ = [
     "retry_after_header",
     "robot_access",
     "robot_self",
+    "still_valid",
 ]
 
 SESSION_COOKIE = "linemap_session"
-_CACHE_S = 5.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,100 +62,6 @@ class Principal:
     def actor(self) -> str:
         """How the audit log names this principal."""
         return f"{self.kind}:{self.name}"
-
-
-class AuthLimiter:
-    """Failed authentications per client address, in memory (one server process), with a sliding window.
-
-    :meth:`failed` notes one failure of ``client``; when ``limit`` of them fall within ``window_s`` seconds,
-    the client is blocked for ``block_s`` seconds and its count starts again afterwards. :meth:`retry_after`
-    says how many seconds of a block are left (``None``: not blocked). Successful authentications neither
-    count nor reset the count (a valid token cannot be used to keep guessing another). ``limit`` 0 disables
-    it. Memory: at most ``max_clients`` addresses tracked (expired ones are pruned first, then the oldest
-    dropped, then the blocks that end first); ``limit`` times per address. Each call is O(1) amortised
-    (O(max_clients) when pruning), under a lock (thread-safe). ``clock`` (seconds, monotonic) can be
-    replaced, e.g. by a test that steps time.
-    """
-
-    def __init__(
-        self,
-        limit: int,
-        window_s: float,
-        block_s: float,
-        *,
-        clock: Callable[[], float] = time.monotonic,
-        max_clients: int = 10_000,
-    ) -> None:
-        self.limit, self.window_s, self.block_s = limit, window_s, block_s
-        self.clock = clock
-        self.max_clients = max_clients
-        self._fails: dict[str, deque[float]] = {}
-        self._blocked: dict[str, float] = {}
-        self._lock = threading.Lock()
-
-    @classmethod
-    def from_settings(cls, settings: Settings) -> AuthLimiter:
-        return cls(settings.auth_fail_limit, settings.auth_fail_window_s, settings.auth_block_s)
-
-    @property
-    def enabled(self) -> bool:
-        return self.limit > 0
-
-    def retry_after(self, client: str) -> float | None:
-        """Seconds until ``client`` may try again, or ``None`` when it is not blocked."""
-        if not self.enabled:
-            return None
-        with self._lock:
-            until = self._blocked.get(client)
-            if until is None:
-                return None
-            left = until - self.clock()
-            if left <= 0:
-                del self._blocked[client]
-                return None
-            return left
-
-    def failed(self, client: str) -> None:
-        """Note a failed authentication by ``client``; block it when that makes ``limit`` in the window."""
-        if not self.enabled:
-            return
-        now = self.clock()
-        with self._lock:
-            times = self._fails.setdefault(client, deque())
-            times.append(now)
-            while times and times[0] <= now - self.window_s:
-                times.popleft()
-            if len(times) >= self.limit:
-                del self._fails[client]
-                self._blocked[client] = now + self.block_s
-            if len(self._fails) + len(self._blocked) > self.max_clients:
-                self._prune(now)
-
-    def tracked(self) -> int:
-        """How many client addresses are held in memory (counting or blocked)."""
-        with self._lock:
-            return len(self._fails) + len(self._blocked)
-
-    def clear(self) -> None:
-        """Forget every count and block."""
-        with self._lock:
-            self._fails.clear()
-            self._blocked.clear()
-
-    def _prune(self, now: float) -> None:
-        for client in [c for c, t in self._fails.items() if not t or t[-1] <= now - self.window_s]:
-            del self._fails[client]
-        for client in [c for c, until in self._blocked.items() if until <= now]:
-            del self._blocked[client]
-        while self._fails and len(self._fails) + len(self._blocked) > self.max_clients:
-            del self._fails[next(iter(self._fails))]  # the longest-tracked address goes first
-        while len(self._blocked) > self.max_clients:
-            del self._blocked[next(iter(self._blocked))]  # the block that ends first
-
-
-def retry_after_header(seconds: float) -> str:
-    """``Retry-After`` value: whole seconds, rounded up (at least 1)."""
-    return str(max(1, math.ceil(seconds)))
 
 
 @dataclass
@@ -175,7 +79,7 @@ class AppState:
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def __post_init__(self) -> None:
-        self.limiter = AuthLimiter.from_settings(self.settings)
+        self.limiter = AuthLimiter.from_settings(self.settings, self.db)
 
     def forget_credentials(self) -> None:
         """Drop cached lookups (after a token is revoked or a session closed)."""
@@ -191,39 +95,54 @@ class AppState:
             return key, hit[1], True
         return key, None, False
 
-    def lookup(self, credential: str) -> Principal | None:
-        """The principal behind a bearer token or session id, or ``None`` (cache, then database)."""
+    def lookup(self, credential: str, *, fresh: bool = False) -> Principal | None:
+        """The principal behind a bearer token or session id, or ``None`` (cache, then database; only the
+        database when ``fresh``). Blocking: call it from a worker thread."""
         key, found, hit = self.cached(credential)
-        if hit:
+        if hit and not fresh:
             return found
         found = self._lookup_db(credential, key)
-        with self._lock:
-            if len(self._cache) > 10_000:
-                self._cache.clear()
-            self._cache[key] = (time.monotonic() + _CACHE_S, found)
+        ttl_s = self.settings.credential_cache_s
+        if ttl_s > 0:
+            with self._lock:
+                if len(self._cache) > 10_000:
+                    self._cache.clear()
+                self._cache[key] = (time.monotonic() + ttl_s, found)
         return found
 
+    async def authenticate(self, credential: str) -> bool:
+        """Whether ``credential`` is a valid token or session now (cache first; on the event loop)."""
+        _key, found, hit = self.cached(credential)
+        if not hit:
+            found = await run_in_threadpool(self.lookup, credential)
+        return found is not None
+
     def _lookup_db(self, credential: str, key: str) -> Principal | None:
+        now = utcnow()
+        live = (
+            OperatorToken.revoked_at.is_(None),
+            or_(OperatorToken.expires_at.is_(None), OperatorToken.expires_at > now),
+        )
         with self.db.read() as s:
             if credential.startswith(ROBOT_PREFIX):
-                robot = s.scalars(select(Robot).where(Robot.token_hash == key)).first()
-                return None if robot is None else Principal("robot", robot.id, robot.name)
-            if credential.startswith(OPERATOR_PREFIX):
-                op = s.scalars(
-                    select(OperatorToken).where(
-                        OperatorToken.token_hash == key, OperatorToken.revoked_at.is_(None)
+                robot = s.execute(
+                    select(Robot.id, Robot.name).where(
+                        Robot.token_hash == key, Robot.token_revoked_at.is_(None)
                     )
                 ).first()
-                return None if op is None else Principal("operator", op.id, op.name)
+                return None if robot is None else Principal("robot", robot[0], robot[1])
+            if credential.startswith(OPERATOR_PREFIX):
+                op = s.execute(
+                    select(OperatorToken.id, OperatorToken.name).where(OperatorToken.token_hash == key, *live)
+                ).first()
+                return None if op is None else Principal("operator", op[0], op[1])
             if credential.startswith(SESSION_PREFIX):
                 row = s.execute(
-                    select(OperatorToken, Session)
+                    select(OperatorToken.id, OperatorToken.name)
                     .join(Session, Session.operator_id == OperatorToken.id)
-                    .where(Session.token_hash == key, OperatorToken.revoked_at.is_(None))
+                    .where(Session.token_hash == key, Session.expires_at > now, *live)
                 ).first()
-                if row is None or row[1].expires_at <= utcnow():
-                    return None
-                return Principal("operator", row[0].id, row[0].name)
+                return None if row is None else Principal("operator", row[0], row[1])
         return None
 
     def mark_seen(self, robot_id: int) -> None:
@@ -283,6 +202,7 @@ async def get_principal(request: Request, state: StateDep) -> Principal:
             raise AuthError(
                 f"the session cookie holds a session id ({SESSION_PREFIX}...), not a token: log in again"
             )
+    request.state.credential = credential  # for streams that re-check it (still_valid)
     _key, found, hit = state.cached(credential)
     if not hit:
         found = await run_in_threadpool(state.lookup, credential)
@@ -298,6 +218,16 @@ async def get_principal(request: Request, state: StateDep) -> Principal:
 
 
 PrincipalDep = Annotated[Principal, Depends(get_principal)]
+
+
+async def still_valid(request: Request, state: AppState) -> bool:
+    """Whether the credential this request was authenticated with still works, read from the database
+    (no cache): a stream calls it every fraction of a second and ends when it says no (revoked token,
+    revoked parent token, closed or expired session, rotated robot token), whichever process revoked it."""
+    credential = getattr(request.state, "credential", None)
+    if not credential:
+        return False
+    return await run_in_threadpool(lambda: state.lookup(credential, fresh=True) is not None)
 
 
 async def require_operator(who: PrincipalDep) -> Principal:

@@ -29,6 +29,7 @@ from shared.sqltypes import NAMING, UTCDateTime, utcnow
 
 __all__ = [
     "AuditEntry",
+    "AuthFailure",
     "Base",
     "KernelArtifact",
     "MapSegment",
@@ -58,6 +59,13 @@ class OperatorToken(Base):
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     revoked_at: Mapped[datetime | None] = mapped_column(default=None)
+    #: The operator token that created this one (None: made by the server or the CLI). Revoking a token
+    #: revokes every token it created, transitively.
+    created_by_id: Mapped[int | None] = mapped_column(
+        ForeignKey("operator_tokens.id", ondelete="SET NULL"), default=None, index=True
+    )
+    #: When the token stops working (None: never).
+    expires_at: Mapped[datetime | None] = mapped_column(default=None)
 
 
 class Session(Base):
@@ -78,6 +86,13 @@ class Robot(Base):
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     name: Mapped[str] = mapped_column(String(100), unique=True)
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    #: The operator token that issued the robot's current token (registration or rotation); revoking that
+    #: operator token revokes this robot token too.
+    token_issued_by_id: Mapped[int | None] = mapped_column(
+        ForeignKey("operator_tokens.id", ondelete="SET NULL"), default=None, index=True
+    )
+    #: When the robot's current token was revoked (None: it works); a rotation gives a new one.
+    token_revoked_at: Mapped[datetime | None] = mapped_column(default=None)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     last_seen_at: Mapped[datetime | None] = mapped_column(default=None)
     mode: Mapped[str | None] = mapped_column(String(20), default=None)
@@ -198,6 +213,18 @@ class MapUploadRecord(Base):
     n_segments: Mapped[int] = mapped_column(Integer)
     n_removed: Mapped[int] = mapped_column(Integer)
     received_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class AuthFailure(Base):
+    """Failed authentications of one source (client address, or IPv6 /64) in its current window, shared by
+    every server process; written on failures only. Times are Unix seconds of the limiter's clock."""
+
+    __tablename__ = "auth_failures"
+
+    source: Mapped[str] = mapped_column(String(64), primary_key=True)
+    window_start_s: Mapped[float] = mapped_column(Float)
+    failures: Mapped[int] = mapped_column(Integer)
+    blocked_until_s: Mapped[float | None] = mapped_column(Float, default=None)
 
 
 class AuditEntry(Base):

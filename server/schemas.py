@@ -11,7 +11,7 @@ from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from fastapi import Path
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, model_validator
 
 __all__ = [
     "AckIn",
@@ -88,6 +88,9 @@ class RobotOut(BaseModel):
     map_version: int
     last_seq: int = Field(description="Sequence number of the newest control message queued.")
     pending_messages: int = Field(description="Messages not yet acknowledged by the robot.")
+    token_revoked_at: datetime | None = Field(
+        None, description="When the robot's token was revoked (with its issuer); POST /robots/{id}/token."
+    )
 
 
 class RobotCreated(BaseModel):
@@ -212,12 +215,23 @@ class MapOut(BaseModel):
 
 class TokenCreate(_In):
     name: str = Field(pattern=NAME_PATTERN)
+    expires_in_s: float | None = Field(
+        None,
+        gt=0,
+        le=10 * 365 * 86_400,
+        allow_inf_nan=False,
+        description="The token stops working this many seconds from now (at most 10 years).",
+    )
+    expires_at: AwareDatetime | None = Field(
+        None, description="The token stops working at this time (with a time zone, e.g. ...Z)."
+    )
 
 
 class TokenCreated(BaseModel):
     id: int
     name: str
     token: str = Field(description="Shown once; the server keeps only its hash.")
+    expires_at: datetime | None = Field(None, description="When the token stops working (null: never).")
 
 
 class LoginIn(_In):

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import ipaddress
+from typing import Literal
+
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
@@ -48,14 +51,18 @@ class Settings(BaseSettings):
         50,
         ge=0,
         description="Failed authentications (a wrong, revoked or expired token or session, a failed login) "
-        "one client address may make within auth_fail_window_s; beyond it the address's API requests that "
-        "carry a credential get 429 for auth_block_s. 0 switches the limit off.",
+        "one source (client address; IPv6: its /64) may make within auth_fail_window_s, counted by all "
+        "server processes sharing the database; beyond it that source's failed attempts are answered 429 "
+        "(after auth_fail_delay_s) for auth_block_s. A valid credential is never refused. 0: no limit.",
     )
     auth_fail_window_s: float = Field(
-        60.0, gt=0, le=86_400, description="Sliding window in which failed authentications are counted."
+        60.0, gt=0, le=86_400, description="Window in which failed authentications are counted (s)."
     )
     auth_block_s: float = Field(
-        60.0, gt=0, le=86_400, description="How long a client over the limit is refused (its Retry-After)."
+        60.0,
+        gt=0,
+        le=86_400,
+        description="How long a source over the limit has its failed attempts refused (its Retry-After, s).",
     )
 
     @field_validator("csrf_trusted_origins")
@@ -71,3 +78,45 @@ class Settings(BaseSettings):
                                  "https://linemap.example.org")
             out.append(norm)
         return tuple(out)
+    auth_fail_delay_s: float = Field(
+        1.0,
+        ge=0,
+        le=10,
+        description="A failed attempt from a source over the limit is answered only after this delay (s), "
+        "so a guesser waits for every refusal; valid credentials are never delayed.",
+    )
+    credential_cache_s: float = Field(
+        0.5,
+        ge=0,
+        le=1.0,
+        description="How long a process may reuse a credential lookup (s); a revocation on another server "
+        "process takes effect within this time. At most 1 s; 0: look up every request.",
+    )
+    trusted_proxies: str = Field(
+        "",
+        description="Comma-separated IP addresses or CIDR networks of reverse proxies whose "
+        "trusted_proxy_header names the client (e.g. '10.0.0.5,192.168.1.0/24'). Default: none, so the "
+        "client is always the TCP peer and forwarded headers are ignored.",
+    )
+    trusted_proxy_header: Literal["x-forwarded-for", "forwarded"] = Field(
+        "x-forwarded-for",
+        description="Which header a trusted proxy sets: X-Forwarded-For or Forwarded (RFC 7239).",
+    )
+
+    @field_validator("trusted_proxies")
+    @classmethod
+    def _networks(cls, value: str) -> str:
+        parts = [p.strip() for p in value.split(",") if p.strip()]
+        for part in parts:
+            try:
+                ipaddress.ip_network(part, strict=False)
+            except ValueError:
+                raise ValueError(
+                    f"trusted_proxies entry {part!r} is not an IP address or CIDR network "
+                    "(expected e.g. '10.0.0.5' or '192.168.1.0/24')"
+                ) from None
+        return ",".join(parts)
+
+    def trusted_networks(self) -> list[ipaddress.IPv4Network | ipaddress.IPv6Network]:
+        """:attr:`trusted_proxies` as networks (a bare address is a /32 or /128)."""
+        return [ipaddress.ip_network(p, strict=False) for p in self.trusted_proxies.split(",") if p]

@@ -7,28 +7,19 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Request, Response, status
 from pydantic import Field
 from sqlalchemy import select
-from sqlalchemy.orm import Session as DbSession
 
 from server.audit import record
 from server.csrf import CSRF_HEADER, csrf_token, require_csrf_token
 from server.deps import SESSION_COOKIE, AppState, OperatorDep, PrincipalDep, StateDep
-from server.errors import AuthError, NotFoundError
+from server.errors import AuthError
 from server.models import AuditEntry, OperatorToken, Session, utcnow
 from server.schemas import DB_INT_MAX, AuditOut, DbIdPath, LoginIn, TokenCreate, TokenCreated, WhoAmI
 from server.security import OPERATOR_PREFIX, SESSION_PREFIX, hash_token, new_token
+from server.tokens import create_operator_token, lock_live_issuer, resolve_expiry, revoke_operator_token
 
 __all__ = ["SessionOut", "create_operator_token", "router"]
 
 router = APIRouter(tags=["auth"])
-
-
-def create_operator_token(db_session: DbSession, name: str) -> tuple[int, str]:
-    """Add an operator token in the caller's transaction; returns (id, token)."""
-    token = new_token(OPERATOR_PREFIX)
-    row = OperatorToken(name=name, token_hash=hash_token(token))
-    db_session.add(row)
-    db_session.flush()
-    return row.id, token
 
 
 class SessionOut(WhoAmI):
@@ -102,23 +93,42 @@ def whoami(who: PrincipalDep) -> WhoAmI:
 
 @router.post("/tokens", status_code=status.HTTP_201_CREATED, response_model=TokenCreated)
 def create_token(body: TokenCreate, who: OperatorDep, state: StateDep) -> TokenCreated:
-    """A new operator token, shown once."""
+    """A new operator token, shown once. It expires when asked (``expires_in_s`` or ``expires_at``), and
+    never later than the token that creates it (which it inherits when none is asked); revoking the
+    creating token revokes this one too."""
     with state.db.session() as s:
-        tid, token = create_operator_token(s, body.name)
-        record(s, who, "token.create", f"operator:{tid}", name=body.name)
-    return TokenCreated(id=tid, name=body.name, token=token)
+        tid, token = create_operator_token(s, body.name, created_by_id=who.id)
+        expires_at = resolve_expiry(body.expires_in_s, body.expires_at, lock_live_issuer(s, who))
+        if expires_at is not None:
+            s.get_one(OperatorToken, tid).expires_at = expires_at
+        record(
+            s,
+            who,
+            "token.create",
+            f"operator:{tid}",
+            name=body.name,
+            expires_at=None if expires_at is None else expires_at.isoformat(),
+        )
+    return TokenCreated(id=tid, name=body.name, token=token, expires_at=expires_at)
 
 
 @router.delete("/tokens/{token_id}", status_code=status.HTTP_204_NO_CONTENT)
-def revoke_token(token_id: DbIdPath, who: OperatorDep, state: StateDep) -> None:
-    """Revoke an operator token (and the sessions opened with it)."""
+def revoke_token(
+    token_id: DbIdPath,
+    who: OperatorDep,
+    state: StateDep,
+    keep_robot_tokens: Annotated[
+        bool,
+        Query(
+            description="Keep the robot tokens this token (or one it created) issued; by default they are "
+            "revoked too (rotate them to bring the robots back)."
+        ),
+    ] = False,
+) -> None:
+    """Revoke an operator token, the sessions opened with it, every operator token it created
+    (transitively) and the robot tokens those issued; the audit log has one entry per revoked token."""
     with state.db.session() as s:
-        row = s.get(OperatorToken, token_id)
-        if row is None:
-            raise NotFoundError(f"no operator token {token_id}")
-        if row.revoked_at is None:
-            row.revoked_at = utcnow()
-            record(s, who, "token.revoke", f"operator:{token_id}", name=row.name)
+        revoke_operator_token(s, who, token_id, keep_robot_tokens=keep_robot_tokens)
     state.forget_credentials()
 
 

@@ -4,6 +4,8 @@ Stream events (``text/event-stream``): ``snapshot`` (the whole map, :class:`serv
 and whenever the subscriber must resynchronise, then one ``delta`` per upload, carrying ``version``,
 ``base_version``, changed ``segments``, ``removed`` ids, ``centroids``, ``pose`` and new ``trajectory``
 rows. Each event's ``id`` is the map version. A comment line every 15 s keeps proxies from closing it.
+The stream re-checks its credential in the database every ``AUTH_RECHECK_S`` and ends when it no longer
+works (token revoked or rotated, on any server process; session closed or expired).
 
 ``GET /export?format=geojson|svg|dxf|pgm|yaml`` returns the latest map as a file (the same writers as
 ``linemap map``); ``pgm`` and ``yaml`` are the two halves of a ROS map_server map at ``resolution`` metres
@@ -25,7 +27,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 from pydantic import ValidationError
 
-from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access
+from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access, still_valid
 from server.errors import ConflictError, InvalidRequestError
 from server.hub import OVERFLOW
 from server.mapstore import apply_upload, map_version, read_map
@@ -40,6 +42,8 @@ __all__ = ["router"]
 router = APIRouter(prefix="/robots/{robot_id}/maps", tags=["maps"])
 RobotAccess = Annotated[Principal, Depends(robot_access)]
 KEEPALIVE_S = 15.0
+#: How often an open stream re-reads its credential (s): a revocation ends it within about this time.
+AUTH_RECHECK_S = 0.5
 
 
 _UPLOAD_BODY = {
@@ -130,12 +134,20 @@ async def stream_map(
             snap = await run_in_threadpool(_read, state, robot_id, trajectory)
             yield _sse("snapshot", snap.model_dump(), snap.version)
             last, quiet_since = snap.version, loop.time()
+            authed_at = reread_at = loop.time()
             while True:
+                if loop.time() - authed_at >= AUTH_RECHECK_S:
+                    if not await still_valid(request, state):
+                        return  # the credential was revoked: the stream ends
+                    authed_at = loop.time()
                 try:
-                    item = await asyncio.wait_for(queue.get(), timeout=recheck)
+                    item = await asyncio.wait_for(queue.get(), timeout=min(recheck, AUTH_RECHECK_S))
                 except TimeoutError:
                     if await request.is_disconnected():
                         return
+                    if loop.time() - reread_at < recheck:
+                        continue
+                    reread_at = loop.time()
                     if await run_in_threadpool(_version, state, robot_id) != last:  # another process wrote
                         item = OVERFLOW
                     elif loop.time() - quiet_since >= KEEPALIVE_S:

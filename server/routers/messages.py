@@ -19,8 +19,8 @@ from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from server.audit import record
-from server.deps import AppState, OperatorDep, Principal, RobotSelf, StateDep, robot_access
-from server.errors import ConflictError, InvalidRequestError, NotFoundError, TooLargeError
+from server.deps import AppState, OperatorDep, Principal, RobotSelf, StateDep, robot_access, still_valid
+from server.errors import AuthError, ConflictError, InvalidRequestError, NotFoundError, TooLargeError
 from server.models import KernelArtifact, Message, Robot, utcnow
 from server.routers.robots import get_robot
 from server.schemas import DB_INT_MAX, AckIn, DbIdPath, MessageList, MessageOut
@@ -160,11 +160,15 @@ async def list_messages(
     deadline = loop.time() + min(wait, state.settings.long_poll_max_s)
     recheck = state.settings.poll_recheck_s
     with state.hub.subscribe(f"messages:{robot_id}") as queue:
+        waited = False
         while True:
             out = await run_in_threadpool(_read, state, robot_id, after, limit)
             remaining = deadline - loop.time()
+            if out["messages"] and waited and not await still_valid(request, state):
+                raise AuthError("unknown or revoked token")  # revoked while the poll waited
             if out["messages"] or remaining <= 0 or await request.is_disconnected():
                 return out
+            waited = True
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(queue.get(), timeout=min(remaining, recheck))
 

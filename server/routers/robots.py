@@ -1,4 +1,4 @@
-"""``/robots``: register robots (operator), list them with their state, delete them."""
+"""``/robots``: register robots (operator), list them with their state, rotate their tokens, delete them."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from datetime import timedelta
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, status
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -16,6 +16,7 @@ from server.errors import ConflictError, NotFoundError
 from server.models import Message, Robot, utcnow
 from server.schemas import DbIdPath, RobotCreate, RobotCreated, RobotOut
 from server.security import ROBOT_PREFIX, hash_token, new_token
+from server.tokens import lock_live_issuer
 
 __all__ = ["get_robot", "router"]
 
@@ -48,6 +49,7 @@ def _out(state: AppState, robot: Robot, pending: int) -> RobotOut:
         map_version=robot.map_version,
         last_seq=robot.last_seq,
         pending_messages=pending,
+        token_revoked_at=robot.token_revoked_at,
     )
 
 
@@ -66,9 +68,12 @@ def register_robot(body: RobotCreate, who: OperatorDep, state: StateDep) -> Robo
     token = new_token(ROBOT_PREFIX)
     try:
         with state.db.session() as s:
-            robot = Robot(name=body.name, token_hash=hash_token(token), active_kernels={})
+            robot = Robot(
+                name=body.name, token_hash=hash_token(token), active_kernels={}, token_issued_by_id=who.id
+            )
             s.add(robot)
             s.flush()
+            lock_live_issuer(s, who)
             record(s, who, "robot.register", f"robot:{robot.id}", name=body.name)
             rid = robot.id
     except IntegrityError:
@@ -91,6 +96,28 @@ def read_robot(
     with state.db.read() as s:
         robot = get_robot(s, robot_id)
         return _out(state, robot, _pending(s, [robot_id]).get(robot_id, 0))
+
+
+@router.post("/{robot_id}/token", status_code=status.HTTP_201_CREATED, response_model=RobotCreated)
+def rotate_robot_token(robot_id: DbIdPath, who: OperatorDep, state: StateDep) -> RobotCreated:
+    """Give the robot a new token (shown this once); the old one stops working at once (on other server
+    processes within ``credential_cache_s``), and so do streams opened with it. The robot keeps its map,
+    messages and history; its agent needs the new token (``--token`` / ``LINEMAP_ROBOT_TOKEN``) and a
+    restart. Also brings back a robot token revoked with the operator token that issued it."""
+    token = new_token(ROBOT_PREFIX)
+    with state.db.session() as s:
+        name = s.scalar(
+            update(Robot)
+            .where(Robot.id == robot_id)
+            .values(token_hash=hash_token(token), token_issued_by_id=who.id, token_revoked_at=None)
+            .returning(Robot.name)
+        )
+        if name is None:
+            raise NotFoundError(f"no robot with id {robot_id}")
+        lock_live_issuer(s, who)
+        record(s, who, "robot.token.rotate", f"robot:{robot_id}", name=name)
+    state.forget_credentials()
+    return RobotCreated(id=robot_id, name=name, token=token)
 
 
 @router.delete("/{robot_id}", status_code=status.HTTP_204_NO_CONTENT)

@@ -1,24 +1,32 @@
-"""Brute-force limit on failed authentication (issue 9 item 5), through the real server on 127.0.0.1.
+"""Brute-force limit on failed authentication, through the real server on 127.0.0.1.
 
-The server counts failed authentications per client address (:class:`server.deps.AuthLimiter`): after
-``auth_fail_limit`` within ``auth_fail_window_s`` the address's credentialed API requests get 429 with
-``Retry-After`` for ``auth_block_s``. Distinct client addresses are real: each test's clients bind their own
-loopback source address (127.0.0.0/8 all reaches the server on 127.0.0.1). Time is a stepped clock put into
-the running server's limiter, so "for a bounded time" is checked without sleeping. The oversize-body limit
-(413) is tested in tests/server/test_auth.py::test_oversize_body_is_413.
+The server counts failed authentications per source (:class:`server.limiter.AuthLimiter`, shared in the
+database): after ``auth_fail_limit`` within ``auth_fail_window_s`` the source's *failed* attempts get 429
+with ``Retry-After`` for ``auth_block_s``, while valid credentials from the same source are still served.
+Distinct client addresses are real: each test's clients bind their own loopback source address
+(127.0.0.0/8 all reaches the server on 127.0.0.1). Time is a stepped clock put into the running server's
+limiter, so "for a bounded time" is checked without sleeping. Forwarded headers, trusted proxies and
+several server processes: tests/reliability/test_rel_auth_processes.py. The oversize-body limit (413) is
+tested in tests/server/test_auth.py::test_oversize_body_is_413.
 """
 
 from __future__ import annotations
 
 import socket
 from collections.abc import Iterator
+from pathlib import Path
 
 import httpx
 import pytest
+from sqlalchemy import func, select
 
 from robot_agent.errors import LinkError
 from robot_agent.link import Backoff, ServerLink
-from server.deps import SESSION_COOKIE, AuthLimiter
+from server.database import Database
+from server.deps import SESSION_COOKIE
+from server.limiter import AuthLimiter
+from server.migrate import upgrade
+from server.models import AuthFailure
 from server.settings import Settings
 from tests.server.live import Live, start_live
 
@@ -49,6 +57,7 @@ def live(tmp_path_factory: pytest.TempPathFactory, clock: SteppedClock) -> Itera
         auth_fail_limit=LIMIT,
         auth_fail_window_s=WINDOW_S,
         auth_block_s=BLOCK_S,
+        auth_fail_delay_s=0.01,
     ):
         server.state.limiter.clock = clock
         yield server
@@ -91,12 +100,16 @@ def test_failures_beyond_the_limit_get_429_for_a_bounded_time(live: Live, clock:
     assert r.status_code == 429 and r.headers["retry-after"] == str(int(BLOCK_S))
     assert r.json() == {
         "error": "too_many_requests",
-        "detail": f"too many failed authentications from {host}: try again in {int(BLOCK_S)} s",
+        "detail": f"too many failed authentications from {host}: try again in {int(BLOCK_S)} s "
+        "(valid credentials are still accepted)",
     }
-    # Blocked: every credentialed API request of this address, whatever the guess (a valid token too).
-    assert _whoami(live, host, live.admin_token).status_code == 429
+    # Blocked: every failed attempt of this address, whatever the guess (token, cookie, malformed header)...
     with _client(live, host, cookies={SESSION_COOKIE: "lms_guess"}) as c:
         assert c.get("/robots").status_code == 429
+    with _client(live, host) as c:
+        assert c.get("/robots", headers={"Authorization": "Basic Z3Vlc3M="}).status_code == 429
+    # ...but never a valid credential from that same address.
+    assert _whoami(live, host, live.admin_token).status_code == 200
     # Not affected: requests without a credential (nothing to guess), public pages, other addresses.
     assert _whoami(live, host, None).status_code == 401
     with _client(live, host, WRONG) as c:
@@ -105,10 +118,9 @@ def test_failures_beyond_the_limit_get_429_for_a_bounded_time(live: Live, clock:
     assert _whoami(live, other, WRONG).status_code == 401
     # Bounded: Retry-After counts down; when the block ends, the address is served again from a clean count.
     clock.now_s += BLOCK_S - 0.5
-    r = _whoami(live, host, live.admin_token)
+    r = _whoami(live, host, WRONG)
     assert r.status_code == 429 and r.headers["retry-after"] == "1"
     clock.now_s += 0.5
-    assert _whoami(live, host, live.admin_token).status_code == 200
     _fail(live, host, LIMIT)
     assert _whoami(live, host, WRONG).status_code == 429
 
@@ -119,12 +131,13 @@ def test_successes_neither_count_nor_reset_and_the_window_slides(live: Live, clo
     for _ in range(3 * LIMIT):
         assert _whoami(live, host, live.admin_token).status_code == 200
     _fail(live, host, 1)  # LIMIT failures in the window, successes in between: blocked
-    assert _whoami(live, host, live.admin_token).status_code == 429
+    assert _whoami(live, host, WRONG).status_code == 429
+    assert _whoami(live, host, live.admin_token).status_code == 200
     late = _address()
     _fail(live, late, LIMIT - 1)
     clock.now_s += WINDOW_S + 1  # those failures leave the window
     _fail(live, late, LIMIT - 1)
-    assert _whoami(live, late, live.admin_token).status_code == 200
+    assert _whoami(live, late, WRONG).status_code == 401
 
 
 def test_failed_logins_and_expired_sessions_count(live: Live) -> None:
@@ -135,14 +148,37 @@ def test_failed_logins_and_expired_sessions_count(live: Live) -> None:
         browser.cookies.set(SESSION_COOKIE, "lms_expired-or-guessed")
         assert browser.get("/robots").status_code == 401
         browser.cookies.clear()
-        r = browser.post("/session", json={"token": live.admin_token})
+        r = browser.post("/session", json={"token": WRONG})
         assert r.status_code == 429 and "Set-Cookie" not in r.headers
         assert int(r.headers["retry-after"]) == int(BLOCK_S)
+        # The operator behind the same address still logs in, and the session works.
+        r = browser.post("/session", json={"token": live.admin_token})
+        assert r.status_code == 200 and SESSION_COOKIE in r.cookies
+        assert browser.get("/robots").status_code == 200
+
+
+def test_fifty_bad_tokens_leave_valid_robot_and_operator_tokens_working(live: Live) -> None:
+    """A guesser behind the same address (NAT) as a robot and an operator: 60 bad tokens, then the robot
+    polls and uploads, the operator reads and logs in; the guesser is still refused."""
+    host = _address()
+    rid, robot_token = live.new_robot()
+    _fail(live, host, LIMIT)
+    for _ in range(60 - LIMIT):
+        assert _whoami(live, host, WRONG).status_code == 429
+    with _client(live, host, robot_token) as robot:
+        assert robot.get(f"/robots/{rid}/messages", params={"after": 0, "wait": 0}).status_code == 200
+        up = {"version": 1, "base_version": None, "stamp_s": 1.0, "segments": [[1, 0, 0, 1, 0]]}
+        assert robot.post(f"/robots/{rid}/maps", json=up).status_code == 200, "robot upload refused"
+    with _client(live, host, live.admin_token) as op:
+        assert op.get(f"/robots/{rid}").status_code == 200
+        assert op.post("/robots", json={"name": f"nat-{host}"}).status_code == 201
+    assert _whoami(live, host, WRONG).status_code == 429
+    assert _whoami(live, host, "lmr_" + WRONG[4:]).status_code == 429
 
 
 def test_the_robot_agent_link_sees_retry_after(live: Live) -> None:
     """The robot's own HTTP client (from 127.0.0.1) reports 429 with the server's Retry-After, which its
-    back-off never undercuts."""
+    back-off never undercuts; the robot's real token from the same address works during the block."""
     live.state.limiter.clear()
     rid, token = live.new_robot()
     link = ServerLink(live.base_url, rid, "lmr_stolen-or-mistyped")
@@ -158,12 +194,12 @@ def test_the_robot_agent_link_sees_retry_after(live: Live) -> None:
         assert Backoff().next_delay(exc.value.retry_after_s) >= BLOCK_S
     finally:
         link.close()
-        live.state.limiter.clear()
     good = ServerLink(live.base_url, rid, token)
     try:
         assert good.poll(0, 0) == []
     finally:
         good.close()
+        live.state.limiter.clear()
 
 
 def test_limit_zero_switches_it_off(live: Live) -> None:
@@ -177,19 +213,31 @@ def test_limit_zero_switches_it_off(live: Live) -> None:
         limiter.limit = saved
 
 
-def test_memory_is_bounded_by_max_clients() -> None:
+def test_memory_and_table_are_bounded(tmp_path: Path) -> None:
+    """In memory: at most ``max_cached`` remembered blocks; in the table: only the last window's sources."""
+    db = Database(f"sqlite:///{tmp_path / 'limits.db'}")
+    upgrade(db.engine)
     t = SteppedClock()
-    limiter = AuthLimiter(3, 60.0, 30.0, clock=t, max_clients=100)
-    for i in range(10_000):
-        limiter.failed(f"10.0.{i // 256}.{i % 256}")
-        assert limiter.tracked() <= 100
-    for _ in range(3):
-        limiter.failed("192.0.2.1")
-    assert limiter.retry_after("192.0.2.1") == 30.0  # the newest address is still counted and blocked
+    limiter = AuthLimiter(db, 1, 60.0, 30.0, clock=t, max_cached=100)
+    try:
+        for i in range(1000):
+            limiter.failed(f"10.0.{i // 256}.{i % 256}")
+            assert limiter.cached_blocks() <= 100
+        assert limiter.failed("192.0.2.1") is None  # the limit-th failure starts the block...
+        assert limiter.failed("192.0.2.1") == 30.0  # ...the next is refused, newest address remembered
+        t.now_s += 61.0 + 30.0
+        limiter.failed("192.0.2.2")  # prunes the rows of sources whose window and block are over
+        with db.read() as s:
+            assert s.scalar(select(func.count()).select_from(AuthFailure)) == 1
+    finally:
+        db.dispose()
 
 
-def test_default_settings_limit_brute_force() -> None:
+def test_default_settings_limit_brute_force(tmp_path: Path) -> None:
     s = Settings()
     assert (s.auth_fail_limit, s.auth_fail_window_s, s.auth_block_s) == (50, 60.0, 60.0)
-    limiter = AuthLimiter.from_settings(s)
-    assert limiter.enabled
+    assert s.auth_fail_delay_s == 1.0 and 0 < s.credential_cache_s <= 1.0
+    assert s.trusted_proxies == "" and s.trusted_networks() == []
+    db = Database(f"sqlite:///{tmp_path / 'd.db'}")
+    assert AuthLimiter.from_settings(s, db).enabled
+    db.dispose()

@@ -117,6 +117,9 @@ def _run(t: Target, method: str, path: str, robot_only: bool, examples: int) -> 
         deleted = method == "DELETE" and path == "/api/v1/robots/{robot_id}" and status == 204
         if deleted and case.path_parameters.get("robot_id") == t.robot_id:
             t.renew()
+        rotated = method == "POST" and path == "/api/v1/robots/{robot_id}/token" and status == 201
+        if rotated and case.path_parameters.get("robot_id") == t.robot_id:
+            t.robot_token = str(response.json()["token"])  # the old one stopped working
 
     check()
 
