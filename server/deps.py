@@ -277,13 +277,18 @@ def presence(
     """``(last_seen_at, online)`` from the stored last-seen time (any process may have written it, wall
     clock), this process' own (``memory``, with its age on the monotonic clock) and the wall clock ``now``.
 
-    Online: heard from by this process within ``window_s`` on the monotonic clock, or a stored time at most
-    ``window_s`` old on the wall clock. A stored time more than ``window_s`` in the future means the clock
-    stepped back since it was written: it proves nothing and is ignored (otherwise a silent robot would read
-    online for as long as the step). So after any clock step a silent robot reads offline within
-    2 x ``window_s``. O(1). See docs/reliability/agent.md."""
+    Online: heard from by this process within ``window_s`` on the monotonic clock, or a stored time newer
+    than this process' own and at most ``window_s`` old on the wall clock (another process heard from it).
+    A stored time more than ``window_s`` in the future means the clock stepped back since it was written: it
+    proves nothing and is ignored (otherwise a silent robot would read online for as long as the step). So
+    a robot this process has heard from reads offline ``window_s`` after it fell silent whatever the wall
+    clock did; one known only from the database, within 2 x ``window_s`` of a step back (unless the step
+    equals its silence to within ``window_s``: the wall clock is all there is then). O(1). See
+    docs/reliability/agent.md."""
     window = timedelta(seconds=window_s)
     credible = stored if stored is not None and stored - now <= window else None
+    if credible is not None and memory is not None and memory_age_s is not None and credible <= memory:
+        credible = None  # what this process wrote itself: its monotonic age says more than the wall clock
     online = memory_age_s is not None and 0.0 <= memory_age_s <= window_s
     if credible is not None and now - credible <= window:
         online = True
