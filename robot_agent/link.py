@@ -5,9 +5,9 @@ Every call raises :class:`LinkError` on a transport failure or an unexpected sta
 :class:`UnexpectedAnswerError` (a :class:`LinkError`) on an answer that is not the API's: a redirect, a
 wrong content type (a Wi-Fi login portal's HTML page answering 200), a body that is not JSON, JSON of the
 wrong shape (each answer is validated against a pydantic model). ``retry_after_s`` carries the server's
-``Retry-After`` once validated: a non-negative finite number of seconds or an HTTP-date, capped at ``max_retry_after_s``
-(garbage is ignored, with a log line). :class:`Backoff` spaces the retries (exponential, full jitter).
-See docs/reliability/agent.md.
+``Retry-After`` once validated: a non-negative finite number of seconds or an HTTP-date, capped at
+``max_retry_after_s`` (garbage is ignored, with a log line). :class:`Backoff` spaces the retries
+(exponential, full jitter). See docs/reliability/agent.md.
 """
 
 from __future__ import annotations

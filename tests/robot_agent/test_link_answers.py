@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
 from email.utils import format_datetime
 
@@ -72,7 +72,7 @@ def test_an_answer_that_is_not_the_apis_is_a_transient_link_fault(proxy: AnswerP
     proxy.mode = mode
     link = ServerLink(proxy.url, 1, "lmr_x")
     try:
-        calls = [
+        calls: list[Callable[[], object]] = [
             lambda: link.poll(0, 1.0),
             lambda: link.upload({"version": 1}, "k"),
             lambda: link.fetch_kernel("dbscan", "1.1.0"),
