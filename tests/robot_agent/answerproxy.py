@@ -8,7 +8,8 @@ the way a broken network does (for the agent's link tests, docs/reliability/agen
 - ``shape``: ``200 application/json`` of the wrong shape (``{"messages": "none"}`` and the like);
 - ``notjson``: ``200 application/json`` whose body is not JSON.
 
-:attr:`AnswerProxy.mode` switches at once; :attr:`counters` counts ``<mode>.<kind>`` answers
+:attr:`AnswerProxy.mode` switches at once (:attr:`AnswerProxy.only` limits it to some request kinds);
+:attr:`counters` counts ``<mode>.<kind>`` answers
 (``kind``: poll, upload, ack, kernel, other).
 """
 
@@ -44,6 +45,7 @@ class AnswerProxy:
 
     def __init__(self, upstream: str) -> None:
         self.mode = "pass"
+        self.only: frozenset[str] | None = None  # the request kinds ``mode`` applies to (None: all)
         self.counters: Counter[str] = Counter()
         self._lock = threading.Lock()
         self._client = httpx.Client(base_url=upstream, timeout=httpx.Timeout(120.0))
@@ -59,6 +61,8 @@ class AnswerProxy:
                 length = int(self.headers.get("content-length") or 0)
                 body = self.rfile.read(length) if length else b""
                 mode, kind = proxy.mode, _kind(self.command, self.path)
+                if proxy.only is not None and kind not in proxy.only:
+                    mode = "pass"
                 with proxy._lock:
                     proxy.counters[f"{mode}.{kind}"] += 1
                 if mode == "pass":

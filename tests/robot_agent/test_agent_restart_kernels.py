@@ -3,6 +3,8 @@
 
 - the message that installed a kernel is in the Robot DB: a kernel that fails in service after a kill -9
   and restart is still acknowledged ``rolled-back`` on that message;
+- a kernel download answered by a login portal (200 text/html) is a link fault: fetched again once the
+  portal is gone, and applied, never rejected for the portal's bytes;
 - a stored kernel that no longer imports at start-up falls back for its own stage only: every other stage
   and every tuned parameter stays, and the fallback is reported (last_error, the kernel's state).
 """
@@ -19,6 +21,7 @@ import pytest
 
 from shared.signing import KeyPair, generate_keypair, load_private_key, sha256_hex, sign_digest
 from tests.robot_agent.agentproc import AgentProcess, robot_db_meta, wait_for
+from tests.robot_agent.answerproxy import AnswerProxy
 from tests.robot_agent.test_agent_kernels_live import FLAKY, GOOD
 from tests.server.live import Live, start_live
 
@@ -167,3 +170,36 @@ def test_a_stored_kernel_that_no_longer_imports_keeps_the_other_settings(
     for stage in ("mode", "clustering", "straight_line", "segmentation", "scan_matching"):
         assert config[stage] == tuned[stage], stage
     assert dbscan["params"] == {"epsilon_m": 0.05, "min_points": 15}
+
+
+def test_a_kernel_download_met_by_a_portal_is_fetched_again_not_rejected(
+    live: Live, tmp_path: Path, key: KeyPair
+) -> None:
+    op = live.operator()
+    digest = _upload(op, key, GOOD, "1.1.0")
+    rid, token = live.new_robot()
+    with AnswerProxy(live.base_url) as proxy:
+        proxy.mode, proxy.only = "portal", frozenset({"kernel"})
+        extra = ["--rate", "20", "--laps", "0", "--trust-key", key.public_b64, "--retry-base", "0.05"]
+        agent = AgentProcess(tmp_path / "robot.db", server=proxy.url, robot_id=rid, token=token, extra=extra)
+        try:
+            wait_for("first map", lambda: op.get(f"/robots/{rid}").json()["map_version"] > 0, 120)
+            seq = _queue(
+                op,
+                rid,
+                f'<xml><message><kernel-update stage="noise-removal" name="dbscan" version="1.1.0" '
+                f'sha256="{digest}"/></message></xml>'.encode(),
+            )
+            wait_for("downloads met the portal", lambda: proxy.count("portal", "kernel") >= 3, 120)
+            assert _message(op, rid, seq)["status"] == "queued", "a portal page is no reason to reject"
+            proxy.mode = "pass"
+            wait_for("acknowledged", lambda: _message(op, rid, seq)["status"] != "queued", 120)
+            assert _message(op, rid, seq)["status"] == "applied", _message(op, rid, seq)
+            wait_for(
+                "dbscan 1.1.0 in use",
+                lambda: (
+                    op.get(f"/robots/{rid}").json()["active_kernels"].get("noise-removal") == "dbscan@1.1.0"
+                ),
+            )
+        finally:
+            assert agent.stop() == 0, agent.output()
