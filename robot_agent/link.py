@@ -139,6 +139,7 @@ class ServerLink:
         *,
         timeout_s: float = 10.0,
         max_retry_after_s: float = DEFAULT_MAX_RETRY_AFTER_S,
+        transport: httpx.BaseTransport | None = None,
     ) -> None:
         self.robot_id = robot_id
         self.max_retry_after_s = max_retry_after_s
@@ -147,6 +148,7 @@ class ServerLink:
             base_url=self._base,
             headers={"Authorization": f"Bearer {token}", "User-Agent": "linemap-agent"},
             timeout=httpx.Timeout(timeout_s),
+            transport=transport,
         )
 
     def close(self) -> None:

@@ -11,8 +11,9 @@ from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
 from email.utils import format_datetime
 
+import httpx
 import pytest
-from hypothesis import given
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from robot_agent.agent import _transient
@@ -95,5 +96,62 @@ def test_a_503_carries_only_a_usable_retry_after(proxy: AnswerProxy, mode: str, 
             link.poll(0, 1.0)
         assert info.value.status == 503 and info.value.retry_after_s == after
         assert math.isfinite(Backoff().next_delay(info.value.retry_after_s))
+    finally:
+        link.close()
+
+
+_CTYPES = st.sampled_from(
+    ["application/json", "application/json; charset=utf-8", "text/html", "text/x-python", "", "text/plain"]
+)
+_BODIES = st.one_of(
+    st.binary(max_size=200),
+    st.sampled_from(
+        [
+            b'{"messages": []}',
+            b'{"messages": [{"seq": 0, "xml": "x"}]}',
+            b'{"messages": [{"seq": 1}]}',
+            b'{"messages": null}',
+            b"[]",
+            b"null",
+            b'{"version": -1}',
+            b'{"current_version": "x"}',
+            b'{"detail": 5}',
+            b"1e999",
+        ]
+    ),
+)
+
+
+@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    status=st.sampled_from([200, 201, 204, 301, 302, 304, 400, 401, 404, 409, 413, 429, 500, 503]),
+    ctype=_CTYPES,
+    body=_BODIES,
+    retry_after=st.one_of(st.none(), st.text(max_size=30)),
+)
+def test_whatever_comes_back_the_link_returns_a_valid_answer_or_raises_a_link_error(
+    status: int, ctype: str, body: bytes, retry_after: str | None
+) -> None:
+    headers = {"content-type": ctype} if ctype else {}
+    if retry_after is not None and retry_after.isprintable() and retry_after.isascii():
+        headers["retry-after"] = retry_after
+
+    def answer(_request: httpx.Request) -> httpx.Response:
+        return httpx.Response(status, headers=headers, content=body)
+
+    link = ServerLink("http://server.invalid", 1, "lmr_x", transport=httpx.MockTransport(answer))
+    try:
+        for call in (
+            lambda: link.poll(0, 1.0),
+            lambda: link.upload({"version": 1}, "k"),
+            lambda: link.ack(1, "applied", None),
+            lambda: link.fetch_kernel("dbscan", "1.1.0"),
+        ):
+            hint: float | None = None
+            try:
+                call()
+            except LinkError as exc:  # the only way a call may fail, whatever came back
+                hint = exc.retry_after_s
+            assert hint is None or 0.0 <= hint <= DEFAULT_MAX_RETRY_AFTER_S
     finally:
         link.close()
