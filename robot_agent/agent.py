@@ -1,9 +1,11 @@
-"""The robot agent (SPEC §8, issue 5): maps step by step, keeps everything in the Robot DB, talks to the
-server on background threads, applies control messages between steps and hot-swaps kernels.
+"""The robot agent (SPEC §8): maps step by step, keeps everything in the Robot DB, talks to the server on
+background threads, applies control messages between steps and hot-swaps kernels.
 
-Threads: the caller's thread maps (``run``); a poller long-polls messages and prepares them (download and
-verify kernels); an uploader sends acknowledgements and the outbox. Mapping never waits on the network: the
-threads meet only through the Robot DB and a queue of prepared messages.
+Threads: the caller's thread maps (``run``); a poller (:mod:`robot_agent.poller`) long-polls messages and
+prepares them (download and verify kernels); an uploader (:mod:`robot_agent.uploader`) sends
+acknowledgements and the outbox. Mapping never waits on the network: the threads meet only through the
+Robot DB and a queue of prepared messages. Every loop runs supervised (:mod:`robot_agent.supervise`): one
+that dies unexpectedly is restarted after a backoff and reported in ``last_error``.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,10 +32,15 @@ from robot_agent.control import (
 )
 from robot_agent.errors import AgentError, KernelRejected, LinkError
 from robot_agent.guard import guarded
-from robot_agent.link import Backoff, ServerLink, UploadConflict
+from robot_agent.health import AgentStats, ErrorReport
+from robot_agent.link import DEFAULT_MAX_RETRY_AFTER_S, ServerLink
 from robot_agent.models import KernelRecord
+from robot_agent.poller import Poller
+from robot_agent.recover import repair_config
 from robot_agent.sources import is_live, open_scans
 from robot_agent.store import RobotDB, StepRecord
+from robot_agent.supervise import Supervised, run_supervised, supervise
+from robot_agent.uploader import Uploader
 from shared.control import ControlMessageError, OperationKind, parse_message
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Kernel, Stage
@@ -75,14 +82,8 @@ class AgentSettings:
     encoders: str | None = None  # serial device of the wheel-encoder bridge (a ``urg:`` source only)
     retry_base_s: float = 0.5  # first delay after a network fault (doubles per failure, capped at 30 s)
     stop_grace_s: float = 10.0  # after a stop, the uploader keeps retrying this long to empty the outbox
-
-
-@dataclass
-class AgentStats:
-    steps: int = 0
-    swaps_ms: list[float] = field(default_factory=list)
-    rollbacks: int = 0
-    last_error: str | None = None
+    max_retry_after_s: float = DEFAULT_MAX_RETRY_AFTER_S  # a longer Retry-After is capped to this
+    error_clear_s: float = 60.0  # last_error is cleared after this long without a new one (health.py)
 
 
 class Agent:
@@ -105,15 +106,20 @@ class Agent:
         self.db = RobotDB(settings.db_path)
         self.link = link
         if link is None and settings.server_url:
-            self.link = ServerLink(settings.server_url, settings.robot_id, settings.token)
+            self.link = ServerLink(
+                settings.server_url,
+                settings.robot_id,
+                settings.token,
+                max_retry_after_s=settings.max_retry_after_s,
+            )
         self.trusted = [load_public_key(k) for k in settings.trusted_keys]
-        self.stats = AgentStats()
+        self.stats = AgentStats(ErrorReport(settings.error_clear_s))
+        self.threads: dict[str, Supervised] = {}
         restarted = self.db.get("restart_reason")
         if restarted:
             self.stats.last_error = str(restarted)
             self.db.put("restart_reason", None)
         self._inbox: queue.Queue[Prepared] = queue.Queue()
-        self._handed = 0
         self._recent: deque[Scan] = deque(maxlen=10)
         self._recent_lock = threading.Lock()
         self._failures: list[tuple[type[Kernel[Any]], str]] = []
@@ -123,28 +129,69 @@ class Agent:
         self._came_over: dict[tuple[str, str, str], PipelineConfig | None] = {}
         self._wake_uploader = threading.Event()
         self._mapping_over = threading.Event()  # set once the mapping thread recorded its last step
-        self._stop_deadline: float | None = None  # the uploader's last try after a stop
         self._stepped: tuple[int, float] = (0, 0.0)
-        self._need_snapshot = False
         self.pipeline = Pipeline(self._initial_config())
         self._prev_walls: dict[int, tuple[float, float, float, float]] = {}
         stored = self.db.walls()
         self._id_offset = int(max((w[0] for w in stored), default=-1)) + 1
+        self.poller: Poller | None = None
+        self.uploader: Uploader | None = None
+        if self.link is not None:
+            self.poller = Poller(
+                self.link,
+                self.db.applied_seq,
+                self._prepare,
+                self._inbox,
+                self.stats.errors,
+                poll_wait_s=settings.poll_wait_s,
+                retry_base_s=settings.retry_base_s,
+            )
+            self.uploader = Uploader(
+                self.link,
+                self.db,
+                self._status,
+                self._wall_time,
+                self._wake_uploader,
+                self._mapping_over,
+                self.stats.errors,
+                robot_id=settings.robot_id,
+                upload_period_s=settings.upload_period_s,
+                upload_batch=settings.upload_batch,
+                retry_base_s=settings.retry_base_s,
+                stop_grace_s=settings.stop_grace_s,
+            )
 
     # ------------------------------------------------------------------ start-up
     def _initial_config(self) -> PipelineConfig:
+        """The configuration in force at start-up: the stored one, with its downloaded kernels registered
+        again. A stored kernel that no longer loads is marked rejected and, in the stored configuration,
+        only its own use falls back (to a built-in version of that kernel with the same parameters, else
+        the stage's default): every other stage and parameter is kept, and the fallback is reported
+        (log line, ``last_error``, the kernel's state). See docs/reliability/agent.md."""
+        broken: list[str] = []
         for rec in self.db.kernels(["active", "verified", "retired"]):
             try:
                 self._register_record(rec)
-            except KernelRejected as exc:
-                log.error("stored kernel %s %s no longer loads: %s", rec.name, rec.version, exc.reason)
+            except Exception as exc:  # whatever the stored module does on import, the agent starts
+                why = exc.reason if isinstance(exc, KernelRejected) else f"{type(exc).__name__}: {exc}"
+                log.error("stored kernel %s %s no longer loads: %s", rec.name, rec.version, why)
+                self.db.set_kernel_state(rec.stage, rec.name, rec.version, "rejected", f"at start-up: {why}")
+                broken.append(f"{rec.stage} kernel {rec.name} {rec.version} no longer loads ({why})")
         stored = self.db.get("config")
         config = self.s.config or PipelineConfig()
         if stored is not None:
             try:
                 config = PipelineConfig.parse(stored)
             except LinemapError as exc:
-                log.error("stored configuration is invalid (%s); starting from the defaults", exc)
+                config, notes = repair_config(stored, PipelineConfig())
+                for note in notes:
+                    log.error("stored configuration: %s", note)
+                if not notes:
+                    log.error("stored configuration is invalid (%s); starting from the defaults", exc)
+                    notes = [f"the stored configuration was invalid ({exc}); started from the defaults"]
+                broken.extend(notes)
+        if broken:
+            self.stats.last_error = "at start-up: " + "; ".join(broken)
         config = pin_versions(config)
         self.db.record_config(config.model_dump(mode="json"), "start-up", kernels_run(config))
         return config
@@ -199,29 +246,47 @@ class Agent:
 
     # ------------------------------------------------------------------ main loop
     def run(self, stop: threading.Event) -> None:
-        threads = []
-        if self.link is not None:
-            for target in (self._poller, self._uploader):
-                t = threading.Thread(target=target, args=(stop,), name=target.__name__, daemon=True)
-                t.start()
-                threads.append(t)
+        """Map until the source ends (then keep serving the link if ``stay``) or ``stop`` is set. The
+        mapping loop runs supervised on this thread: a deliberate error (:class:`LinemapError`, e.g. the
+        source cannot be opened) ends the agent with its message; anything else restarts it."""
+        if self.poller is not None and self.uploader is not None:
+            for name, loop in (("poller", self.poller.run), ("uploader", self.uploader.run)):
+                self.threads[name] = supervise(
+                    name, loop, stop, self._thread_died, retry_base_s=self.s.retry_base_s
+                )
+        mapping = self.threads["mapping"] = Supervised("mapping", threading.current_thread())
         try:
-            self._map(stop)
-            while self.s.stay and not stop.is_set():  # the source ended: keep serving the link
-                self._apply_pending()
-                stop.wait(0.05)
+            run_supervised(
+                mapping,
+                self._mapping_loop,
+                stop,
+                self._thread_died,
+                retry_base_s=self.s.retry_base_s,
+                fatal=(LinemapError,),
+            )
         finally:
             self._mapping_over.set()
             stop.set()
             self._wake_uploader.set()
-            for t in threads:
+            for name, sup in self.threads.items():
                 # The uploader finishes its round (acknowledgements and map versions reach the server); the
                 # poller may sit in a long-poll for poll_wait_s: what it would fetch is fetched again at the
                 # next start, so it is not waited for (a daemon thread, gone with the process).
-                t.join(timeout=2.0 if t.name == "_poller" else self.s.poll_wait_s + 15)
+                if name != "mapping":
+                    sup.join(2.0 if name == "poller" else self.s.poll_wait_s + 15)
             self.db.close()
             if self.link is not None:
                 self.link.close()
+
+    def _mapping_loop(self, stop: threading.Event) -> None:
+        self._map(stop)
+        while self.s.stay and not stop.is_set():  # the source ended: keep serving the link
+            self._apply_pending()
+            stop.wait(0.05)
+
+    def _thread_died(self, name: str, exc: BaseException) -> None:
+        """A supervised loop died unexpectedly (restarted after a backoff): report it."""
+        self.stats.last_error = f"thread {name} died and was restarted: {type(exc).__name__}: {exc}"
 
     def _map(self, stop: threading.Event) -> None:
         resume = int(self.db.get("source_index", 0) or 0)
@@ -339,7 +404,8 @@ class Agent:
         self.db.set_kernel_state(*key, "rejected", reason)
         self._refresh_kernel_states(previous)
         self._probation.pop(key, None)
-        seq = self._installed_by.pop(key, None)
+        stored_seq = self.db.take_installed_by(*key)  # kept in the Robot DB: also after a restart
+        seq = self._installed_by.pop(key, stored_seq)
         if seq is not None:
             self.db.mark_rolled_back(seq, reason)
             self._wake_uploader.set()
@@ -377,7 +443,12 @@ class Agent:
             return
         self.stats.swaps_ms.append((time.perf_counter() - t0) * 1e3)
         self.db.record_message(
-            prepared.seq, "applied", None, config.model_dump(mode="json"), ran=kernels_run(config)
+            prepared.seq,
+            "applied",
+            None,
+            config.model_dump(mode="json"),
+            ran=kernels_run(config),
+            installed=list(prepared.classes),
         )
         for key in prepared.classes:
             self._installed_by[key] = prepared.seq
@@ -466,85 +537,7 @@ class Agent:
         self.db.save_kernel(record)
         return cls
 
-    # ------------------------------------------------------------------ network threads
-    def _poller(self, stop: threading.Event) -> None:
-        assert self.link is not None
-        backoff, download_backoff = Backoff(self.s.retry_base_s), Backoff(self.s.retry_base_s)
-        while not stop.is_set():
-            after = max(self.db.applied_seq(), self._handed)
-            try:
-                messages = self.link.poll(after, self.s.poll_wait_s)
-            except LinkError as exc:
-                self.stats.last_error = str(exc)
-                stop.wait(backoff.next_delay(exc.retry_after_s))
-                continue
-            backoff.reset()
-            if stop.is_set():
-                return
-            for raw in messages:
-                if int(raw["seq"]) > after:
-                    try:
-                        prepared = self._prepare(raw)
-                    except LinkError as exc:  # a kernel download failed in transit: poll it again
-                        self.stats.last_error = str(exc)
-                        log.warning("message %s: kernel download failed, retrying: %s", raw["seq"], exc)
-                        stop.wait(download_backoff.next_delay(exc.retry_after_s))
-                        break
-                    download_backoff.reset()
-                    self._inbox.put(prepared)
-                    self._handed = after = int(raw["seq"])
-
-    def _uploader(self, stop: threading.Event) -> None:
-        assert self.link is not None
-        backoff = Backoff(self.s.retry_base_s)
-        while True:
-            over = self._mapping_over.is_set()  # before the round: a step recorded during it is seen next
-            try:
-                busy = self._send_acks() | self._send_maps()
-                backoff.reset()
-            except LinkError as exc:
-                self.stats.last_error = str(exc)
-                if self._give_up(stop, backoff.next_delay(exc.retry_after_s)):
-                    return
-                continue
-            except Exception as exc:  # never let the thread die: the robot would go silent while mapping
-                log.exception("upload round failed")
-                self.stats.last_error = f"upload failed: {type(exc).__name__}: {exc}"
-                if self._give_up(stop, backoff.next_delay()):
-                    return
-                continue
-            # ``stop`` may come while a step is still being recorded: the uploader ends only after a
-            # round that began once the last one was recorded found nothing to send, so a clean stop
-            # leaves nothing in the outbox.
-            if stop.is_set() and over and not busy:
-                return
-            if not busy:
-                self._wake_uploader.wait(self.s.upload_period_s)
-                self._wake_uploader.clear()
-
-    def _give_up(self, stop: threading.Event, delay_s: float) -> bool:
-        """Wait ``delay_s`` before the next try after a failed round; True when the uploader should end.
-        Once stopped it goes on trying for ``stop_grace_s`` (a clean stop should leave nothing in the
-        outbox: one failed round just then, e.g. a connection the network had cut, left the last steps
-        behind), then ends: what is left is sent at the next start."""
-        if not stop.wait(delay_s):
-            return False
-        now = time.monotonic()
-        if self._stop_deadline is None:
-            self._stop_deadline = now + self.s.stop_grace_s
-        if now >= self._stop_deadline:
-            return True
-        time.sleep(min(delay_s, self._stop_deadline - now))
-        return False
-
-    def _send_acks(self) -> bool:
-        assert self.link is not None
-        rows = self.db.unacked()
-        for row in rows:
-            self.link.ack(row.seq, row.outcome, row.reason)
-            self.db.mark_acked(row.seq)
-        return bool(rows)
-
+    # ------------------------------------------------------------------ status
     def _status(self) -> dict[str, Any]:
         median_ms, _p99 = self.pipeline.timing_ms()
         config = self.pipeline.config
@@ -552,7 +545,7 @@ class Agent:
             "mode": str(config.mode),
             "active_kernels": kernels_in_use(config),
             "step_ms": median_ms if median_ms == median_ms else None,
-            "last_error": _clip(self.stats.last_error, 2000),  # the server takes at most 2000 characters
+            "last_error": _clip(self.stats.errors.status(), 2000),  # the server takes at most 2000 characters
             "config": config.model_dump(mode="json"),
             "kernels": [
                 {"stage": k.stage, "name": k.name, "version": k.version, "state": k.state, "sha256": k.sha256}
@@ -564,61 +557,6 @@ class Agent:
         """When the step of map ``version`` finished (Unix s), if it is the newest step; else None."""
         stepped_version, at = self._stepped
         return at if stepped_version == version else None
-
-    def _send_maps(self) -> bool:
-        assert self.link is not None
-        up = self.db.pending_upload(self.s.upload_batch)
-        if up is None:
-            return False
-        base = self.db.get("uploaded_version")
-        if self._need_snapshot or base is None or int(base) != up.first_version - 1:
-            return self._send_snapshot()
-        payload = {
-            "version": up.version,
-            "base_version": int(base),
-            "stamp_s": up.stamp_s,
-            "segments": up.segments,
-            "removed": up.removed,
-            "centroids": up.centroids,
-            "pose": up.pose,
-            "trajectory": up.trajectory,
-            "status": self._status(),
-            "wall_time_s": self._wall_time(up.version),
-        }
-        got = self.link.upload(payload, f"r{self.s.robot_id}-{base}-{up.version}")
-        if isinstance(got, UploadConflict):
-            if got.current_version >= up.version:
-                self.db.mark_uploaded(got.current_version)
-            else:
-                self._need_snapshot = True
-            return True
-        self.db.mark_uploaded(up.version)
-        return True
-
-    def _send_snapshot(self) -> bool:
-        assert self.link is not None
-        snap = self.db.snapshot()
-        if snap is None:
-            return False
-        payload = {
-            "base_version": None,
-            "status": self._status(),
-            "wall_time_s": self._wall_time(int(snap["version"])),
-            **snap,
-        }
-        got = self.link.upload(payload, f"r{self.s.robot_id}-snapshot-{snap['version']}")
-        if isinstance(got, UploadConflict):
-            if got.current_version >= snap["version"]:
-                self.db.mark_uploaded(got.current_version)
-                self._need_snapshot = False
-                return True
-            raise LinkError(
-                f"the server's map of robot {self.s.robot_id} is at version {got.current_version}, "
-                f"ahead of this robot's {snap['version']}: was the Robot DB replaced?"
-            )
-        self.db.mark_uploaded(int(snap["version"]))
-        self._need_snapshot = False
-        return True
 
 
 def _used(config: PipelineConfig, stage: str, name: str, version: str) -> bool:

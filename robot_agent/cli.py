@@ -40,6 +40,8 @@ def _file_settings(path: Path | None) -> dict[str, Any]:
         "laps",
         "encoders",
         "retry_base",
+        "max_retry_after",
+        "error_clear",
     }
     unknown = sorted(set(data) - allowed)
     if unknown:
@@ -51,6 +53,13 @@ def _retry_base(value: Any, path: Path | None) -> float:
     """``retry_base`` from the agent file: a number of seconds in [0.001, 60]."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not 0.001 <= value <= 60:
         raise LinemapError(f"agent file {path}: retry_base = {value!r}: expected seconds in [0.001, 60]")
+    return float(value)
+
+
+def _seconds(value: Any, path: Path | None, key: str, low: float, high: float) -> float:
+    """A number of seconds in ``[low, high]`` from the agent file's ``key``."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
+        raise LinemapError(f"agent file {path}: {key} = {value!r}: expected seconds in [{low:g}, {high:g}]")
     return float(value)
 
 
@@ -128,6 +137,24 @@ def agent_cmd(
             "[0.5].",
         ),
     ] = None,
+    max_retry_after: Annotated[
+        float | None,
+        typer.Option(
+            min=0,
+            max=3600,
+            help="Longest Retry-After honoured, s (a longer one is capped; inf, negatives, garbage ignored) "
+            "[60].",
+        ),
+    ] = None,
+    error_clear: Annotated[
+        float | None,
+        typer.Option(
+            min=0,
+            max=86400,
+            help="last_error is cleared once this long passed without a new error and a status reached the "
+            "server, s [60].",
+        ),
+    ] = None,
 ) -> None:
     """Map from SOURCE and follow the server: apply control messages between steps, hot-swap verified
     kernels, upload every map version (kept in the Robot DB until the server has it)."""
@@ -158,6 +185,12 @@ def agent_cmd(
         laps=laps if laps is not None else int(f.get("laps", 1)),
         encoders=encoders or f.get("encoders"),
         retry_base_s=retry_base if retry_base is not None else _retry_base(f.get("retry_base", 0.5), file),
+        max_retry_after_s=max_retry_after
+        if max_retry_after is not None
+        else _seconds(f.get("max_retry_after", 60.0), file, "max_retry_after", 0, 3600),
+        error_clear_s=error_clear
+        if error_clear is not None
+        else _seconds(f.get("error_clear", 60.0), file, "error_clear", 0, 86400),
     )
     if settings.allow_unsigned:
         typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)

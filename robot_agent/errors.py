@@ -6,9 +6,11 @@ traceback. Messages say what was refused and why, in words an operator can act o
 
 from __future__ import annotations
 
+from typing import Any
+
 from shared.errors import LinemapError
 
-__all__ = ["AgentError", "KernelRejected", "LinkError", "SourceError"]
+__all__ = ["AgentError", "KernelRejected", "LinkError", "SourceError", "UnexpectedAnswerError"]
 
 
 class AgentError(LinemapError):
@@ -36,6 +38,23 @@ class LinkError(AgentError):
         super().__init__(message)
         self.status = status
         self.retry_after_s = retry_after_s
+
+
+class UnexpectedAnswerError(LinkError):
+    """Something answered that is not the server's API: a redirect, a wrong content type (a login
+    portal's HTML page), a body that is not JSON or JSON of the wrong shape. A link fault like no answer at
+    all: retried after a backoff, never taken as the server's word (a kernel download is fetched again, not
+    rejected)."""
+
+    def __init__(self, where: str, resp: Any, expected: str, *, retry_after_s: float | None = None) -> None:
+        ctype = resp.headers.get("content-type", "") or "no content type"
+        text = resp.content[:80].decode("utf-8", "replace").replace("\n", " ")
+        super().__init__(
+            f"{where}: unexpected answer (HTTP {resp.status_code}, {ctype}: {text!r}); expected {expected}",
+            status=None,
+            retry_after_s=retry_after_s,
+        )
+        self.http_status = resp.status_code
 
 
 class SourceError(AgentError):

@@ -1,29 +1,50 @@
-"""The robot's side of the REST API (issue 4): long-poll messages, acknowledge them, upload maps, download
-kernels. Every call raises :class:`LinkError` on a transport failure or an unexpected status, carrying
-``retry_after_s`` when the server sent ``Retry-After``; :class:`Backoff` spaces the retries (exponential,
-full jitter).
+"""The robot's side of the REST API (SPEC §8): long-poll messages, acknowledge them, upload maps, download
+kernels.
+
+Every call raises :class:`LinkError` on a transport failure or an unexpected status, and
+:class:`UnexpectedAnswerError` (a :class:`LinkError`) on an answer that is not the API's: a redirect, a
+wrong content type (a Wi-Fi login portal's HTML page answering 200), a body that is not JSON, JSON of the
+wrong shape (each answer is validated against a pydantic model). ``retry_after_s`` carries the server's
+``Retry-After`` once validated: a non-negative finite number of seconds or an HTTP-date, capped at
+``max_retry_after_s`` (garbage is ignored, with a log line). :class:`Backoff` spaces the retries
+(exponential, full jitter). See docs/reliability/agent.md.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import random
+import time
 from dataclasses import dataclass
-from typing import Any
+from email.utils import parsedate_to_datetime
+from typing import Any, TypeVar
 
 import httpx
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from robot_agent.errors import LinkError
+from robot_agent.errors import LinkError, UnexpectedAnswerError
 
-__all__ = ["Backoff", "KernelDownload", "ServerLink", "UploadConflict"]
+__all__ = [
+    "Backoff",
+    "KernelDownload",
+    "ServerLink",
+    "UploadConflict",
+    "parse_retry_after",
+]
 
 log = logging.getLogger(__name__)
+
+#: Longest ``Retry-After`` the agent honours by default, s (a longer one is capped to this).
+DEFAULT_MAX_RETRY_AFTER_S = 60.0
+
+_M = TypeVar("_M", bound=BaseModel)
 
 
 @dataclass
 class Backoff:
     """Delays for retry ``n``: uniform in ``[0, min(cap_s, base_s * 2**n)]`` (AWS "full jitter"), and never
-    less than the server's ``Retry-After``."""
+    less than the server's ``Retry-After`` (which is ignored unless finite and non-negative)."""
 
     base_s: float = 0.5
     cap_s: float = 30.0
@@ -34,7 +55,9 @@ class Backoff:
         rng = self.rng or random
         delay = rng.uniform(0.0, min(self.cap_s, self.base_s * 2.0**self.attempt))
         self.attempt = min(self.attempt + 1, 30)
-        return max(delay, retry_after_s or 0.0)
+        if retry_after_s is None or not math.isfinite(retry_after_s) or retry_after_s < 0:
+            return delay
+        return max(delay, retry_after_s)
 
     def reset(self) -> None:
         self.attempt = 0
@@ -55,48 +78,137 @@ class KernelDownload:
     stage: str
 
 
+class _Answer(BaseModel):
+    model_config = ConfigDict(extra="ignore")
+
+
+class _Message(_Answer):
+    seq: int = Field(ge=1)
+    xml: str
+
+
+class _Messages(_Answer):
+    messages: list[_Message]
+
+
+class _Uploaded(_Answer):
+    version: int = Field(ge=0)
+
+
+class _Conflict(_Answer):
+    current_version: int = Field(ge=0)
+
+
+def parse_retry_after(value: str | None, cap_s: float, now_s: float | None = None) -> float | None:
+    """``Retry-After`` as seconds to wait, in ``[0, cap_s]``; None when absent or unusable.
+
+    Takes delta-seconds (a non-negative finite number; ``inf``, ``nan``, negatives are refused) or an
+    HTTP-date (RFC 9110 §10.2.3; a past date means 0). ``now_s`` (Unix s) defaults to the wall clock."""
+    if value is None:
+        return None
+    text = value.strip()
+    try:
+        seconds = float(text)
+    except ValueError:
+        try:
+            when = parsedate_to_datetime(text)
+        except (TypeError, ValueError, IndexError, OverflowError):
+            log.warning("ignoring a Retry-After the agent cannot read: %r", text[:100])
+            return None
+        if when.tzinfo is None:  # RFC 9110 dates are GMT
+            return None
+        now = time.time() if now_s is None else now_s
+        seconds = max(0.0, when.timestamp() - now)
+    if not math.isfinite(seconds) or seconds < 0:
+        log.warning("ignoring Retry-After %r: expected non-negative finite seconds", text[:100])
+        return None
+    if seconds > cap_s:
+        log.warning("Retry-After %r capped to %.0f s", text[:100], cap_s)
+        return cap_s
+    return seconds
+
+
 class ServerLink:
     """Calls to one server as one robot (``Authorization: Bearer`` robot token)."""
 
-    def __init__(self, base_url: str, robot_id: int, token: str, *, timeout_s: float = 10.0) -> None:
+    def __init__(
+        self,
+        base_url: str,
+        robot_id: int,
+        token: str,
+        *,
+        timeout_s: float = 10.0,
+        max_retry_after_s: float = DEFAULT_MAX_RETRY_AFTER_S,
+        transport: httpx.BaseTransport | None = None,
+    ) -> None:
         self.robot_id = robot_id
+        self.max_retry_after_s = max_retry_after_s
         self._base = base_url.rstrip("/") + "/api/v1"
         self._client = httpx.Client(
             base_url=self._base,
             headers={"Authorization": f"Bearer {token}", "User-Agent": "linemap-agent"},
             timeout=httpx.Timeout(timeout_s),
+            transport=transport,
         )
 
     def close(self) -> None:
         self._client.close()
 
     def _call(
-        self, method: str, path: str, *, timeout_s: float | None = None, **kwargs: Any
+        self,
+        method: str,
+        path: str,
+        *,
+        timeout_s: float | None = None,
+        expect: str = "application/json",
+        **kwargs: Any,
     ) -> httpx.Response:
+        where = f"{method} {path}"
         try:
             if timeout_s is not None:
                 kwargs["timeout"] = httpx.Timeout(timeout_s)
             resp = self._client.request(method, path, **kwargs)
         except httpx.HTTPError as exc:
-            raise LinkError(f"{method} {path}: {type(exc).__name__}: {exc or 'no response'}") from None
+            raise LinkError(f"{where}: {type(exc).__name__}: {exc or 'no response'}") from None
+        retry = parse_retry_after(resp.headers.get("retry-after"), self.max_retry_after_s)
+        ours = _content_type(resp) == "application/json"
         if resp.status_code >= 400 and resp.status_code != 409:
+            if not ours and resp.status_code not in (408, 429) and resp.status_code < 500:
+                # A 4xx that is not the API's JSON: something between the robot and the server answered.
+                raise UnexpectedAnswerError(where, resp, "a JSON error", retry_after_s=retry)
             raise LinkError(
-                f"{method} {path}: HTTP {resp.status_code}: {_detail(resp)}",
+                f"{where}: HTTP {resp.status_code}: {_detail(resp)}",
                 status=resp.status_code,
-                retry_after_s=_retry_after(resp),
+                retry_after_s=retry,
             )
+        if not 200 <= resp.status_code < 300 and resp.status_code != 409:
+            raise UnexpectedAnswerError(where, resp, f"2xx with {expect}", retry_after_s=retry)
+        if _content_type(resp) != (expect if resp.status_code != 409 else "application/json"):
+            raise UnexpectedAnswerError(where, resp, expect, retry_after_s=retry)
         return resp
 
+    def _json(self, resp: httpx.Response, model: type[_M]) -> _M:
+        try:
+            return model.model_validate_json(resp.content)
+        except ValidationError as exc:
+            first = exc.errors(include_url=False)[0]
+            at = ".".join(str(p) for p in first["loc"]) or "body"
+            raise UnexpectedAnswerError(
+                f"{resp.request.method} {resp.request.url.path}",
+                resp,
+                f"JSON like {model.__name__.lstrip('_')} ({at}: {first['msg']})",
+            ) from None
+
     def poll(self, after: int, wait_s: float) -> list[dict[str, Any]]:
-        """Messages with seq above ``after``, waiting up to ``wait_s`` for one (long-poll)."""
+        """Messages with seq above ``after``, waiting up to ``wait_s`` for one (long-poll); each
+        ``{"seq": int, "xml": str}``."""
         resp = self._call(
             "GET",
             f"/robots/{self.robot_id}/messages",
             params={"after": after, "wait": wait_s},
             timeout_s=wait_s + 10.0,
         )
-        messages: list[dict[str, Any]] = resp.json()["messages"]
-        return messages
+        return [m.model_dump() for m in self._json(resp, _Messages).messages]
 
     def ack(self, seq: int, outcome: str, reason: str | None) -> None:
         """Report a message's outcome; a conflicting earlier acknowledgement (409) is logged, not retried."""
@@ -110,12 +222,13 @@ class ServerLink:
             "POST", f"/robots/{self.robot_id}/maps", json=payload, headers={"Idempotency-Key": key}
         )
         if resp.status_code == 409:
-            return UploadConflict(int(resp.json().get("current_version", 0)))
+            return UploadConflict(self._json(resp, _Conflict).current_version)
+        self._json(resp, _Uploaded)
         out: dict[str, Any] = resp.json()
         return out
 
     def fetch_kernel(self, name: str, version: str) -> KernelDownload:
-        resp = self._call("GET", f"/kernels/{name}/{version}/artifact")
+        resp = self._call("GET", f"/kernels/{name}/{version}/artifact", expect="text/x-python")
         return KernelDownload(
             resp.content,
             resp.headers.get("x-linemap-sha256", ""),
@@ -124,18 +237,14 @@ class ServerLink:
         )
 
 
+def _content_type(resp: httpx.Response) -> str:
+    return str(resp.headers.get("content-type", "")).split(";")[0].strip().lower()
+
+
 def _detail(resp: httpx.Response) -> str:
     try:
-        return str(resp.json().get("detail", resp.text))[:500]
+        body = resp.json()
     except ValueError:
         return resp.text[:500]
-
-
-def _retry_after(resp: httpx.Response) -> float | None:
-    value = resp.headers.get("retry-after")
-    if value is None:
-        return None
-    try:
-        return max(0.0, float(value))
-    except ValueError:
-        return None
+    detail = body.get("detail", resp.text) if isinstance(body, dict) else resp.text
+    return str(detail)[:500]

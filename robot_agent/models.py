@@ -5,7 +5,8 @@ kernel artifacts and their state), ``config_history``, ``map_versions`` (each st
 ``walls`` (the current map, for restarts), ``poses`` (trajectory), ``outbox`` (map versions not yet
 acknowledged by the server), ``applied_messages`` (control messages applied or rejected, and whether the
 server has the acknowledgement), ``kernels_run`` (the highest version of each kernel ever put in force: the
-anti-rollback floor of SPEC §9). Lengths metres, angles radians, times UTC.
+anti-rollback floor of SPEC §9). ``kernels.installed_by_seq`` ties a downloaded kernel to the message that
+installed it. Lengths metres, angles radians, times UTC.
 """
 
 from __future__ import annotations
@@ -64,6 +65,9 @@ class KernelRecord(RobotBase):
     state: Mapped[str] = mapped_column(String(16))
     reason: Mapped[str | None] = mapped_column(Text, default=None)
     installed_at: Mapped[datetime] = mapped_column(default=utcnow)
+    #: The control message whose configuration put this version in force (an automatic rollback is
+    #: reported as that message's outcome, also after a restart); null once reported or never applied.
+    installed_by_seq: Mapped[int | None] = mapped_column(Integer, default=None)
 
 
 class ConfigRecord(RobotBase):

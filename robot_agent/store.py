@@ -285,15 +285,31 @@ class RobotDB:
         config: dict[str, Any] | None,
         note: str = "",
         ran: Ran = (),
+        installed: Ran = (),
     ) -> None:
         """A message's outcome, the configuration it put in force and the kernel versions that configuration
-        runs (``ran``, raising their anti-rollback floors), in one transaction."""
+        runs (``ran``, raising their anti-rollback floors), and the downloaded kernels it brought in
+        (``installed``: their ``installed_by_seq`` becomes ``seq``), in one transaction."""
         with self.tx() as s:
             s.add(AppliedMessage(seq=seq, outcome=outcome, reason=reason))
             if config is not None:
                 s.add(ConfigRecord(seq=seq, config=config, note=note))
                 _put(s, "config", config)
                 _raise_floors(s, ran, seq)
+            for stage, name, version in installed:
+                row = _kernel(s, stage, name, version)
+                if row is not None:
+                    row.installed_by_seq = seq
+
+    def take_installed_by(self, stage: str, name: str, version: str) -> int | None:
+        """The message that installed this downloaded kernel (None if none is recorded), forgotten in the
+        same transaction: its rollback is reported once."""
+        with self.tx() as s:
+            row = _kernel(s, stage, name, version)
+            if row is None or row.installed_by_seq is None:
+                return None
+            seq, row.installed_by_seq = row.installed_by_seq, None
+            return int(seq)
 
     def record_config(self, config: dict[str, Any], note: str, ran: Ran = ()) -> None:
         """A configuration put in force without a message (start-up, automatic rollback), and the kernel
@@ -366,6 +382,14 @@ class RobotDB:
             if states is not None:
                 q = q.where(KernelRecord.state.in_(list(states)))
             return list(s.scalars(q))
+
+
+def _kernel(s: Session, stage: str, name: str, version: str) -> KernelRecord | None:
+    return s.scalars(
+        select(KernelRecord).where(
+            KernelRecord.stage == stage, KernelRecord.name == name, KernelRecord.version == version
+        )
+    ).first()
 
 
 def _raise_floors(s: Session, ran: Ran, seq: int | None) -> None:

@@ -40,6 +40,7 @@ __all__ = [
     "PrincipalDep",
     "RobotSelf",
     "StateDep",
+    "presence",
     "require_operator",
     "retry_after_header",
     "robot_access",
@@ -75,6 +76,8 @@ class AppState:
     limiter: AuthLimiter = field(init=False)
     _cache: dict[str, tuple[float, Principal | None]] = field(default_factory=dict)
     _seen: dict[int, datetime] = field(default_factory=dict)
+    _seen_mono: dict[int, float] = field(default_factory=dict)  # time.monotonic() when last heard from
+    mono_clock: Callable[[], float] = time.monotonic
     _unflushed: dict[int, datetime] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -146,15 +149,24 @@ class AppState:
         return None
 
     def mark_seen(self, robot_id: int) -> None:
-        """Note that the robot was heard from now (in memory; :meth:`flush_seen` writes it down)."""
+        """Note that the robot was heard from now (in memory, on the wall clock for display and storage and
+        on the monotonic clock for "online"; :meth:`flush_seen` writes the wall time down)."""
         now = utcnow()
         self._seen[robot_id] = now
+        self._seen_mono[robot_id] = self.mono_clock()
         with self._lock:
             self._unflushed[robot_id] = now
 
     def last_seen(self, robot_id: int) -> datetime | None:
         """When the robot was last heard from, if later than what the database holds."""
         return self._seen.get(robot_id)
+
+    def presence(self, robot_id: int, stored: datetime | None) -> tuple[datetime | None, bool]:
+        """``(last_seen_at, online)`` of a robot whose stored ``last_seen_at`` is ``stored``: see
+        :func:`presence`."""
+        mono = self._seen_mono.get(robot_id)
+        age_s = None if mono is None else self.mono_clock() - mono
+        return presence(stored, self._seen.get(robot_id), age_s, utcnow(), self.settings.online_window_s)
 
     def flush_seen(self, conn: Connection | None = None) -> None:
         """Write the last-seen times noted since the previous flush (one executemany; in ``conn``'s
@@ -173,6 +185,35 @@ class AppState:
 
     def session_expiry(self) -> timedelta:
         return timedelta(seconds=self.settings.session_ttl_s)
+
+
+def presence(
+    stored: datetime | None,
+    memory: datetime | None,
+    memory_age_s: float | None,
+    now: datetime,
+    window_s: float,
+) -> tuple[datetime | None, bool]:
+    """``(last_seen_at, online)`` from the stored last-seen time (any process may have written it, wall
+    clock), this process' own (``memory``, with its age on the monotonic clock) and the wall clock ``now``.
+
+    Online: heard from by this process within ``window_s`` on the monotonic clock, or a stored time newer
+    than this process' own and at most ``window_s`` old on the wall clock (another process heard from it).
+    A stored time more than ``window_s`` in the future means the clock stepped back since it was written: it
+    proves nothing and is ignored (otherwise a silent robot would read online for as long as the step). So
+    a robot this process has heard from reads offline ``window_s`` after it fell silent whatever the wall
+    clock did; one known only from the database, within 2 x ``window_s`` of a step back (unless the step
+    equals its silence to within ``window_s``: the wall clock is all there is then). O(1). See
+    docs/reliability/agent.md."""
+    window = timedelta(seconds=window_s)
+    credible = stored if stored is not None and stored - now <= window else None
+    if credible is not None and memory is not None and memory_age_s is not None and credible <= memory:
+        credible = None  # what this process wrote itself: its monotonic age says more than the wall clock
+    online = memory_age_s is not None and 0.0 <= memory_age_s <= window_s
+    if credible is not None and now - credible <= window:
+        online = True
+    known = [t for t in (memory, credible) if t is not None]
+    return (max(known) if known else stored), online
 
 
 async def get_state(request: Request) -> AppState:

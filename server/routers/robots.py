@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from datetime import timedelta
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, status
@@ -13,7 +12,7 @@ from sqlalchemy.orm import Session
 from server.audit import record
 from server.deps import AppState, OperatorDep, Principal, StateDep, robot_access
 from server.errors import ConflictError, NotFoundError
-from server.models import Message, Robot, utcnow
+from server.models import Message, Robot
 from server.schemas import DbIdPath, RobotCreate, RobotCreated, RobotOut
 from server.security import ROBOT_PREFIX, hash_token, new_token
 from server.tokens import lock_live_issuer
@@ -31,9 +30,7 @@ def get_robot(s: Session, robot_id: int) -> Robot:
 
 
 def _out(state: AppState, robot: Robot, pending: int) -> RobotOut:
-    window = timedelta(seconds=state.settings.online_window_s)
-    seen = max((t for t in (robot.last_seen_at, state.last_seen(robot.id)) if t is not None), default=None)
-    online = seen is not None and utcnow() - seen <= window
+    seen, online = state.presence(robot.id, robot.last_seen_at)  # robust to wall-clock steps
     return RobotOut(
         id=robot.id,
         name=robot.name,

@@ -101,3 +101,26 @@ def test_a_snapshot_holds_exactly_its_versions_while_a_step_lands(tmp_path: Path
     finally:
         other.close()
         db.close()
+
+
+def test_the_installing_message_of_a_kernel_survives_reopening_and_is_taken_once(tmp_path: Path) -> None:
+    from robot_agent.models import KernelRecord
+
+    key = ("noise-removal", "dbscan", "1.2.0")
+    db = RobotDB(tmp_path / "robot.db")
+    try:
+        db.save_kernel(
+            KernelRecord(
+                stage=key[0], name=key[1], version=key[2], sha256="0" * 64, source=b"", state="verified"
+            )
+        )
+        db.record_message(7, "applied", None, {"mode": "online"}, installed=[key])
+    finally:
+        db.close()
+    again = RobotDB(tmp_path / "robot.db")  # a restart
+    try:
+        assert again.take_installed_by(*key) == 7
+        assert again.take_installed_by(*key) is None, "a rollback is reported once"
+        assert again.take_installed_by("noise-removal", "dbscan", "9.9.9") is None
+    finally:
+        again.close()

@@ -114,7 +114,8 @@ class StatusTab {
       kv("Step time", r.step_ms == null ? "—" : `${num(r.step_ms, 1)} ms`, "status-step-ms"),
       kv("Map version", String(r.map_version ?? "—"), "status-map-version"),
       kv("Messages", `${r.pending_messages} pending · last seq ${r.last_seq}`, "status-messages"),
-      kv("Last error", r.last_error ? h("span", { class: "text-red pre-wrap" }, r.last_error) : "—", "status-last-error")));
+      // "<UTC time>: <message>" from the agent, cleared once it is healthy again; stale (muted) while offline.
+      kv("Last error", r.last_error ? h("span", { class: `${r.online ? "text-red" : "muted"} pre-wrap` }, r.last_error) : "—", "status-last-error")));
 
     const ak = r.active_kernels || {};
     const active = h("table", { class: "kv" }, h("tbody", null,

@@ -37,7 +37,10 @@ export function renderRobots(root, ctx) {
       h("td", { class: "kernels-cell" }, activeKernels(r.active_kernels)),
       h("td", { class: "num", "data-testid": "robot-map-version" }, r.map_version ?? "—"),
       h("td", { class: "num", "data-testid": "robot-step-ms" }, num(r.step_ms, 1)),
-      h("td", { class: "error-cell" }, r.last_error ? trunc(r.last_error, 40, { class: "text-red" }) : h("span", { class: "muted" }, "—")),
+      h("td", { class: "error-cell", "data-testid": "robot-last-error" }, r.last_error
+        // The agent sends "<UTC time>: <message>" and clears it once healthy; an offline robot's is as of its last contact.
+        ? trunc(r.last_error.replace(/^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ: /, ""), 40, { class: r.online ? "text-red" : "muted" })
+        : h("span", { class: "muted" }, "—")),
       h("td", { class: "num", "data-testid": "robot-pending" }, r.pending_messages ?? 0));
     }));
   };

@@ -1,0 +1,81 @@
+"""The agent's poller: long-polls the server for control messages, prepares each (parse, download and
+verify kernels: see ``Agent._prepare``) and hands it to the mapping thread through a queue.
+
+Any link fault (no answer, an error status, an answer that is not the API's, see :mod:`robot_agent.link`)
+is reported and retried after a backoff: whatever the network answers, the loop goes on. An exception it
+does not expect ends :meth:`Poller.run`; the supervisor (:mod:`robot_agent.supervise`) restarts it.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from robot_agent.control import Prepared
+from robot_agent.errors import LinkError
+from robot_agent.health import ErrorReport
+from robot_agent.link import Backoff, ServerLink
+
+__all__ = ["Poller"]
+
+log = logging.getLogger(__name__)
+
+
+class Poller:
+    """Collaborators: ``link`` (the server), ``applied_seq`` (the highest message dealt with, from the Robot
+    DB), ``prepare`` (a raw message to a :class:`Prepared`; raises :class:`LinkError` on a download fault),
+    ``inbox`` (to the mapping thread), ``errors`` (last_error)."""
+
+    def __init__(
+        self,
+        link: ServerLink,
+        applied_seq: Callable[[], int],
+        prepare: Callable[[dict[str, Any]], Prepared],
+        inbox: queue.Queue[Prepared],
+        errors: ErrorReport,
+        *,
+        poll_wait_s: float = 20.0,
+        retry_base_s: float = 0.5,
+    ) -> None:
+        self.link = link
+        self._applied_seq = applied_seq
+        self._prepare = prepare
+        self._inbox = inbox
+        self._errors = errors
+        self.poll_wait_s = poll_wait_s
+        self.retry_base_s = retry_base_s
+        self.handed = 0  # the highest seq handed to the mapping thread (kept across restarts of run)
+        self.polls_ok = 0
+
+    def run(self, stop: threading.Event) -> None:
+        backoff, download_backoff = Backoff(self.retry_base_s), Backoff(self.retry_base_s)
+        while not stop.is_set():
+            after = max(self._applied_seq(), self.handed)
+            try:
+                messages = self.link.poll(after, self.poll_wait_s)
+            except LinkError as exc:
+                self._errors.report(str(exc))
+                log.warning("poll failed, retrying: %s", exc)
+                stop.wait(backoff.next_delay(exc.retry_after_s))
+                continue
+            backoff.reset()
+            self.polls_ok += 1
+            if stop.is_set():
+                return
+            for raw in messages:
+                seq = int(raw["seq"])
+                if seq <= after:
+                    continue
+                try:
+                    prepared = self._prepare(raw)
+                except LinkError as exc:  # a kernel download failed in transit: poll it again
+                    self._errors.report(str(exc))
+                    log.warning("message %s: kernel download failed, retrying: %s", seq, exc)
+                    stop.wait(download_backoff.next_delay(exc.retry_after_s))
+                    break
+                download_backoff.reset()
+                self._inbox.put(prepared)
+                self.handed = after = seq
