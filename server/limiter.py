@@ -47,6 +47,7 @@ __all__ = [
     "client_source",
     "retry_after_header",
     "source_key",
+    "via_https",
 ]
 
 log = logging.getLogger(__name__)
@@ -128,6 +129,25 @@ def client_source(
             if not _trusted(named, networks):
                 break
     return source_key(ip)
+
+
+def via_https(scope: Scope, networks: Sequence[IPNetwork] = ()) -> bool:
+    """Whether the client reached us over HTTPS: the connection's own scheme, or ``X-Forwarded-Proto:
+    https`` (or ``Forwarded: proto=https``) set by a trusted proxy (``networks``) that is the TCP peer.
+    The header is ignored from any other peer."""
+    if scope.get("scheme") == "https":
+        return True
+    client = scope.get("client")
+    ip = _parse_ip(str(client[0])) if client else None
+    if ip is None or not networks or not _trusted(ip, networks):
+        return False
+    for name, value in scope.get("headers", ()):
+        text = value.decode("latin-1").lower()
+        if name == b"x-forwarded-proto" and text.split(",")[-1].strip() == "https":
+            return True
+        if name == b"forwarded" and "proto=https" in text.split(",")[-1].replace(" ", ""):
+            return True
+    return False
 
 
 class AuthLimiter:

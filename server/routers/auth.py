@@ -12,6 +12,7 @@ from server.audit import record
 from server.csrf import CSRF_HEADER, csrf_token, require_csrf_token
 from server.deps import SESSION_COOKIE, AppState, OperatorDep, PrincipalDep, StateDep
 from server.errors import AuthError
+from server.limiter import via_https
 from server.models import AuditEntry, OperatorToken, Session, utcnow
 from server.schemas import DB_INT_MAX, AuditOut, DbIdPath, LoginIn, TokenCreate, TokenCreated, WhoAmI
 from server.security import OPERATOR_PREFIX, SESSION_PREFIX, hash_token, new_token
@@ -32,8 +33,9 @@ class SessionOut(WhoAmI):
 
 
 def _secure(request: Request, state: AppState) -> bool:
-    """Whether the session cookie is marked Secure: over HTTPS always, or when the operator says so."""
-    return state.settings.secure_cookies or request.url.scheme == "https"
+    """Whether the session cookie is marked Secure: over HTTPS always (directly, or as a trusted proxy's
+    ``X-Forwarded-Proto`` says), or when the operator says so."""
+    return state.settings.secure_cookies or via_https(request.scope, state.settings.trusted_networks())
 
 
 @router.post("/session", response_model=SessionOut)

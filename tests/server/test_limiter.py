@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from server.limiter import IPNetwork, client_source, source_key
+from server.limiter import IPNetwork, client_source, source_key, via_https
 from server.settings import Settings
 
 PROXY = [ipaddress.ip_network("10.0.0.0/8")]
@@ -86,3 +86,22 @@ def test_client_source_never_fails_and_ignores_headers_of_untrusted_peers(
     assert client_source(scope) == client_source({"client": scope["client"], "headers": []})
     trusted = client_source(scope, EVERYTHING, header)  # type: ignore[arg-type]
     assert isinstance(trusted, str) and trusted
+
+
+@pytest.mark.parametrize(
+    ("peer", "headers", "scheme", "trusted", "expected"),
+    [
+        ("10.0.0.5", [], "https", "", True),
+        ("10.0.0.5", [(b"x-forwarded-proto", b"https")], "http", "", False),  # no proxy is trusted
+        ("10.0.0.5", [(b"x-forwarded-proto", b"https")], "http", "10.0.0.0/8", True),
+        ("10.0.0.5", [(b"forwarded", b"for=1.2.3.4;proto=https")], "http", "10.0.0.0/8", True),
+        ("192.168.1.9", [(b"x-forwarded-proto", b"https")], "http", "10.0.0.0/8", False),  # forged
+        ("10.0.0.5", [(b"x-forwarded-proto", b"http")], "http", "10.0.0.0/8", False),
+    ],
+)
+def test_https_is_believed_from_the_connection_or_a_trusted_proxy_only(
+    peer: str, headers: list[tuple[bytes, bytes]], scheme: str, trusted: str, expected: bool
+) -> None:
+    networks = Settings(trusted_proxies=trusted).trusted_networks()
+    scope = {"type": "http", "scheme": scheme, "client": (peer, 1234), "headers": headers}
+    assert via_https(scope, networks) is expected
