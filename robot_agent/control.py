@@ -27,7 +27,7 @@ from typing import Any
 from shared.control import ControlMessage, KernelOperation, OperationKind, to_config
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Kernel, Stage
-from shared.kernels.base import parse_version
+from shared.kernels.versions import parse_version
 from shared.pipeline import KernelChoice, PipelineConfig
 
 __all__ = [

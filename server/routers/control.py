@@ -27,6 +27,7 @@ from shared.control import (
 )
 from shared.errors import KernelParameterError, UnknownKernelError
 from shared.kernels import REGISTRY, Stage
+from shared.kernels.versions import VERSION_PATTERN
 from shared.pipeline.config import Mode
 
 __all__ = ["ControlDraft", "KernelDraft", "OperationDraft", "router"]
@@ -41,7 +42,7 @@ class KernelDraft(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
-    version: str | None = Field(None, pattern=r"^\d+\.\d+\.\d+$")
+    version: str | None = Field(None, pattern=f"^{VERSION_PATTERN}$")
     params: dict[str, ParamScalar] = Field(
         default_factory=dict, description="Parameter -> value, in the units of the kernel's schema (SI)."
     )
@@ -53,7 +54,7 @@ class OperationDraft(BaseModel):
     kind: Literal["install", "update", "delete", "rollback"]
     stage: StageName
     name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
-    version: str = Field(pattern=r"^\d+\.\d+\.\d+$")
+    version: str = Field(pattern=f"^{VERSION_PATTERN}$")
     sha256: str | None = Field(None, pattern=r"^[0-9a-fA-F]{64}$")
 
 

@@ -42,7 +42,7 @@ from shared.control.vocabulary import (
     scale_length,
 )
 from shared.kernels import Stage
-from shared.kernels.base import parse_version
+from shared.kernels.versions import parse_version
 from shared.pipeline.config import SCHEDULED, Mode
 
 __all__ = ["MAX_MESSAGE_BYTES", "parse_message"]
