@@ -56,6 +56,9 @@ class OperationDraft(BaseModel):
     name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
     version: str = Field(pattern=f"^{VERSION_PATTERN}$")
     sha256: str | None = Field(None, pattern=r"^[0-9a-fA-F]{64}$")
+    below_floor: bool = Field(
+        False, description="Rollback only: the operator's override of the robot's anti-rollback floor."
+    )
 
 
 class ControlDraft(BaseModel):
@@ -119,6 +122,7 @@ def draft_message(draft: ControlDraft) -> ControlMessage:
                 op.name,
                 op.version,
                 op.sha256.lower() if op.sha256 else None,
+                below_floor=op.below_floor,
             )
             for op in draft.operations
         ),
@@ -131,6 +135,9 @@ def control_xml(draft: ControlDraft, who: OperatorDep) -> ControlXml:
     parameter or element that is wrong. Nothing is queued: post the XML to ``/robots/{id}/messages``."""
     if draft.noise_removal is not None and not draft.noise_removal:
         raise InvalidRequestError("noise_removal: the chain needs at least one kernel")
+    for op in draft.operations:
+        if op.below_floor and op.kind != "rollback":
+            raise InvalidRequestError(f"operations: below_floor is for a rollback only, not {op.kind}")
     msg = draft_message(draft)
     try:
         xml = build_message(msg)

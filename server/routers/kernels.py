@@ -4,7 +4,8 @@ An upload is a Python module file plus its name, stage, version and an Ed25519 s
 (:mod:`shared.signing`). The server checks what it can without running the code: the name and version
 spelling (one spelling per version number: :mod:`shared.kernels.versions`), the stage, the size, UTF-8
 Python that parses and compiles with bounded nesting (checked in a child process with time and memory
-limits: :mod:`shared.kernels.source_check`), and that a registered key signed it. Running the kernel is the robot's business (it verifies again and dry-runs it before swapping it in).
+limits: :mod:`shared.kernels.source_check`), and that a registered key signed it. Running the kernel
+is the robot's business (it verifies again and dry-runs it before swapping it in).
 """
 
 from __future__ import annotations

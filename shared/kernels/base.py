@@ -47,6 +47,7 @@ __all__ = [
 
 P = TypeVar("P", bound=KernelParams)
 
+
 class Stage(StrEnum):
     """Pipeline stages in processing order (SPEC §4)."""
 

@@ -40,7 +40,9 @@ def tree_depth(tree: ast.AST, limit: int) -> tuple[int, int | None]:
     return deepest, line
 
 
-def source_problem(source: bytes, filename: str = "<kernel>", max_depth: int = MAX_DEPTH) -> dict[str, object]:
+def source_problem(
+    source: bytes, filename: str = "<kernel>", max_depth: int = MAX_DEPTH
+) -> dict[str, object]:
     """``{"ok": True}`` when ``source`` is UTF-8 Python that parses and compiles with a syntax tree at most
     ``max_depth`` deep; else ``{"ok": False, "reason": ..., "line": N or None}`` naming what was wrong and
     what is expected. Never raises for any input bytes."""

@@ -48,7 +48,9 @@ PATHOLOGICAL: dict[str, Callable[[int], str]] = {
     "subscripts": lambda n: "x = a" + "[0]" * n,
     "power": lambda n: "x = " + "**".join(["2"] * n),
     "lists": lambda n: "x = " + "[" * n + "]" * n,
-    "indent": lambda n: "".join("  " * i + "if 1:\n" for i in range(n)) + "  " * n + "pass\n",
+    "indent": lambda n: (
+        "".join(" " * i + "if 1:\n" for i in range(min(n, 600))) + " " * min(n, 600) + "pass\n"
+    ),
     "string-times": lambda n: "x = 'a' * 10 ** 10\ny = b'x' * 10 ** 12\n" * n,
     "big-int": lambda n: "x = " + "9" * n,
 }
@@ -56,7 +58,9 @@ PATHOLOGICAL: dict[str, Callable[[int], str]] = {
 
 @pytest.mark.parametrize("shape", sorted(PATHOLOGICAL))
 @pytest.mark.parametrize("n", [1000, 60_000])
-def test_pathological_source_is_refused_with_422_never_5xx(live: Live, key: KeyPair, shape: str, n: int) -> None:
+def test_pathological_source_is_refused_with_422_never_5xx(
+    live: Live, key: KeyPair, shape: str, n: int
+) -> None:
     source = PATHOLOGICAL[shape](n).encode()[: 200 * 1024]  # under the request limit
     status, text = _upload(live, key, _name(), source)
     assert status in (201, 422), text
@@ -83,13 +87,17 @@ def test_deep_sum_names_the_reason(live: Live, key: KeyPair) -> None:
     st.sampled_from(sorted(PATHOLOGICAL)),
     st.integers(min_value=1, max_value=30_000),
 )
-def test_no_upload_source_answers_5xx(live: Live, key: KeyPair, noise: bytes | str, shape: str, n: int) -> None:
+def test_no_upload_source_answers_5xx(
+    live: Live, key: KeyPair, noise: bytes | str, shape: str, n: int
+) -> None:
     head = noise if isinstance(noise, bytes) else noise.encode()
     status, text = _upload(live, key, _name(), head + PATHOLOGICAL[shape](n).encode())
     assert status in (201, 422), text
 
 
-@pytest.mark.parametrize("version", ["01.0.0", "1.00.0", "1.0.00", "00.0.0", "1.0.0\n", "\u0661.0.0", "+1.0.0"])
+@pytest.mark.parametrize(
+    "version", ["01.0.0", "1.00.0", "1.0.00", "00.0.0", "1.0.0\n", "\u0661.0.0", "+1.0.0"]
+)
 def test_versions_with_another_spelling_are_refused(live: Live, key: KeyPair, version: str) -> None:
     status, text = _upload(live, key, _name(), GOOD, version=version)
     assert status == 422 and "MAJOR.MINOR.PATCH" in text and "leading" in text, text
