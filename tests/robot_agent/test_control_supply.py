@@ -44,6 +44,10 @@ def op(kind: str, version: str, override: bool = False, name: str = "dbscan") ->
     return f'<kernel-{kind} stage="noise-removal" name="{name}" version="{version}"{sha}{below}/>'
 
 
+def _register(cls: type[Kernel[Any]]) -> None:
+    REGISTRY.register(cls)
+
+
 def _downloaded(version: str) -> type[Kernel[Any]]:
     return type(
         f"Dbscan_{version.replace('.', '_')}", (Dbscan,), {"version": version, "__module__": __name__}
@@ -123,7 +127,7 @@ def test_no_sequence_of_messages_runs_below_the_floor_without_the_override(
     start = Prepared(
         0, msg(op("update", "1.2.0")), classes={("noise-removal", "dbscan", "1.2.0"): classes["1.2.0"]}
     )
-    config = apply_message(start, config, REGISTRY.register, REGISTRY.unregister, lambda c: None, floors)
+    config = apply_message(start, config, _register, REGISTRY.unregister, lambda c: None, floors)
     for key, version in ((k[:2], k[2]) for k in kernels_run(config)):
         floors[key] = version  # running (and floor) 1.2.0; 1.0.0 built in, 1.1.0 and 1.3.0 downloadable
     try:
@@ -140,7 +144,7 @@ def test_no_sequence_of_messages_runs_below_the_floor_without_the_override(
             before = {c.version for c in choices(config, Stage.NOISE_REMOVAL)}
             try:
                 config = apply_message(
-                    prepared, config, REGISTRY.register, REGISTRY.unregister, lambda c: None, floors
+                    prepared, config, _register, REGISTRY.unregister, lambda c: None, floors
                 )
             except LinemapError:
                 continue
@@ -191,12 +195,12 @@ def test_apply_message_refuses_the_delete_and_changes_nothing(downloaded: Any) -
     install = Prepared(
         1, msg(op("update", "1.1.0")), classes={("noise-removal", "dbscan", "1.1.0"): downloaded["1.1.0"]}
     )
-    current = apply_message(install, current, REGISTRY.register, REGISTRY.unregister, built.append)
+    current = apply_message(install, current, _register, REGISTRY.unregister, built.append)
     with pytest.raises(LinemapError, match="built-in version cannot be deleted"):
         apply_message(
             Prepared(2, msg(op("delete", "1.0.0"))),
             current,
-            REGISTRY.register,
+            _register,
             REGISTRY.unregister,
             built.append,
         )

@@ -27,7 +27,7 @@ def _bag_without_scans(path: Path) -> None:
         writer.write(odom, 1, ts.serialize_ros1(msg, "std_msgs/msg/String"))
 
 
-CASES: dict[str, tuple[str, Callable[[Path], None], str]] = {
+CASES: dict[str, tuple[str, Callable[[Path], object], str]] = {
     "carmen-empty": ("run.clf", lambda p: p.write_bytes(b""), "CARMEN"),
     "carmen-garbage": ("run.log", lambda p: p.write_bytes(GARBAGE), "CARMEN"),
     "carmen-words": ("run.log", lambda p: p.write_text("hello world\nnot a record\n"), "CARMEN"),
