@@ -17,6 +17,7 @@ from __future__ import annotations
 import ast
 import json
 import sys
+import warnings
 
 __all__ = ["MAX_DEPTH", "main", "source_problem", "tree_depth"]
 
@@ -52,6 +53,12 @@ def source_problem(
         return _bad(f"not UTF-8 text (byte {exc.start}): expected a Python module encoded as UTF-8")
     if "\x00" in text:
         return _bad(f"contains a NUL byte (character {text.index(chr(0))}): expected Python source text")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # SyntaxWarning of odd literals: not the caller's business
+        return _parse_and_compile(text, filename, max_depth)
+
+
+def _parse_and_compile(text: str, filename: str, max_depth: int) -> dict[str, object]:
     try:
         tree = ast.parse(text, filename=filename)
     except SyntaxError as exc:  # IndentationError, "too many nested parentheses", ... included
