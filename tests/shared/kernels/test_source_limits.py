@@ -94,3 +94,11 @@ def test_a_check_over_its_limits_is_refused_not_waited_for() -> None:
 def test_the_agent_loader_refuses_it_and_lives(source: str) -> None:
     with pytest.raises(KernelRejected, match="import failed"):
         load_kernel_class(source.encode(), Stage.NOISE_REMOVAL, "deep", "1.0.0")
+
+
+def test_the_agent_dry_run_refuses_it_in_its_child() -> None:
+    from robot_agent.kernels import dry_run
+
+    for source in ("x = " + "+".join(["1"] * 200_000), "x = " + "-" * 200_000 + "1"):
+        with pytest.raises(KernelRejected, match="dry run: import failed: (RecursionError|MemoryError)"):
+            dry_run(source.encode(), Stage.NOISE_REMOVAL, "deep", "1.0.0", None, [], 10.0)
