@@ -100,5 +100,5 @@ def test_the_agent_dry_run_refuses_it_in_its_child() -> None:
     from robot_agent.kernels import dry_run
 
     for source in ("x = " + "+".join(["1"] * 200_000), "x = " + "-" * 200_000 + "1"):
-        with pytest.raises(KernelRejected, match="dry run: import failed: (RecursionError|MemoryError)"):
+        with pytest.raises(KernelRejected, match=r"dry run: import failed: (RecursionError|MemoryError)"):
             dry_run(source.encode(), Stage.NOISE_REMOVAL, "deep", "1.0.0", None, [], 10.0)
