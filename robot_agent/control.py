@@ -179,10 +179,10 @@ def refuse_deletions(
     has no other version of its name left to fall back to. The reason names the kernel in service that
     depends on the deleted version. O(deletions x registered + choices).
     """
-    reg = list(registered)
-    gone = {(op.stage.value, op.name, op.version) for op in deletions}
+    reg, ops = list(registered), list(deletions)
+    gone = {(op.stage.value, op.name, op.version) for op in ops}
     in_use = {(stage.value, c.name, c.version) for stage in Stage for c in choices(config, stage)}
-    for op in deletions:
+    for op in ops:
         key = (op.stage.value, op.name, op.version)
         where = f"<kernel-delete> {op.stage.value}/{op.name} {op.version}"
         users = sorted(f"{n} {v}" for s, n, v in in_use if s == key[0] and n == key[1] and v != key[2])
