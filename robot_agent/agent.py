@@ -24,10 +24,13 @@ from robot_agent.control import (
     Prepared,
     apply_message,
     choices,
+    fallback_choice,
     kernels_in_use,
     kernels_run,
     pin_versions,
     refuse_downgrades,
+    registered,
+    replace_choice,
     swap_version,
 )
 from robot_agent.errors import AgentError, KernelRejected, LinkError
@@ -229,11 +232,17 @@ class Agent:
         cache: list[Kernel[Any]] = []
 
         def make() -> Kernel[Any]:
+            # Never an error out of the step loop: the version it replaced, else a built-in kernel of its
+            # stage (refuse_deletions keeps built-ins and last fallbacks registered).
             if not cache:
-                version = _replaced_version(cls, prev)
-                if version is None:
-                    raise AgentError(f"no fallback for {cls.name} {cls.version}")
-                cache.append(REGISTRY.create(cls.stage, cls.name, None, version))
+                pick = fallback_choice(cls.stage, cls.name, cls.version, prev, registered())
+                if pick is None:
+                    raise AgentError(f"no fallback for {cls.name} {cls.version}: stage {cls.stage} is empty")
+                if pick[0] != cls.name:
+                    log.error(
+                        "%s %s has no version to fall back to: %s %s answers", cls.name, cls.version, *pick
+                    )
+                cache.append(REGISTRY.create(cls.stage, pick[0], None, pick[1]))
             return cache[0]
 
         return make
@@ -387,11 +396,13 @@ class Agent:
         previous = self.pipeline.config
         if key in kernels_run(previous):
             version = _replaced_version(cls, self._came_over.get(key))
-            previous = (
-                swap_version(previous, Stage(cls.stage), cls.name, cls.version, version)
-                if version is not None
-                else pin_versions(PipelineConfig())
-            )
+            pick = fallback_choice(cls.stage, cls.name, cls.version, self._came_over.get(key), registered())
+            if version is not None:
+                previous = swap_version(previous, Stage(cls.stage), cls.name, cls.version, version)
+            elif pick is not None:  # no version of its own: that stage only goes to a built-in kernel
+                previous = replace_choice(previous, Stage(cls.stage), cls.name, cls.version, *pick)
+            else:
+                previous = pin_versions(PipelineConfig())
         try:
             self.pipeline.reconfigure(previous)
         except LinemapError as exc:

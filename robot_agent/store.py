@@ -34,7 +34,7 @@ from robot_agent.models import (
     Wall,
     utcnow,
 )
-from shared.kernels.base import parse_version
+from shared.kernels.versions import parse_version
 
 __all__ = ["MIGRATIONS_DIR", "PendingUpload", "Ran", "RobotDB", "StepRecord"]
 

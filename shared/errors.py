@@ -11,6 +11,7 @@ __all__ = [
     "DuplicateKernelError",
     "InvalidInputError",
     "KernelParameterError",
+    "KernelSourceError",
     "LinemapError",
     "UnknownKernelError",
 ]
@@ -43,3 +44,14 @@ class UnknownKernelError(LinemapError, LookupError):
 
 class DuplicateKernelError(LinemapError):
     """A kernel with the same stage, name and version is already registered."""
+
+
+class KernelSourceError(LinemapError, ValueError):
+    """A kernel module's source is refused before any of it runs (not UTF-8, not Python, nested too
+    deeply, too complex to parse within the limits). ``reason`` says what and what is expected; ``line``
+    is the source line when known."""
+
+    def __init__(self, reason: str, line: int | None = None) -> None:
+        self.reason = reason
+        self.line = line
+        super().__init__(reason)

@@ -27,6 +27,7 @@ from shared.control import (
 )
 from shared.errors import KernelParameterError, UnknownKernelError
 from shared.kernels import REGISTRY, Stage
+from shared.kernels.versions import VERSION_PATTERN
 from shared.pipeline.config import Mode
 
 __all__ = ["ControlDraft", "KernelDraft", "OperationDraft", "router"]
@@ -41,7 +42,7 @@ class KernelDraft(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
-    version: str | None = Field(None, pattern=r"^\d+\.\d+\.\d+$")
+    version: str | None = Field(None, pattern=f"^{VERSION_PATTERN}$")
     params: dict[str, ParamScalar] = Field(
         default_factory=dict, description="Parameter -> value, in the units of the kernel's schema (SI)."
     )
@@ -53,8 +54,11 @@ class OperationDraft(BaseModel):
     kind: Literal["install", "update", "delete", "rollback"]
     stage: StageName
     name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
-    version: str = Field(pattern=r"^\d+\.\d+\.\d+$")
+    version: str = Field(pattern=f"^{VERSION_PATTERN}$")
     sha256: str | None = Field(None, pattern=r"^[0-9a-fA-F]{64}$")
+    below_floor: bool = Field(
+        False, description="Rollback only: the operator's override of the robot's anti-rollback floor."
+    )
 
 
 class ControlDraft(BaseModel):
@@ -118,6 +122,7 @@ def draft_message(draft: ControlDraft) -> ControlMessage:
                 op.name,
                 op.version,
                 op.sha256.lower() if op.sha256 else None,
+                below_floor=op.below_floor,
             )
             for op in draft.operations
         ),
@@ -130,6 +135,9 @@ def control_xml(draft: ControlDraft, who: OperatorDep) -> ControlXml:
     parameter or element that is wrong. Nothing is queued: post the XML to ``/robots/{id}/messages``."""
     if draft.noise_removal is not None and not draft.noise_removal:
         raise InvalidRequestError("noise_removal: the chain needs at least one kernel")
+    for op in draft.operations:
+        if op.below_floor and op.kind != "rollback":
+            raise InvalidRequestError(f"operations: below_floor is for a rollback only, not {op.kind}")
     msg = draft_message(draft)
     try:
         xml = build_message(msg)

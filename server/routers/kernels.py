@@ -2,13 +2,14 @@
 
 An upload is a Python module file plus its name, stage, version and an Ed25519 signature over its SHA-256
 (:mod:`shared.signing`). The server checks what it can without running the code: the name and version
-spelling, the stage, UTF-8 Python that compiles, the size, and that a registered key signed it. Running
-the kernel is the robot's business (it verifies again and dry-runs it before swapping it in).
+spelling (one spelling per version number: :mod:`shared.kernels.versions`), the stage, the size, UTF-8
+Python that parses and compiles with bounded nesting (checked in a child process with time and memory
+limits: :mod:`shared.kernels.source_check`), and that a registered key signed it. Running the kernel
+is the robot's business (it verifies again and dry-runs it before swapping it in).
 """
 
 from __future__ import annotations
 
-import ast
 import re
 from typing import Annotated, Any
 
@@ -23,7 +24,10 @@ from server.deps import AppState, OperatorDep, Principal, PrincipalDep, StateDep
 from server.errors import ConflictError, GoneError, InvalidRequestError, NotFoundError, TooLargeError
 from server.models import KernelArtifact, SigningKey, utcnow
 from server.schemas import KernelOut, SigningKeyIn, SigningKeyOut
+from shared.errors import KernelSourceError
 from shared.kernels import Stage
+from shared.kernels.source_check import check_source_bounded
+from shared.kernels.versions import legacy_version_key, parse_version
 from shared.signing import SignatureError, key_id, load_public_key, public_key_text, sha256_hex, verify_digest
 
 __all__ = ["keys_router", "router"]
@@ -32,7 +36,6 @@ router = APIRouter(prefix="/kernels", tags=["kernels"])
 keys_router = APIRouter(prefix="/keys", tags=["keys"])
 
 _NAME = re.compile(r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$")
-_VERSION = re.compile(r"^\d{1,6}\.\d{1,6}\.\d{1,6}$")
 _STAGES = [s.value for s in Stage]
 
 
@@ -113,23 +116,24 @@ def _validate(name: str, stage: str, version: str, source: bytes, limit: int) ->
         raise InvalidRequestError(
             f"stage {stage[:40]!r}: expected one of {', '.join(_STAGES)}", field="stage"
         )
-    if not _VERSION.fullmatch(version):
-        raise InvalidRequestError(
-            f"version {version[:40]!r}: expected MAJOR.MINOR.PATCH, e.g. 1.0.0", field="version"
-        )
+    try:
+        parse_version(version)
+    except ValueError as exc:
+        raise InvalidRequestError(str(exc), field="version") from None
     if len(source) > limit:
         raise TooLargeError(f"kernel file of {len(source)} bytes; the limit is {limit}")
     if not source:
         raise InvalidRequestError("file: the kernel module is empty", field="file")
+
+
+def _check_source(name: str, version: str, source: bytes) -> None:
+    """422 unless module ``name`` ``version`` parses and compiles with bounded nesting, time and memory
+    (in a child process: :mod:`shared.kernels.source_check`); pathological source never reaches this
+    process's parser."""
     try:
-        text = source.decode("utf-8")
-        ast.parse(text, filename=f"{name}-{version}.py")
-    except UnicodeDecodeError as exc:
-        raise InvalidRequestError(f"file: not UTF-8 text (byte {exc.start})", field="file") from None
-    except SyntaxError as exc:
-        raise InvalidRequestError(
-            f"file: not valid Python: line {exc.lineno}: {exc.msg}", field="file", line=exc.lineno
-        ) from None
+        check_source_bounded(source)
+    except KernelSourceError as exc:
+        raise InvalidRequestError(f"file: {exc.reason}", field="file", line=exc.line) from None
 
 
 def _signer(s: Session, digest: str, signature: str) -> str:
@@ -150,6 +154,23 @@ def _signer(s: Session, digest: str, signature: str) -> str:
     )
 
 
+def _refuse_same_number(s: Session, name: str, version: str) -> None:
+    """409 if another stored version of ``name`` (deleted ones too: versions are never reused) is the same
+    number triple spelled differently, e.g. ``01.0.0`` stored before the canonical spelling was enforced.
+    O(versions of ``name``)."""
+    wanted = parse_version(version)
+    for row in s.execute(
+        select(KernelArtifact.version, KernelArtifact.sha256).where(KernelArtifact.name == name)
+    ):
+        if row.version != version and legacy_version_key(row.version) == wanted:
+            raise ConflictError(
+                f"kernel {name} {version} is the same version as the stored {name} {row.version}"
+                f" (sha256 {row.sha256}); versions are immutable: upload a new, higher version",
+                sha256=row.sha256,
+                existing=row.version,
+            )
+
+
 def _store(
     state: AppState, who: Principal, name: str, stage: str, version: str, source: bytes, signature: str
 ) -> tuple[KernelOut, bool]:
@@ -166,6 +187,7 @@ def _store(
                 "upload a new version",
                 sha256=existing.sha256,
             )
+        _refuse_same_number(s, name, version)
         other = s.scalars(select(KernelArtifact.stage).where(KernelArtifact.name == name)).first()
         if other is not None and other != stage:
             raise ConflictError(f"kernel {name} is a {other} kernel; a new version cannot change its stage")
@@ -202,6 +224,7 @@ async def upload_kernel(
     limit = state.settings.max_kernel_bytes
     source = await file.read(limit + 1)
     _validate(name, stage, version, source, limit)
+    await run_in_threadpool(_check_source, name, version, source)
     out, created = await run_in_threadpool(
         _store, state, who, name, stage, version, source, signature.strip()
     )

@@ -87,6 +87,24 @@ def _check_operations(s: Session, msg: ControlMessage) -> None:
             )
 
 
+def _record_floor_overrides(s: Session, msg: ControlMessage, who: Principal, robot_id: int, seq: int) -> None:
+    """One ``kernel.below_floor`` audit entry per ``<kernel-rollback below-floor="allow">``: the operator's
+    explicit override of the robot's anti-rollback floor (docs/reliability/supply-chain.md), the only way
+    a message may take a kernel below a version the robot has run. Robots cannot queue messages, so the
+    entry names the operator who asked for it."""
+    for op in msg.operations:
+        if op.kind is OperationKind.ROLLBACK and op.below_floor:
+            record(
+                s,
+                who,
+                "kernel.below_floor",
+                f"robot:{robot_id}",
+                seq=seq,
+                stage=op.stage.value,
+                kernel=f"{op.name}@{op.version}",
+            )
+
+
 def _queue(
     state: AppState, robot_id: int, xml: str, msg: ControlMessage, who: Principal
 ) -> dict[str, object]:
@@ -104,6 +122,7 @@ def _queue(
         s.add(m)
         s.flush()
         record(s, who, "message.post", f"robot:{robot_id}", seq=seq, bytes=len(xml.encode()))
+        _record_floor_overrides(s, msg, who, robot_id, seq)
         return _out(m)
 
 

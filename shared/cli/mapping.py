@@ -19,16 +19,19 @@ from pathlib import Path
 from typing import Any
 
 from shared.errors import LinemapError
+from shared.io.errors import NoScansError
 from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
 from shared.sim import World, default_world, load_world, simulate_run
 from shared.types import FloatArray, Pose2D, Scan
 
 __all__ = [
+    "EXPECTED_SCANS",
     "MapRun",
     "MappingStoppedError",
     "Source",
     "load_config",
     "map_scans",
+    "no_scans",
     "open_source",
     "write_outputs",
 ]
@@ -47,6 +50,9 @@ class Source:
     world: World | None = None
     true_trajectory: FloatArray | None = None
     closer: AbstractContextManager[Any] | None = None
+    #: For a log: its path and format name (what "no scans found" names).
+    log_path: Path | None = None
+    log_format: str | None = None
 
 
 def open_source(
@@ -72,11 +78,48 @@ def open_source(
             run.trajectory("true"),
         )
     from shared.io import open_log
+    from shared.io.errors import LogFormatError, RosbagError
 
-    reader = open_log(Path(spec), log_format, scan_topic=scan_topic, odom_topic=odom_topic)
+    try:
+        reader = open_log(Path(spec), log_format, scan_topic=scan_topic, odom_topic=odom_topic)
+    except (LogFormatError, RosbagError) as exc:  # the first record or the container is broken: no scan
+        fmt = log_format or _format_of(Path(spec))
+        raise no_scans(
+            Source(spec, (), Pose2D(0.0, 0.0, 0.0), 0, log_path=Path(spec), log_format=fmt), exc
+        ) from None
     return Source(
-        f"{reader.info.format} log {Path(spec).name}", reader, reader.info.laser_offset, None, closer=reader
+        f"{reader.info.format} log {Path(spec).name}",
+        reader,
+        reader.info.laser_offset,
+        None,
+        closer=reader,
+        log_path=Path(spec),
+        log_format=reader.info.format,
     )
+
+
+#: What each log reader reads, for the "no scans found" error (format name -> description).
+EXPECTED_SCANS = {
+    "carmen": "a CARMEN log (.clf/.log) with FLASER, RLASER, ROBOTLASER1 or ROBOTLASER2 laser records",
+    "breezyslam": "a BreezySLAM log (.dat) with one line of 707 integers per scan (time, encoders, ranges)",
+    "rosbag": "a ROS bag (.bag, .db3, .mcap or a rosbag2 folder) with sensor_msgs/LaserScan messages",
+}
+
+
+def _format_of(path: Path) -> str | None:
+    from shared.io import detect_format
+
+    try:
+        return detect_format(path)
+    except LinemapError:
+        return None
+
+
+def no_scans(source: Source, cause: LinemapError | None = None) -> NoScansError:
+    """The error for a log ``source`` that gave no scan: names the file and what its reader expects."""
+    expected = EXPECTED_SCANS.get(source.log_format or "", f"a {source.log_format} log with laser scans")
+    why = f" (the first record failed: {cause})" if cause is not None else ""
+    return NoScansError(f"no scans found in {source.log_path}: expected {expected}{why}")
 
 
 def load_config(path: Path | None) -> PipelineConfig:
@@ -160,6 +203,8 @@ def map_scans(
                 start = time.perf_counter()
             if on_step is not None:
                 on_step(count)
+    if count == 0 and source.log_path is not None and (limit is None or limit > 0):
+        raise no_scans(source, failure)  # an empty map from an empty or foreign file is not a result
     pipeline.flush()
     seconds = time.perf_counter() - start
     median, p99 = pipeline.timing_ms()

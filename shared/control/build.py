@@ -82,6 +82,8 @@ def build_message(msg: ControlMessage) -> bytes:
         el.set("version", op.version)
         if op.sha256 is not None:
             el.set("sha256", op.sha256)
+        if op.below_floor:
+            el.set("below-floor", "allow")
     out: bytes = etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
     return out
 

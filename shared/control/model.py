@@ -97,7 +97,10 @@ class KernelOperation:
     """Install / update / delete / roll back kernel ``stage``/``name`` at ``version``.
 
     ``sha256`` (64 lower-case hex digits) identifies the artifact's exact bytes; required for install and
-    update, optional for delete and rollback.
+    update, optional for delete and rollback. ``below_floor`` (``below-floor="allow"``, rollback only) is
+    the operator's explicit override of the robot's anti-rollback floor (SPEC §9,
+    docs/reliability/supply-chain.md): without it no operation may take a kernel below a version the robot
+    has run.
     """
 
     kind: OperationKind
@@ -106,6 +109,7 @@ class KernelOperation:
     version: str
     sha256: str | None = None
     line: int | None = field(default=None, compare=False, repr=False)
+    below_floor: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -42,10 +42,13 @@ from shared.control.vocabulary import (
     scale_length,
 )
 from shared.kernels import Stage
-from shared.kernels.base import parse_version
+from shared.kernels.versions import parse_version
 from shared.pipeline.config import SCHEDULED, Mode
 
-__all__ = ["MAX_MESSAGE_BYTES", "parse_message"]
+__all__ = ["BELOW_FLOOR", "MAX_MESSAGE_BYTES", "parse_message"]
+
+#: The attribute of ``<kernel-rollback>`` that overrides the anti-rollback floor (value ``allow``).
+BELOW_FLOOR = "below-floor"
 
 _log = logging.getLogger(__name__)
 
@@ -326,7 +329,8 @@ def _schedule(el: _Element) -> tuple[ScheduleEntry, ...]:
 
 
 def _operation(el: _Element, kind: OperationKind) -> KernelOperation:
-    attrs = _attributes(el, ("stage", "name", "version", "sha256"))
+    names = ("stage", "name", "version", "sha256")
+    attrs = _attributes(el, (*names, BELOW_FLOOR) if kind is OperationKind.ROLLBACK else names)
     _no_content(el)
     required = ["stage", "name", "version"]
     if kind in (OperationKind.INSTALL, OperationKind.UPDATE):
@@ -344,7 +348,18 @@ def _operation(el: _Element, kind: OperationKind) -> KernelOperation:
     if sha is not None and not SHA256.match(sha):
         _fail(el, f"sha256={sha[:70]!r} is not a SHA-256 digest: expected 64 hexadecimal digits")
     digest = sha.lower() if sha is not None else None
-    return KernelOperation(kind, stage, attrs["name"], attrs["version"], digest, line=el.sourceline)
+    below = attrs.get(BELOW_FLOOR)
+    if below is not None and below != "allow":
+        _fail(el, f'{BELOW_FLOOR}={below[:40]!r}: expected {BELOW_FLOOR}="allow" (or no such attribute)')
+    return KernelOperation(
+        kind,
+        stage,
+        attrs["name"],
+        attrs["version"],
+        digest,
+        line=el.sourceline,
+        below_floor=below is not None,
+    )
 
 
 #: Top-level elements of ``<message>``: element -> (ControlMessage field, reader).

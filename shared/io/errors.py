@@ -14,6 +14,7 @@ __all__ = [
     "LogError",
     "LogFormatError",
     "LogNotFoundError",
+    "NoScansError",
     "RosbagError",
     "RosbagMessageError",
     "RosbagTopicError",
@@ -66,3 +67,7 @@ class RosbagTopicError(RosbagError, LookupError):
 class RosbagMessageError(RosbagError, ValueError):
     """A message of a bag cannot be decoded or does not describe a valid scan or pose (the message names
     the topic, the 1-based message number on that topic and the bad field)."""
+
+
+class NoScansError(LogError, ValueError):
+    """A log holds no scan at all (empty, only a header or comments, or not the format it was read as)."""

@@ -22,7 +22,6 @@ Point-based kernels ignore non-finite input rows (they are noise); they accept r
 
 from __future__ import annotations
 
-import re
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from enum import StrEnum
@@ -32,6 +31,7 @@ from numpy.typing import ArrayLike
 
 from shared.kernels.params import KernelParams, validate_params
 from shared.kernels.results import Clusters, Lines, Match, NoiseResult, Segments
+from shared.kernels.versions import parse_version
 from shared.types import Pose2D, Scan
 
 __all__ = [
@@ -46,17 +46,6 @@ __all__ = [
 ]
 
 P = TypeVar("P", bound=KernelParams)
-
-_VERSION = re.compile(r"^(\d+)\.(\d+)\.(\d+)$")
-
-
-def parse_version(version: str) -> tuple[int, int, int]:
-    """``"1.2.3"`` -> ``(1, 2, 3)``; raises ``ValueError`` naming the bad version otherwise."""
-    match = _VERSION.match(version)
-    if match is None:
-        raise ValueError(f"version {version!r} is invalid: expected MAJOR.MINOR.PATCH, e.g. '1.0.0'")
-    major, minor, patch = (int(g) for g in match.groups())
-    return major, minor, patch
 
 
 class Stage(StrEnum):

@@ -1,7 +1,7 @@
 """Anti-rollback floors (SPEC §9: a robot never runs a version lower than one it has already run for the
-same name unless a message says rollback): the rule itself, its record in the Robot DB (kept across
-restarts, only ever raised, backfilled by the migration), without processes. The same rule against a real
-server and agent is in test_rel_supply_live.py."""
+same name unless the operator overrides it with <kernel-rollback below-floor="allow">): the rule itself,
+its record in the Robot DB (kept across restarts, only ever raised, backfilled by the migration), without
+processes. The same rule against a real server and agent is in test_rel_supply_live.py."""
 
 from __future__ import annotations
 
@@ -27,9 +27,10 @@ def msg(body: str) -> bytes:
     return f"<xml><message>{body}</message></xml>".encode()
 
 
-def op(kind: str, version: str) -> str:
+def op(kind: str, version: str, override: bool = False) -> str:
     sha = f' sha256="{SHA}"' if kind in ("install", "update") else ""
-    return f'<kernel-{kind} stage="noise-removal" name="dbscan" version="{version}"{sha}/>'
+    below = ' below-floor="allow"' if override else ""
+    return f'<kernel-{kind} stage="noise-removal" name="dbscan" version="{version}"{sha}{below}/>'
 
 
 def running(version: str) -> PipelineConfig:
@@ -43,7 +44,9 @@ def test_install_or_update_below_the_floor_is_refused_naming_both_versions(kind:
     why = refuse_downgrades(parse_message(msg(op(kind, "1.1.0"))), FLOOR)
     assert why == (
         f"<kernel-{kind}> noise-removal/dbscan 1.1.0: version 1.1.0 is lower than 1.2.0, which this robot"
-        " has already run (rollback attack?); send <kernel-rollback> to go back to 1.1.0 on purpose"
+        " has already run (rollback attack?); to go back to 1.1.0 on purpose send"
+        ' <kernel-rollback stage="noise-removal" name="dbscan" version="1.1.0" below-floor="allow"/>'
+        " (an operator override, recorded in the server's audit log)"
     )
 
 
@@ -58,12 +61,18 @@ def test_other_kernels_and_unknown_floors_pass() -> None:
     assert refuse_downgrades(parse_message(msg(op("update", "0.0.1"))), {}) is None
 
 
-def test_an_explicit_rollback_may_go_below_and_may_bring_its_version() -> None:
-    assert refuse_downgrades(parse_message(msg(op("rollback", "1.0.0"))), FLOOR) is None
-    both = parse_message(msg(op("install", "1.1.0") + op("rollback", "1.1.0")))
+def test_only_an_overriding_rollback_may_go_below_and_may_bring_its_version() -> None:
+    plain = refuse_downgrades(parse_message(msg(op("rollback", "1.0.0"))), FLOOR) or ""
+    assert plain.startswith("<kernel-rollback> noise-removal/dbscan 1.0.0") and 'below-floor="allow"' in plain
+    assert refuse_downgrades(parse_message(msg(op("rollback", "1.0.0", True))), FLOOR) is None
+    both = parse_message(msg(op("install", "1.1.0") + op("rollback", "1.1.0", True)))
     assert refuse_downgrades(both, FLOOR) is None
-    # ... but only to the version it names
-    mixed = parse_message(msg(op("install", "1.0.5") + op("rollback", "1.1.0")))
+    # install plus a plain rollback (no override) is refused like the replay alone
+    assert "1.1.0 is lower" in (
+        refuse_downgrades(parse_message(msg(op("install", "1.1.0") + op("rollback", "1.1.0"))), FLOOR) or ""
+    )
+    # ... and the override covers only the version it names
+    mixed = parse_message(msg(op("install", "1.0.5") + op("rollback", "1.1.0", True)))
     assert "1.0.5 is lower than 1.2.0" in (refuse_downgrades(mixed, FLOOR) or "")
 
 
@@ -84,7 +93,7 @@ def test_apply_message_refuses_before_building_anything() -> None:
     with pytest.raises(LinemapError, match=r"1\.0\.0 is lower than 1\.2\.0.*rollback attack\?"):
         apply_message(prepared, current, lambda c: None, lambda *k: None, built.append, floors=FLOOR)
     assert built == []
-    rollback = Prepared(8, parse_message(msg(op("rollback", "1.0.0"))))
+    rollback = Prepared(8, parse_message(msg(op("rollback", "1.0.0", True))))
     config = apply_message(rollback, current, lambda c: None, lambda *k: None, built.append, floors=FLOOR)
     assert built == [config] and ("noise-removal", "dbscan", "1.0.0") in kernels_run(config)
 

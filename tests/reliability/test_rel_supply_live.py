@@ -248,7 +248,8 @@ def test_replayed_older_version_is_refused_even_after_a_restart(
     live: Live, key: KeyPair, tmp_path: Path
 ) -> None:
     """A validly signed older version (a replayed message, or one the server is made to send) is refused
-    once the robot has run a newer one, also after the agent restarts; an explicit rollback is allowed."""
+    once the robot has run a newer one, in every form (update, install plus rollback), also after the agent
+    restarts; only the operator's override (below-floor="allow", in the audit log) goes below the floor."""
     with live.operator() as op:
         old = st.upload(op, key, st.dbscan("1.1.0"), "1.1.0")
         new = st.upload(op, key, st.dbscan("1.2.0"), "1.2.0")
@@ -264,8 +265,21 @@ def test_replayed_older_version_is_refused_even_after_a_restart(
         robot.keeps_mapping()
         assert st.noise(op, rid) == "dbscan@1.2.0"
         wait_for("the refusal as last error", lambda: "rollback attack?" in (robot.get()["last_error"] or ""))
-        back = st.send(op, rid, '<kernel-rollback stage="noise-removal" name="dbscan" version="1.1.0"/>')
+        plain = '<kernel-rollback stage="noise-removal" name="dbscan" version="1.1.0"/>'
+        for body in (plain, UPDATE.format(v="1.1.0", d=old).replace("update", "install") + plain):
+            # the rollback alone, or the replayed install plus a rollback in one message: refused alike
+            refused = st.send(op, rid, body)
+            assert refused["status"] == "rejected" and "is lower than 1.2.0" in refused["reason"], refused
+            assert 'below-floor="allow"' in refused["reason"], refused
+        back = st.send(op, rid, plain.replace("/>", ' below-floor="allow"/>'))
         assert back["status"] == "applied", back
+        audit = [e for e in op.get("/audit").json() if e["action"] == "kernel.below_floor"]
+        assert any(
+            e["target"] == f"robot:{rid}"
+            and e["detail"]["kernel"] == "dbscan@1.1.0"
+            and e["actor"].startswith("operator:")
+            for e in audit
+        ), audit
         wait_for("dbscan 1.1.0 in use (explicit rollback)", lambda: st.noise(op, rid) == "dbscan@1.1.0")
         assert agent.stop() == 0, agent.output()
         agent = robot.agent = st.agent(live, tmp_path / "robot.db", rid, token, key)

@@ -120,7 +120,11 @@ def test_install_use_and_roll_back_a_signed_kernel(live: Live, tmp_path: Path, k
         wait_for("1.1.0 reported active", lambda: _state(op, rid, "1.1.0") == "active")
         used_from = op.get(f"/robots/{rid}").json()["map_version"]
         wait_for("steps with 1.1.0", lambda: op.get(f"/robots/{rid}").json()["map_version"] > used_from + 10)
-        back = _send(op, rid, '<kernel-rollback stage="noise-removal" name="dbscan" version="1.0.0"/>')
+        back = _send(
+            op,
+            rid,
+            '<kernel-rollback stage="noise-removal" name="dbscan" version="1.0.0" below-floor="allow"/>',
+        )
         assert back["status"] == "applied", back
         wait_for("dbscan 1.0.0 back in use", lambda: _noise(op, rid) == "dbscan@1.0.0")
         # The robot reports its kernel store: 1.1.0 stays there, ready, but no longer runs.

@@ -122,7 +122,8 @@ export function installDraft(kernel, config, builtins = []) {
 }
 
 export function rollbackDraft(stage, name, version) {
-  return { operations: [{ kind: "rollback", stage, name, version }] };
+  // The operator's explicit override of the robot's anti-rollback floor (recorded in the audit log).
+  return { operations: [{ kind: "rollback", stage, name, version, below_floor: true }] };
 }
 
 /** Version to put in a draft for a configured kernel: null for a built-in one. */

@@ -120,6 +120,7 @@ export class RobotKernelsTab {
     const version = await modal(`Roll back ${k.name}`,
       h("div", null,
         h("p", null, `The robot runs ${k.name}@${k.version} (${k.state}). Run this earlier version instead:`),
+        h("p", { class: "hint" }, "This overrides the robot's anti-rollback floor for this version; the audit log records it."),
         h("label", { class: "field" }, h("span", { class: "field-label" }, "Version"), sel)),
       [{ label: "Cancel", value: () => null },
         { label: "Roll back", primary: true, attrs: { "data-testid": "rollback-confirm" }, value: () => sel.value }]);
