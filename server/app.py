@@ -25,8 +25,8 @@ from server.csrf import OriginGuard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState
 from server.errors import ServerError
-from server.mediatype import require_media_type
 from server.limiter import AuthFailureLimit
+from server.mediatype import require_media_type
 from server.migrate import upgrade
 from server.routers import auth, control, kernels, maps, messages, meta, robots
 from server.settings import Settings
