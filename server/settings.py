@@ -42,3 +42,11 @@ class Settings(BaseSettings):
     auth_block_s: float = Field(
         60.0, gt=0, le=86_400, description="How long a client over the limit is refused (its Retry-After)."
     )
+    world_extent_m: float = Field(
+        10_000.0,
+        gt=0,
+        le=1e7,
+        description="Half-width of the world, metres: every coordinate of a map upload must lie within "
+        "-world_extent_m..world_extent_m (422 otherwise; exports skip stored items beyond it). The default "
+        "10 km is ten times the largest single building, and keeps float64 resolution near 1e-12 m.",
+    )
