@@ -110,7 +110,10 @@ async def latest_map(
 
 
 def _sse(event: str, data: Any, version: int) -> bytes:
-    return f"event: {event}\nid: {version}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
+    # a stored map is encoded by pydantic: a non-finite value stored by an older server becomes null (valid
+    # JSON the page can skip), where json.dumps would write Infinity and the browser's JSON.parse throw
+    text = data.model_dump_json() if isinstance(data, MapOut) else json.dumps(data, separators=(",", ":"))
+    return f"event: {event}\nid: {version}\ndata: {text}\n\n".encode()
 
 
 @router.get(
@@ -133,7 +136,7 @@ async def stream_map(
         recheck = state.settings.poll_recheck_s
         with state.hub.subscribe(f"maps:{robot_id}") as queue:
             snap = await run_in_threadpool(_read, state, robot_id, trajectory)
-            yield _sse("snapshot", snap.model_dump(), snap.version)
+            yield _sse("snapshot", snap, snap.version)
             last, quiet_since = snap.version, loop.time()
             while True:
                 try:
@@ -153,7 +156,7 @@ async def stream_map(
                     continue
                 if item is OVERFLOW or (item["kind"] == "delta" and item["base_version"] != last):
                     snap = await run_in_threadpool(_read, state, robot_id, trajectory)
-                    yield _sse("snapshot", snap.model_dump(), snap.version)
+                    yield _sse("snapshot", snap, snap.version)
                     last = snap.version
                 else:
                     yield _sse(item["kind"], item, item["version"])

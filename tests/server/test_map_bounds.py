@@ -149,3 +149,29 @@ def test_every_export_of_absurd_stored_rows_answers_without_5xx(live: Live) -> N
             assert r.status_code == 200, (fmt, r.status_code, r.text)
             assert r.headers["x-map-skipped"] == "walls=2, centroids=1, trajectory=1, pose=1"
             assert r.content, fmt
+
+
+def test_non_finite_stored_rows_are_read_and_exported_without_5xx(live: Live) -> None:
+    """Infinity (SQLite and PostgreSQL) and NaN (PostgreSQL) in stored rows: reads and exports answer."""
+    rid, token = live.new_robot()
+    with live.client(token) as robot:
+        assert robot.post(f"/robots/{rid}/maps", json=_snapshot()).status_code == 200
+    bad = [float("inf")] + ([float("nan")] if live.backend == "postgresql" else [])
+    with live.state.db.write_conn() as conn:
+        for i, value in enumerate(bad):
+            conn.execute(
+                text(
+                    "INSERT INTO map_segments (robot_id, segment_id, x0_m, y0_m, x1_m, y1_m, version) "
+                    "VALUES (:r, :s, :x, 0.0, 1.0, 1.0, 1)"
+                ),
+                {"r": rid, "s": 100 + i, "x": value},
+            )
+    with live.operator() as op:
+        r = op.get(f"/robots/{rid}/maps/latest")
+        assert r.status_code < 500, r.text
+        for fmt in FORMATS:
+            r = op.get(f"/robots/{rid}/maps/export", params={"format": fmt})
+            assert r.status_code == 409, (fmt, r.text)
+            assert f"{len(bad)} wall" in r.json()["detail"]
+            r = op.get(f"/robots/{rid}/maps/export", params={"format": fmt, "out_of_bounds": "skip"})
+            assert r.status_code == 200, (fmt, r.text)

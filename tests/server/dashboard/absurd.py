@@ -44,7 +44,8 @@ def _walls(live: Live, rid: int, rows: list[tuple[int, float, float, float, floa
 
 
 def store_absurd_map(live: Live) -> int:
-    """A robot whose stored map has a wall at x = 1e20 m, one from -1e300 to 1e300 m, a 62-bit id, a
+    """A robot whose stored map has a wall at x = 1e20 m, one from -1e300 to 1e300 m, one at infinity,
+    a 62-bit id, a
     centroid at 1e300 m, trajectory poses at 1e20 m and the pose at -1e20 m, beside a normal room."""
     rid, _ = live.new_robot()
     _new_map(live, rid, 3, (-1e20, 5.0, 1e9), [[1.0, 1.0], [1e300, 0.0]])
@@ -56,6 +57,7 @@ def store_absurd_map(live: Live) -> int:
             (2, 4.0, 0.0, 4.0, 3.0),
             (3, 1e20, 0.0, 1e20 + 5.0, 1.0),
             (4, -1e300, -1e300, 1e300, 1e300),
+            (5, float("inf"), 0.0, 1.0, 1.0),  # reaches the page as null
             (2**62, 0.0, 3.0, 4.0, 3.0),
         ],
     )
