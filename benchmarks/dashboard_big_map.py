@@ -61,6 +61,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--walls", type=int, default=130_000)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--no-former", action="store_true", help="skip the former drawing (it takes minutes)")
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
@@ -81,16 +82,17 @@ def main() -> None:
             probes = _probe(page, 20)
             page.wait_for_function("() => window.linemapStats.walls_complete")
             st = page.evaluate("window.linemapStats")
-            with live.operator() as op:
-                page.evaluate(
-                    "w => { window.__walls = w; }",
-                    [s[1:] for s in op.get(f"/robots/{rid}/maps/latest").json()["segments"]],
-                )
-            former = [page.evaluate(FORMER)]  # one run: it takes minutes
+            former: list[float] = []
+            if not args.no_former:
+                with live.operator() as op:
+                    page.evaluate(
+                        "w => { window.__walls = w; }",
+                        [s[1:] for s in op.get(f"/robots/{rid}/maps/latest").json()["segments"]],
+                    )
+                former = [page.evaluate(FORMER)]  # one run: it takes minutes
             browser.close()
         servers.close()
     frames = st["frame_ms"]
-    print("longest frames:", sorted(frames)[-8:], "first:", frames[:8])
     figures = {
         "walls": args.walls,
         "first_frame_ms": round(st["first_frame_ms"], 1),
@@ -100,7 +102,7 @@ def main() -> None:
         "frame_max_ms": round(max(frames), 2),
         "evaluate_while_drawing_median_ms": round(statistics.median(probes), 2),
         "evaluate_while_drawing_max_ms": round(max(probes), 2),
-        "former_one_stroke_frame_ms": round(former[0], 1),
+        "former_one_stroke_frame_ms": round(former[0], 1) if former else None,
     }
     print(json.dumps(figures, indent=2))
     if args.json:

@@ -4,14 +4,19 @@
 // - walls outside the view are culled; a wall shorter than a pixel marks its pixel once (a pixel grid);
 // - walls are clipped to the view before they reach the canvas (no 1e20 px coordinates);
 // - each animation frame strokes at most INK_PX_PER_FRAME of line length and spends at most
-//   SLICE_BUDGET_MS recording, then continues on the next frame (requestAnimationFrame slices);
+//   SLICE_BUDGET_MS recording, then continues on the next frame (requestAnimationFrame slices); the
+//   length per frame adapts so that a frame takes about FRAME_TARGET_MS on this machine;
 // - the previous complete layer is shown, moved and scaled to the current view, while the next one is
 //   drawn (pan and zoom answer at once; the new layer replaces it when complete).
 
 export const FAR_M = 1e9;
 const SLICE_BUDGET_MS = 8;
-const INK_PX_PER_FRAME = 400_000; // CSS px of stroked wall length per frame (raster cost is deferred)
-const CHUNK = 256; // walls per stroke() call
+// CSS px of stroked wall length per frame (Chromium rasterises after the script, so time spent recording
+// does not show the cost): adapted to the frames measured, between these limits.
+const INK_MIN_PX = 5_000;
+const INK_MAX_PX = 400_000;
+const FRAME_TARGET_MS = 24;
+const CHUNK = 128; // walls per stroke() call
 const MARGIN_PX = 4;
 
 /** True when x, y are finite and within ±FAR_M metres. */
@@ -57,6 +62,14 @@ export class WallLayer {
     this.front = null; // the last complete layer
     this.back = null; // the layer being drawn
     this.spare = null; // a former front, reused as the next back
+    this.inkPx = 50_000; // stroked length per frame, adapted by feedback()
+  }
+
+  /** The last frame took frameMs (drawing included): adapt the length stroked per frame. */
+  feedback(frameMs) {
+    if (!Number.isFinite(frameMs)) return;
+    if (frameMs > FRAME_TARGET_MS) this.inkPx = Math.max(INK_MIN_PX, this.inkPx * 0.6);
+    else if (frameMs < FRAME_TARGET_MS / 2) this.inkPx = Math.min(INK_MAX_PX, this.inkPx * 1.25);
   }
 
   changed() {
@@ -157,7 +170,7 @@ export class WallLayer {
         ctx.stroke();
         ctx.beginPath();
         inChunk = 0;
-        if (ink >= INK_PX_PER_FRAME || performance.now() - t0 >= SLICE_BUDGET_MS) break;
+        if (ink >= this.inkPx || performance.now() - t0 >= SLICE_BUDGET_MS) break;
       } else if ((i & 4095) === 0 && performance.now() - t0 >= SLICE_BUDGET_MS) break;
     }
     if (inChunk) ctx.stroke();

@@ -285,6 +285,9 @@ export class MapView {
     const t1 = performance.now();
     const st = stats();
     pushCapped(st.frame_ms, t1 - t0);
+    // the whole frame, the raster of the last slice included, for the slice size of the next one
+    if (this.lastFrameAt !== undefined && more) this.walls.feedback(t0 - this.lastFrameAt - 16.7 + (t1 - t0));
+    this.lastFrameAt = more ? t1 : undefined;
     st.version = this.version;
     st.segments = this.segments.size;
     st.drawn_at = performance.timeOrigin + t1;
@@ -338,7 +341,10 @@ export class MapView {
     ctx.fillRect(0, 0, w, hgt);
 
     if (this.pendingFit && w > 1 && hgt > 1) this.applyFit(w, hgt);
-    if (this.follow && this.pose) { this.view.cx = this.pose[0]; this.view.cy = this.pose[1]; }
+    if (this.follow && this.pose && drawable(this.pose[0], this.pose[1])) {
+      this.view.cx = this.pose[0];
+      this.view.cy = this.pose[1];
+    }
     const { cx, cy, scale } = this.view;
     const ox = w / 2 - cx * scale;
     const oy = hgt / 2 + cy * scale;
