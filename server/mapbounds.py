@@ -10,10 +10,11 @@ value and the bound) unless:
   carries a segment id as a 32-bit XDATA integer (group code 1071), the widest id every writer can store;
 - every heading (pose, trajectory) is within ``|theta| <= ANGLE_MAX_RAD`` (2 pi; robots send headings
   wrapped to (-pi, pi]);
+- ``wall_time_s`` (Unix time, for latency only: not exported) is in ``0..WALL_TIME_MAX_S`` s;
 - every stamp (``stamp_s``, trajectory stamps) is in ``0..STAMP_MAX_S`` s: MCAP stamps a message with an
   unsigned nanosecond count and a ``builtin_interfaces/Time`` whose ``sec`` is a 32-bit integer.
 
-The same bounds decide, on the read side, which stored items an export can write (:func:`stored_problems`).
+The same bounds decide, on the read side, which stored items an export can write (:func:`screen_stored`).
 Checks are vectorised (numpy): O(rows) with no Python call per row.
 """
 
@@ -33,6 +34,7 @@ __all__ = [
     "ANGLE_MAX_RAD",
     "ID_MAX",
     "STAMP_MAX_S",
+    "WALL_TIME_MAX_S",
     "Bound",
     "StoredScreen",
     "bad_rows",
@@ -51,6 +53,8 @@ ANGLE_MAX_RAD = 2.0 * math.pi
 """Largest heading magnitude, radians."""
 STAMP_MAX_S = float(2**31 - 1)
 """Largest stamp, seconds (MCAP: ``builtin_interfaces/Time.sec`` is int32, log times unsigned)."""
+WALL_TIME_MAX_S = 1e10
+"""Largest ``wall_time_s`` (Unix time, seconds: the year 2286)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -166,6 +170,9 @@ def check_upload_bounds(up: MapUpload, world_extent_m: float) -> None:
     stamp = _stamp("stamp_s")
     if first_violation([up.stamp_s], (stamp,)) is not None:
         raise _refuse("stamp_s", stamp, up.stamp_s)
+    wall = Bound("wall_time_s", 0.0, WALL_TIME_MAX_S, "s", "Unix time")
+    if up.wall_time_s is not None and first_violation([up.wall_time_s], (wall,)) is not None:
+        raise _refuse("wall_time_s", wall, up.wall_time_s)
     removed = first_violation(up.removed, (_id("segment_id"),))
     if removed is not None:
         raise _refuse(f"removed[{removed[0]}]", _id("segment_id"), removed[2])

@@ -49,6 +49,8 @@ def _snapshot(**changes: Any) -> dict[str, Any]:
         ({"trajectory": [[1e12, 0.0, 0.0, 0.0]]}, "trajectory[0][0]", "MCAP"),
         ({"trajectory": [[-1.0, 0.0, 0.0, 0.0]]}, "trajectory[0][0]", "MCAP"),
         ({"stamp_s": 1e15}, "stamp_s", "MCAP"),
+        ({"wall_time_s": -5.0}, "wall_time_s", "Unix time"),
+        ({"wall_time_s": 1e300}, "wall_time_s", "Unix time"),
     ],
 )
 def test_an_upload_outside_the_bounds_is_refused_naming_field_value_and_bound(
