@@ -17,6 +17,7 @@ const INK_MIN_PX = 5_000;
 const INK_MAX_PX = 400_000;
 const FRAME_TARGET_MS = 24;
 const CHUNK = 128; // walls per stroke() call
+const DIRECT_MAX = 20_000; // walls up to which one frame may draw them all directly, if their ink fits
 const MARGIN_PX = 4;
 
 /** True when x, y are finite and within ±FAR_M metres. */
@@ -89,6 +90,38 @@ export class WallLayer {
     this.count = n / 4;
     this.far = far;
     this.flatData = this.data;
+  }
+
+  /** A small map (at most DIRECT_MAX walls, whose clipped length fits one frame's INK_MAX_PX): draw it
+   * straight onto ctx in one path, as a frame of its own, and return true; false for a map that needs
+   * the layer and its slices. O(walls). */
+  direct(ctx, segments, view, w, hgt) {
+    if (segments.size > DIRECT_MAX) return false;
+    this.rebuild(segments);
+    const { cx, cy, scale } = view;
+    const ox = w / 2 - cx * scale, oy = hgt / 2 + cy * scale;
+    const xa = -MARGIN_PX, ya = -MARGIN_PX, xb = w + MARGIN_PX, yb = hgt + MARGIN_PX;
+    const flat = this.flat;
+    const pieces = [];
+    let ink = 0;
+    for (let k = 0; k < this.count * 4; k += 4) {
+      const c = clipSegment(flat[k] * scale + ox, oy - flat[k + 1] * scale,
+        flat[k + 2] * scale + ox, oy - flat[k + 3] * scale, xa, ya, xb, yb);
+      if (!c) continue;
+      ink += Math.hypot(c[2] - c[0], c[3] - c[1]);
+      if (ink > INK_MAX_PX) return false;
+      pieces.push(c);
+    }
+    ctx.beginPath();
+    for (const c of pieces) { ctx.moveTo(c[0], c[1]); ctx.lineTo(c[2], c[3]); }
+    ctx.strokeStyle = this.color;
+    ctx.lineWidth = 2;
+    ctx.lineCap = "round";
+    ctx.stroke();
+    this.front = null; // a later switch to the layer starts afresh
+    this.back = null;
+    this.directDrawn = pieces.length;
+    return true;
   }
 
   /** Draw the next slice for view {cx, cy, scale} on a w x hgt CSS px canvas at dpr; true when more
@@ -205,6 +238,9 @@ export class WallLayer {
   /** Progress of the layer being drawn (for the HUD and window.linemapStats). */
   progress() {
     const b = this.back;
+    if (!b && this.directDrawn !== undefined) {
+      return { drawn: this.directDrawn, complete: true, far: this.far, total: this.count };
+    }
     return { drawn: b ? b.drawn : 0, complete: !!(b && b.done), far: this.far, total: this.count };
   }
 }

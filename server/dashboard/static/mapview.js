@@ -352,9 +352,12 @@ export class MapView {
 
     drawGrid(ctx, w, hgt, scale, ox, oy);
 
-    // Walls: the progressive layer (maplayer.js), then what it has drawn so far.
-    const more = this.walls.step(this.segments, this.view, w, hgt, dpr);
-    this.walls.composite(ctx, this.view, w, hgt);
+    // Walls: a small map in one path; else the progressive layer (maplayer.js) and what it has so far.
+    let more = false;
+    if (!this.walls.direct(ctx, this.segments, this.view, w, hgt)) {
+      more = this.walls.step(this.segments, this.view, w, hgt, dpr);
+      this.walls.composite(ctx, this.view, w, hgt);
+    }
 
     // Trajectory: one path, each step clipped to the view (absurd points never reach the canvas).
     const tr = this.trajectory;
