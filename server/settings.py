@@ -64,6 +64,15 @@ class Settings(BaseSettings):
         le=86_400,
         description="How long a source over the limit has its failed attempts refused (its Retry-After, s).",
     )
+    world_extent_m: float = Field(
+        10_000.0,
+        gt=0,
+        le=1e7,
+        description="Half-width of the world, metres: every coordinate of a map upload must lie within "
+        "-world_extent_m..world_extent_m (422 otherwise; exports skip stored items beyond it). The default "
+        "10 km is ten times the largest single building, and keeps float64 resolution near 1e-12 m.",
+    )
+
 
     @field_validator("csrf_trusted_origins")
     @classmethod
@@ -78,6 +87,7 @@ class Settings(BaseSettings):
                                  "https://linemap.example.org")
             out.append(norm)
         return tuple(out)
+
     auth_fail_delay_s: float = Field(
         1.0,
         ge=0,

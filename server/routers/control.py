@@ -1,9 +1,10 @@
 """``/control/xml``: turn the dashboard's tuning form (a JSON draft) into a canonical control message.
 
 The browser never writes XML itself: the one XML writer is :func:`shared.control.build_message`, and the
-draft's kernel parameters are validated here against the built-in kernels' parameter models, so the form
-shows "clustering kmeans: cluster_no ..." before anything is queued. Parameters of kernel versions the
-server does not have built in (uploaded ones) are left to the robot, which validates them on load.
+message is validated with the robot's own function (:func:`shared.control.to_config`, via
+:mod:`server.msgcheck`) against the built-in kernels' parameter models, so the form shows "kmeans.n_clusters
+..." before anything is queued. Parameters of kernel versions the server does not have built in (uploaded
+ones) are left to the robot, which validates them on load.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from server.deps import OperatorDep
 from server.errors import InvalidRequestError
+from server.msgcheck import builtin_only
 from shared.control import (
     NO_SCAN_MATCHING,
     ControlMessage,
@@ -24,11 +26,11 @@ from shared.control import (
     OperationKind,
     build_message,
     parse_message,
+    to_config,
 )
-from shared.errors import KernelParameterError, UnknownKernelError
-from shared.kernels import REGISTRY, Stage
+from shared.kernels import Stage
 from shared.kernels.versions import VERSION_PATTERN
-from shared.pipeline.config import Mode
+from shared.pipeline.config import Mode, PipelineConfig
 
 __all__ = ["ControlDraft", "KernelDraft", "OperationDraft", "router"]
 
@@ -83,20 +85,11 @@ class ControlXml(BaseModel):
 
 def _spec(draft: KernelDraft, stage: Stage) -> KernelSpec:
     params = {k: tuple(v) if isinstance(v, list) else v for k, v in draft.params.items()}
-    try:
-        REGISTRY.get(stage, draft.name, draft.version)
-    except UnknownKernelError:
-        pass  # an uploaded version: the robot validates its parameters when it loads it
-    else:
-        try:
-            REGISTRY.create(stage, draft.name, params, draft.version)
-        except KernelParameterError as exc:
-            raise InvalidRequestError(f"{stage.value} {draft.name}: {exc}") from None
     return KernelSpec(draft.name, tuple(sorted(params.items())), draft.version)
 
 
 def draft_message(draft: ControlDraft) -> ControlMessage:
-    """The control message a draft describes; :class:`InvalidRequestError` naming the bad parameter."""
+    """The control message a draft describes (its values are checked by :func:`control_xml`)."""
     scan: KernelSpec | Literal["none"] | None = None
     if draft.scan_matching == NO_SCAN_MATCHING:
         scan = NO_SCAN_MATCHING
@@ -141,7 +134,8 @@ def control_xml(draft: ControlDraft, who: OperatorDep) -> ControlXml:
     msg = draft_message(draft)
     try:
         xml = build_message(msg)
-        parse_message(xml)  # what the robot will read must be what we meant
+        # what the robot will read must be what we meant, and valid as the robot will check it
+        to_config(parse_message(xml), PipelineConfig(), checkable=builtin_only)
     except ControlMessageError as exc:
         raise InvalidRequestError(str(exc)) from None
     return ControlXml(xml=xml.decode("utf-8"))

@@ -10,6 +10,9 @@ works (token revoked or rotated, on any server process; session closed or expire
 ``GET /export?format=geojson|svg|dxf|pgm|yaml`` returns the latest map as a file (the same writers as
 ``linemap map``); ``pgm`` and ``yaml`` are the two halves of a ROS map_server map at ``resolution`` metres
 per pixel, named ``robot-<id>-map-v<version>-<resolution>m.pgm/.yaml`` so that the YAML names its image.
+A stored map with items outside the declared bounds (:mod:`server.mapbounds`; stored before the bounds
+held) is refused with 409 naming them, or exported without them with ``out_of_bounds=skip`` (the response
+header ``X-Map-Skipped`` then counts what was left out).
 """
 
 from __future__ import annotations
@@ -30,10 +33,11 @@ from pydantic import ValidationError
 from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access, still_valid
 from server.errors import ConflictError, InvalidRequestError
 from server.hub import OVERFLOW
+from server.mapbounds import check_upload_bounds, screen_stored
 from server.mapstore import apply_upload, map_version, read_map
 from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapUpload, MapUploadOut
 from shared.errors import InvalidInputError
-from shared.export import EmptyMapError
+from shared.export import EmptyMapError, ExportError
 from shared.pipeline.snapshot import MapSnapshot
 from shared.types import Pose2D
 
@@ -77,6 +81,7 @@ async def upload_map(
             for e in exc.errors(include_url=False)
         )
         raise InvalidRequestError(problems) from None
+    check_upload_bounds(body, state.settings.world_extent_m)  # 422 naming the field, value and bound
     key = idempotency_key or f"version-{body.version}"
     seen = state.last_seen(robot_id)
     applied = await state.writer.submit(lambda conn: apply_upload(conn, robot_id, body, key, seen))
@@ -109,7 +114,10 @@ async def latest_map(
 
 
 def _sse(event: str, data: Any, version: int) -> bytes:
-    return f"event: {event}\nid: {version}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
+    # a stored map is encoded by pydantic: a non-finite value stored by an older server becomes null (valid
+    # JSON the page can skip), where json.dumps would write Infinity and the browser's JSON.parse throw
+    text = data.model_dump_json() if isinstance(data, MapOut) else json.dumps(data, separators=(",", ":"))
+    return f"event: {event}\nid: {version}\ndata: {text}\n\n".encode()
 
 
 @router.get(
@@ -132,7 +140,7 @@ async def stream_map(
         recheck = state.settings.poll_recheck_s
         with state.hub.subscribe(f"maps:{robot_id}") as queue:
             snap = await run_in_threadpool(_read, state, robot_id, trajectory)
-            yield _sse("snapshot", snap.model_dump(), snap.version)
+            yield _sse("snapshot", snap, snap.version)
             last, quiet_since = snap.version, loop.time()
             authed_at = reread_at = loop.time()
             while True:
@@ -160,7 +168,7 @@ async def stream_map(
                     continue
                 if item is OVERFLOW or (item["kind"] == "delta" and item["base_version"] != last):
                     snap = await run_in_threadpool(_read, state, robot_id, trajectory)
-                    yield _sse("snapshot", snap.model_dump(), snap.version)
+                    yield _sse("snapshot", snap, snap.version)
                     last = snap.version
                 else:
                     yield _sse(item["kind"], item, item["version"])
@@ -202,9 +210,8 @@ def _export_name(m: MapOut, fmt: str, resolution_m: float) -> str:
     return f"{stem}.{fmt}"
 
 
-def _export(m: MapOut, fmt: str, resolution_m: float) -> bytes:
-    """The map in ``fmt`` as bytes, written by :mod:`shared.export` (in the thread pool: rasterising and
-    drawing take up to a second for large maps)."""
+def _write(m: MapOut, fmt: str, resolution_m: float) -> bytes:
+    """The map in ``fmt`` as bytes, written by :mod:`shared.export`."""
     from shared.export import encode_dxf, occupancy_files, rasterise_segments, render_map, write_geojson
 
     snap = _snapshot(m)
@@ -232,6 +239,28 @@ def _export(m: MapOut, fmt: str, resolution_m: float) -> bytes:
         return target.read_bytes()
 
 
+def _export(
+    m: MapOut, fmt: str, resolution_m: float, extent_m: float, skip: bool
+) -> tuple[bytes, dict[str, int]]:
+    """The map in ``fmt`` as bytes and what was left out (in the thread pool: rasterising and drawing take
+    up to a second for large maps). Stored items outside the declared bounds: 409 naming them, or left out
+    with ``skip``. A writer that still cannot write the stored map answers 409 with its reason."""
+    screen = screen_stored(m, extent_m)
+    if screen.skipped and not skip:
+        raise ConflictError(
+            f"robot {m.robot_id}'s stored map (version {m.version}) has {screen.summary()} outside the "
+            f"declared bounds (first: {screen.first}); they were stored before these bounds held. Export "
+            "with out_of_bounds=skip to leave them out, or have the robot send a new snapshot.",
+            skipped=screen.skipped,
+        )
+    try:
+        return _write(screen.kept, fmt, resolution_m), screen.skipped
+    except (InvalidInputError, ExportError) as exc:
+        raise ConflictError(
+            f"robot {m.robot_id}'s stored map (version {m.version}) cannot be written as {fmt}: {exc}"
+        ) from None
+
+
 @router.get(
     "/export",
     response_class=Response,
@@ -248,13 +277,21 @@ async def export_map(
     resolution: Annotated[
         float, Query(gt=0.0, le=10.0, description="Metres per pixel of the pgm / yaml occupancy map.")
     ] = 0.05,
+    out_of_bounds: Annotated[
+        Literal["refuse", "skip"],
+        Query(description="Stored items outside the declared bounds: refuse (409) or skip them."),
+    ] = "refuse",
 ) -> Response:
     """The latest map as a file to download. 409 when an occupancy map is asked of a map without walls,
-    422 when the resolution would make a grid of more than 16 M cells."""
+    or when the stored map has items outside the declared bounds (unless ``out_of_bounds=skip``); 422
+    when the resolution would make a grid of more than 16 M cells."""
     m = await run_in_threadpool(_read, state, robot_id, None)
-    body = await run_in_threadpool(_export, m, fmt, resolution)
+    extent_m = state.settings.world_extent_m
+    body, skipped = await run_in_threadpool(_export, m, fmt, resolution, extent_m, out_of_bounds == "skip")
     headers = {
         "Content-Disposition": f'attachment; filename="{_export_name(m, fmt, resolution)}"',
         "X-Map-Version": str(m.version),
     }
+    if skipped:
+        headers["X-Map-Skipped"] = ", ".join(f"{k}={n}" for k, n in skipped.items())
     return Response(body, media_type=_MEDIA_TYPES[fmt], headers=headers)

@@ -1,7 +1,9 @@
 """``/robots/{id}/messages``: operators queue XML control messages; the robot long-polls and acknowledges.
 
 A message is validated with the shared parser before it is queued (422 with the parser's reason and the
-element otherwise); kernel operations must name a kernel version the server holds, with its sha256. Each
+element otherwise), and its settings with the robot's own validation (:mod:`server.msgcheck`: 422 naming
+the parameter and its range); kernel operations must name a kernel version the server holds, with its
+sha256. Each
 robot's messages are numbered 1, 2, ... in the order they were queued; the robot asks for those after the
 last one it applied, so a message is delivered in order and, with the robot's own record of applied
 numbers, applied once.
@@ -22,6 +24,7 @@ from server.audit import record
 from server.deps import AppState, OperatorDep, Principal, RobotSelf, StateDep, robot_access, still_valid
 from server.errors import AuthError, ConflictError, InvalidRequestError, NotFoundError, TooLargeError
 from server.models import KernelArtifact, Message, Robot, utcnow
+from server.msgcheck import check_like_robot
 from server.routers.robots import get_robot
 from server.schemas import DB_INT_MAX, AckIn, DbIdPath, MessageList, MessageOut
 from shared.control import (
@@ -109,7 +112,11 @@ def _queue(
     state: AppState, robot_id: int, xml: str, msg: ControlMessage, who: Principal
 ) -> dict[str, object]:
     with state.db.session() as s:
+        robot = s.get(Robot, robot_id)
+        if robot is None:
+            raise NotFoundError(f"no robot with id {robot_id}")
         _check_operations(s, msg)
+        check_like_robot(s, robot, msg)  # parameters and configuration, as the robot will check them
         seq = s.execute(
             update(Robot)
             .where(Robot.id == robot_id)

@@ -14,7 +14,7 @@ are left to the caller (the robot agent's kernel store).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from pydantic import ValidationError
@@ -26,7 +26,12 @@ from shared.errors import KernelParameterError, UnknownKernelError
 from shared.kernels import Stage
 from shared.pipeline.config import SCHEDULED, KernelChoice, Mode, PipelineConfig, StageSchedule
 
-__all__ = ["from_config", "to_config"]
+__all__ = ["Checkable", "from_config", "to_config"]
+
+#: ``checkable(stage, name, version)``: whether this process holds the parameter model of that kernel
+#: (``version`` None: the version the robot resolves to). False leaves that kernel's parameters unchecked
+#: here (a kernel only the robot will have: an uploaded version, validated when the robot loads it).
+Checkable = Callable[[Stage, str, str | None], bool]
 
 #: Display element of each stage's kernel container (for errors).
 _STAGE_ELEMENT = {
@@ -45,8 +50,24 @@ _FIELD_ELEMENT = {
 }
 
 
-def to_config(msg: ControlMessage, base: PipelineConfig) -> PipelineConfig:
-    """``base`` with everything ``msg`` names replaced; raises :class:`ControlMessageError` if invalid."""
+def to_config(
+    msg: ControlMessage, base: PipelineConfig, *, checkable: Checkable | None = None
+) -> PipelineConfig:
+    """``base`` with everything ``msg`` names replaced; raises :class:`ControlMessageError` if invalid.
+
+    The one validation of a message's settings: the robot applies messages with it, and the server checks
+    every message it queues with it (``checkable`` then says which kernels the server can build: those it
+    cannot are left to the robot, and the whole configuration is validated with a built-in stand-in in
+    their place; default: every kernel is built, as on the robot)."""
+    left: list[KernelChoice] = []  # kernels this process cannot build (checkable said so)
+
+    def _choice(spec: KernelSpec, stage: Stage) -> KernelChoice:
+        if checkable is not None and not checkable(stage, spec.name, spec.version):
+            choice = KernelChoice(name=spec.name, version=spec.version, params=spec.params_dict())
+            left.append(choice)
+            return choice
+        return _built_choice(spec, stage)
+
     updates: dict[str, Any] = {}
     if msg.mode is not None:
         updates["mode"] = msg.mode
@@ -69,8 +90,9 @@ def to_config(msg: ControlMessage, base: PipelineConfig) -> PipelineConfig:
     if msg.schedule is not None:
         updates["schedule"] = {e.stage: _stage_schedule(e) for e in msg.schedule}
     fields = {name: getattr(base, name) for name in PipelineConfig.model_fields}
+    merged = {**fields, **updates}
     try:
-        return PipelineConfig.model_validate({**fields, **updates})
+        config = PipelineConfig.model_validate(_stand_ins(merged, left) if left else merged)
     except ValidationError as exc:
         err = exc.errors()[0]
         field = str(err["loc"][0]) if err["loc"] else ""
@@ -81,6 +103,24 @@ def to_config(msg: ControlMessage, base: PipelineConfig) -> PipelineConfig:
             element=f"<{element}>" if element else None,
             line=msg.line_of(element) if element else None,
         ) from None
+    # with stand-ins validated, the real (unbuilt) choices go back in, unvalidated
+    return config.model_copy(update={k: merged[k] for k in _KERNEL_FIELDS}) if left else config
+
+
+_KERNEL_FIELDS = ("segmentation", "noise_removal", "clustering", "straight_line", "scan_matching")
+
+
+def _stand_ins(fields: dict[str, Any], left: list[KernelChoice]) -> dict[str, Any]:
+    """``fields`` with every choice of ``left`` replaced by the default kernel of its stage (built in)."""
+    default = PipelineConfig()
+    out = dict(fields)
+    for name in _KERNEL_FIELDS:
+        value = out[name]
+        if name == "noise_removal":
+            out[name] = tuple(default.noise_removal[0] if any(c is v for v in left) else c for c in value)
+        elif any(value is v for v in left):
+            out[name] = getattr(default, name)
+    return out
 
 
 def from_config(config: PipelineConfig, seq: int | None = None) -> ControlMessage:
@@ -113,7 +153,7 @@ def from_config(config: PipelineConfig, seq: int | None = None) -> ControlMessag
     )
 
 
-def _choice(spec: KernelSpec, stage: Stage) -> KernelChoice:
+def _built_choice(spec: KernelSpec, stage: Stage) -> KernelChoice:
     """Validate ``spec`` by building its kernel; errors name the element that carried the bad value."""
     choice = KernelChoice(name=spec.name, version=spec.version, params=spec.params_dict())
     try:

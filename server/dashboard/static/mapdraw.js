@@ -14,23 +14,31 @@ export const COLORS = {
   text: "#d8dee6",
 };
 
+// At most this many grid lines per axis: a loop over x += step never ends where step is below the
+// spacing of floating-point numbers (a view centred at 1e20 m), so lines are counted, not stepped to.
+const GRID_LINES_MAX = 400;
+
 export function drawGrid(ctx, w, hgt, scale, ox, oy) {
   // Minor lines: the smallest nice step at least 28 px apart; major lines every 1, 5 or 10 x 10^k m.
   const step = niceAtLeast(28 / scale);
   const major = step * (String(step).replace(/[0.]/g, "")[0] === "5" ? 2 : 5);
-  const x0 = Math.floor((0 - ox) / scale / step) * step;
-  const x1 = (w - ox) / scale;
-  const y0 = Math.floor((oy - hgt) / scale / step) * step;
-  const y1 = oy / scale;
+  const kx = Math.floor((0 - ox) / scale / step);
+  const ky = Math.floor((oy - hgt) / scale / step);
+  const nx = Math.min(GRID_LINES_MAX, Math.ceil(w / (step * scale)) + 1);
+  const ny = Math.min(GRID_LINES_MAX, Math.ceil(hgt / (step * scale)) + 1);
   const minor = new Path2D();
   const majorP = new Path2D();
-  for (let x = x0; x <= x1; x += step) {
+  for (let i = 0; Number.isFinite(kx) && i <= nx; i++) {
+    const x = (kx + i) * step;
     const sx = Math.round(x * scale + ox) + 0.5;
+    if (!(sx >= 0 && sx <= w + 1)) continue;
     const p = isMultiple(x, major) ? majorP : minor;
     p.moveTo(sx, 0); p.lineTo(sx, hgt);
   }
-  for (let y = y0; y <= y1; y += step) {
+  for (let i = 0; Number.isFinite(ky) && i <= ny; i++) {
+    const y = (ky + i) * step;
     const sy = Math.round(oy - y * scale) + 0.5;
+    if (!(sy >= 0 && sy <= hgt + 1)) continue;
     const p = isMultiple(y, major) ? majorP : minor;
     p.moveTo(0, sy); p.lineTo(w, sy);
   }
@@ -43,8 +51,8 @@ export function drawGrid(ctx, w, hgt, scale, ox, oy) {
   ctx.beginPath();
   const ax = Math.round(ox) + 0.5;
   const ay = Math.round(oy) + 0.5;
-  ctx.moveTo(ax, 0); ctx.lineTo(ax, hgt);
-  ctx.moveTo(0, ay); ctx.lineTo(w, ay);
+  if (ax >= 0 && ax <= w + 1) { ctx.moveTo(ax, 0); ctx.lineTo(ax, hgt); }
+  if (ay >= 0 && ay <= hgt + 1) { ctx.moveTo(0, ay); ctx.lineTo(w, ay); }
   ctx.strokeStyle = COLORS.axis;
   ctx.stroke();
 }
@@ -68,10 +76,16 @@ export function drawRobot(ctx, sx, sy, theta) {
   ctx.restore();
 }
 
-/** The scale bar's length: the largest nice length (0.1 ... 1000 m) at most 140 px long. */
+/** The scale bar's length: the largest nice length (1, 2 or 5 x 10^k m, at least 0.1 m) at most 140 px
+ * long (beyond 1000 m the same series goes on: 2000, 5000, 10000 m ...). */
 export function scaleBarLength(scale) {
   let len = NICE[0];
   for (const n of NICE) if (n * scale <= 140) len = n;
+  if (len === NICE[NICE.length - 1] && Number.isFinite(scale) && scale > 0) {
+    for (let decade = 1000; decade <= 1e12; decade *= 10) {
+      for (const m of [1, 2, 5]) if (m * decade * scale <= 140) len = m * decade;
+    }
+  }
   return len;
 }
 

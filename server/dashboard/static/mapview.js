@@ -1,18 +1,24 @@
 // Live map: keeps the robot's map from the SSE stream (snapshot + deltas) and draws it on a canvas
 // (walls, centroids, trajectory, pose, grid, scale bar) with pan, zoom, fit and follow.
 // Redraws only when something changed, at most once per animation frame; records latency and frame
-// times in window.linemapStats (see brief: tests and a benchmark read them).
+// times in window.linemapStats (see brief: tests and a benchmark read them). Walls are drawn by
+// maplayer.js in bounded slices; nothing non-finite or beyond ±FAR_M reaches the canvas, and every
+// item is clipped or culled to the view, so absurd coordinates cannot stall or crash the page.
 
 import { h } from "./dom.js";
 import { api } from "./api.js";
 import { COLORS, drawGrid, drawRobot, scaleBarLength } from "./mapdraw.js";
+import { FAR_M, WallLayer, clipSegment, drawable } from "./maplayer.js";
 
 const TRAJECTORY_KEEP = 5000;
 const STATS_KEEP = 1000;
 
 export function stats() {
   if (!window.linemapStats) {
-    window.linemapStats = { latencies_ms: [], frame_ms: [], version: null, segments: 0, drawn_at: null };
+    window.linemapStats = {
+      latencies_ms: [], frame_ms: [], version: null, segments: 0, drawn_at: null,
+      walls_drawn: 0, walls_complete: false, walls_far: 0, first_frame_ms: null, complete_ms: null,
+    };
   }
   return window.linemapStats;
 }
@@ -32,6 +38,7 @@ function median(values) {
 export class MapView {
   constructor() {
     this.segments = new Map(); // id -> [x0, y0, x1, y1]
+    this.walls = new WallLayer(COLORS.wall);
     this.centroids = [];
     this.trajectory = []; // [stamp_s, x, y, theta]
     this.pose = null;
@@ -51,6 +58,7 @@ export class MapView {
     this.hudWalls = h("span", { "data-testid": "map-walls" }, "0");
     this.hudLatency = h("span", { "data-testid": "map-latency" }, "—");
     this.hudStatus = h("span", { class: "hud-status", "data-testid": "map-status" }, "connecting…");
+    this.hudFar = h("div", { class: "hud-far", "data-testid": "map-far", hidden: true });
     this.scaleText = h("span", { class: "map-scale-text" });
     this.scaleBarEl = h("div", { class: "map-scale", "data-testid": "map-scale" }, this.scaleText);
     this.followBox = h("input", { type: "checkbox", "data-testid": "map-follow", onchange: (e) => this.setFollow(e.target.checked) });
@@ -59,6 +67,7 @@ export class MapView {
       h("div", { class: "map-hud" },
         h("div", null, "map v", this.hudVersion, " · ", this.hudWalls, " walls"),
         h("div", null, "link latency ", this.hudLatency),
+        this.hudFar,
         this.hudStatus),
       h("div", { class: "map-tools" },
         h("button", { type: "button", "data-testid": "map-fit", title: "Fit the whole map (double-click the map too)", onclick: () => this.fit() }, "Fit"),
@@ -123,6 +132,8 @@ export class MapView {
   }
 
   onSnapshot(m) {
+    this.receivedAt = performance.now();
+    this.walls.changed();
     this.segments.clear();
     for (const s of m.segments || []) this.segments.set(s[0], [s[1], s[2], s[3], s[4]]);
     this.centroids = m.centroids || [];
@@ -142,6 +153,7 @@ export class MapView {
     }
     for (const s of d.segments || []) this.segments.set(s[0], [s[1], s[2], s[3], s[4]]);
     for (const id of d.removed || []) this.segments.delete(id);
+    if ((d.segments && d.segments.length) || (d.removed && d.removed.length)) this.walls.changed();
     if (d.centroids) this.centroids = d.centroids;
     if (d.pose && d.pose.length >= 2) this.pose = d.pose;
     if (d.trajectory && d.trajectory.length) {
@@ -175,10 +187,11 @@ export class MapView {
     this.invalidate();
   }
 
-  /** Bounds of everything drawn: [minX, minY, maxX, maxY] or null. */
+  /** Bounds of everything drawn: [minX, minY, maxX, maxY] or null (items beyond ±FAR_M are not drawn). */
   bounds() {
     let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
     const add = (x, y) => {
+      if (!drawable(x, y)) return;
       if (x < x0) x0 = x;
       if (x > x1) x1 = x;
       if (y < y0) y0 = y;
@@ -201,8 +214,8 @@ export class MapView {
     this.pendingFit = false;
     const b = this.bounds();
     if (!b) return;
-    const bw = Math.max(b[2] - b[0], 4);
-    const bh = Math.max(b[3] - b[1], 4);
+    const bw = Math.min(Math.max(b[2] - b[0], 4), 4 * FAR_M);
+    const bh = Math.min(Math.max(b[3] - b[1], 4), 4 * FAR_M);
     const scale = Math.min((w - 60) / bw, (hgt - 60) / bh);
     this.view = { cx: (b[0] + b[2]) / 2, cy: (b[1] + b[3]) / 2, scale: clampScale(scale) };
     this.fitted = true;
@@ -268,13 +281,27 @@ export class MapView {
     if (this.closed || !this.dirty) return;
     this.dirty = false;
     const t0 = performance.now();
-    this.draw();
+    const more = this.draw();
     const t1 = performance.now();
     const st = stats();
     pushCapped(st.frame_ms, t1 - t0);
+    // the whole frame, the raster of the last slice included, for the slice size of the next one
+    if (this.lastFrameAt !== undefined && more) this.walls.feedback(t0 - this.lastFrameAt - 16.7 + (t1 - t0));
+    this.lastFrameAt = more ? t1 : undefined;
     st.version = this.version;
     st.segments = this.segments.size;
     st.drawn_at = performance.timeOrigin + t1;
+    const p = this.walls.progress();
+    st.walls_drawn = p.drawn;
+    st.walls_complete = p.complete;
+    st.walls_far = p.far;
+    if (this.receivedAt !== undefined) { // time from the first snapshot to its first and its complete frame
+      if (st.first_frame_ms === null) st.first_frame_ms = t1 - this.receivedAt;
+      if (p.complete && st.complete_ms === null) st.complete_ms = t1 - this.receivedAt;
+    }
+    this.hudFar.hidden = !p.far;
+    this.hudFar.textContent = p.far ? `${p.far} walls not drawn: a coordinate beyond ±${FAR_M.toExponential(0)} m` : "";
+    if (more) this.invalidate(); // the next slice of walls
     if (this.pendingWallTimes.length) {
       const now = performance.timeOrigin + performance.now();
       for (const wt of this.pendingWallTimes) pushCapped(st.latencies_ms, now - wt * 1000);
@@ -314,7 +341,10 @@ export class MapView {
     ctx.fillRect(0, 0, w, hgt);
 
     if (this.pendingFit && w > 1 && hgt > 1) this.applyFit(w, hgt);
-    if (this.follow && this.pose) { this.view.cx = this.pose[0]; this.view.cy = this.pose[1]; }
+    if (this.follow && this.pose && drawable(this.pose[0], this.pose[1])) {
+      this.view.cx = this.pose[0];
+      this.view.cy = this.pose[1];
+    }
     const { cx, cy, scale } = this.view;
     const ox = w / 2 - cx * scale;
     const oy = hgt / 2 + cy * scale;
@@ -322,44 +352,54 @@ export class MapView {
 
     drawGrid(ctx, w, hgt, scale, ox, oy);
 
-    // Trajectory: one polyline.
+    // Walls: a small map in one path; else the progressive layer (maplayer.js) and what it has so far.
+    let more = false;
+    if (!this.walls.direct(ctx, this.segments, this.view, w, hgt)) {
+      more = this.walls.step(this.segments, this.view, w, hgt, dpr);
+      this.walls.composite(ctx, this.view, w, hgt);
+    }
+
+    // Trajectory: one path, each step clipped to the view (absurd points never reach the canvas).
     const tr = this.trajectory;
+    const xa = -20, ya = -20, xb = w + 20, yb = hgt + 20;
     if (tr.length > 1) {
       ctx.beginPath();
-      ctx.moveTo(tr[0][1] * scale + ox, oy - tr[0][2] * scale);
-      for (let i = 1; i < tr.length; i++) ctx.lineTo(tr[i][1] * scale + ox, oy - tr[i][2] * scale);
+      for (let i = 1; i < tr.length; i++) {
+        const a = tr[i - 1], b = tr[i];
+        if (!drawable(a[1], a[2]) || !drawable(b[1], b[2])) continue;
+        const c = clipSegment(a[1] * scale + ox, oy - a[2] * scale, b[1] * scale + ox, oy - b[2] * scale, xa, ya, xb, yb);
+        if (c) { ctx.moveTo(c[0], c[1]); ctx.lineTo(c[2], c[3]); }
+      }
       ctx.strokeStyle = COLORS.trajectory;
       ctx.lineWidth = 1.25;
       ctx.lineJoin = "round";
       ctx.stroke();
     }
 
-    // Walls: one path, one stroke.
-    if (this.segments.size) {
-      ctx.beginPath();
-      for (const s of this.segments.values()) {
-        ctx.moveTo(s[0] * scale + ox, oy - s[1] * scale);
-        ctx.lineTo(s[2] * scale + ox, oy - s[3] * scale);
-      }
-      ctx.strokeStyle = COLORS.wall;
-      ctx.lineWidth = 2;
-      ctx.lineCap = "round";
-      ctx.stroke();
-    }
-
-    // Centroids: small squares, one path, one fill.
+    // Centroids: small squares inside the view, one path, one fill.
     const cs = this.centroids;
     if (cs.length) {
       const r = 2;
       ctx.beginPath();
-      for (const p of cs) ctx.rect(p[0] * scale + ox - r, oy - p[1] * scale - r, 2 * r, 2 * r);
+      for (const p of cs) {
+        if (!drawable(p[0], p[1])) continue;
+        const sx = p[0] * scale + ox, sy = oy - p[1] * scale;
+        if (sx < xa || sx > xb || sy < ya || sy > yb) continue;
+        ctx.rect(sx - r, sy - r, 2 * r, 2 * r);
+      }
       ctx.fillStyle = COLORS.centroid;
       ctx.fill();
     }
 
-    if (this.pose) drawRobot(ctx, this.pose[0] * scale + ox, oy - this.pose[1] * scale, this.pose[2] || 0);
+    if (this.pose && drawable(this.pose[0], this.pose[1])) {
+      const sx = this.pose[0] * scale + ox, sy = oy - this.pose[1] * scale;
+      const theta = Number.isFinite(this.pose[2]) ? this.pose[2] : 0;
+      if (sx >= xa && sx <= xb && sy >= ya && sy <= yb) drawRobot(ctx, sx, sy, theta);
+    }
     this.updateScaleBar(scale);
+    return more;
   }
+
 
 }
 
@@ -368,6 +408,6 @@ function legendItem(kind, label) {
 }
 
 function clampScale(s) {
-  return Math.min(5000, Math.max(0.05, Number.isFinite(s) ? s : 40));
+  return Math.min(5000, Math.max(1e-6, Number.isFinite(s) ? s : 40));
 }
 
