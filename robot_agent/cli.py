@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import logging
-import os
 import signal
-import sys
 import threading
 import tomllib
 from pathlib import Path
@@ -52,16 +50,6 @@ def _retry_base(value: Any, path: Path | None) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not 0.001 <= value <= 60:
         raise LinemapError(f"agent file {path}: retry_base = {value!r}: expected seconds in [0.001, 60]")
     return float(value)
-
-
-def restart_in_place(reason: str) -> None:
-    """Replace this process by a new ``linemap agent`` with the same arguments (same PID: a supervisor
-    sees no exit). Used when a kernel got stuck in service: its thread cannot be stopped otherwise. What
-    was in flight is resumed from the Robot DB, exactly as after a power cut."""
-    typer.echo(f"linemap agent: restarting in place: {reason}", err=True)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os.execv(sys.executable, [sys.executable, *sys.orig_argv[1:]])
 
 
 def _key_text(value: str) -> str:
@@ -161,7 +149,7 @@ def agent_cmd(
     )
     if settings.allow_unsigned:
         typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)
-    agent = Agent(settings, restart=restart_in_place)
+    agent = Agent(settings)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
