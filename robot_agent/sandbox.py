@@ -211,6 +211,7 @@ def confine(scratch: Path, packages: Sequence[Path], memory_mb: float, cpu_s: in
     rest of this process's life (None: no CPU limit; the agent's wall-time limit per call still holds).
     """
     report: dict[str, str] = {"pdeathsig": "applied"}
+    base = address_space_bytes()  # before Landlock hides /proc
     ok = _libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) == 0
     report["no_new_privs"] = "applied" if ok else f"unavailable: {_err()}"
     if _libc.unshare(_CLONE_NEWUSER | _CLONE_NEWNET) == 0:
@@ -219,7 +220,6 @@ def confine(scratch: Path, packages: Sequence[Path], memory_mb: float, cpu_s: in
         report["netns"] = f"unavailable: unshare: {_err()}"
     report["landlock"] = _landlock(_readable_roots(packages), [scratch, Path("/dev/null")])
     report["seccomp"] = _seccomp()
-    base = address_space_bytes()
     if base is not None:
         limit = base + int(memory_mb * 2**20)
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
@@ -230,7 +230,7 @@ def confine(scratch: Path, packages: Sequence[Path], memory_mb: float, cpu_s: in
     _rlimit(resource.RLIMIT_FSIZE, FILE_SIZE_BYTES)
     _rlimit(resource.RLIMIT_CORE, 0)
     report["rlimits"] = (
-        f"applied (address space +{memory_mb:g} MB, cpu {cpu_s if cpu_s is not None else 'unlimited'} s,"
+        f"applied (address space{' unknown' if base is None else ''} +{memory_mb:g} MB, cpu {cpu_s if cpu_s is not None else 'unlimited'} s,"
         f" {OPEN_FILES} files, {FILE_SIZE_BYTES // 2**20} MB per file)"
     )
     return report

@@ -1,0 +1,92 @@
+"""Downloaded kernels run in confined worker processes (docs/reliability/sandbox.md): a real server, a
+real agent process and signed kernels. The matrix of faults (hangs at import, on empty input, in a
+GIL-holding C call in service, allocations, network and file access) is in test_rel_supply_live.py; here:
+``kill -9`` of the agent while a kernel's dry run spins leaves no process behind, and after a restart the
+same message is refused within its limits (not run for ever) and the next message is applied.
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from shared.signing import KeyPair, generate_keypair
+from tests.reliability import supplytools as st
+from tests.robot_agent.agentproc import wait_for
+from tests.server.live import Live, start_live
+
+UPDATE = '<kernel-update stage="noise-removal" name="dbscan" version="{v}" sha256="{d}"/>'
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
+    yield from start_live("sqlite", tmp_path_factory.mktemp("sandbox-server"), poll_recheck_s=1.0)
+
+
+@pytest.fixture(scope="module")
+def key(live: Live) -> KeyPair:
+    pair = generate_keypair()
+    with live.operator() as op:
+        assert op.post("/keys", json={"name": "ops", "public_key": pair.public_b64}).status_code == 201
+    return pair
+
+
+def test_kill_9_during_a_dry_run_leaves_no_child_and_the_restart_refuses_the_message(
+    live: Live, key: KeyPair, tmp_path: Path
+) -> None:
+    with live.operator() as op:
+        digest = st.upload(op, key, st.dbscan("4.0.1", "hangs"), "4.0.1")
+    agent, rid, token, op = st.start(live, tmp_path, key)
+    try:
+        pid = agent.proc.pid
+        r = op.post(
+            f"/robots/{rid}/messages",
+            content=f"<xml><message>{UPDATE.format(v='4.0.1', d=digest)}</message></xml>",
+            headers=st.XML,
+        )
+        assert r.status_code == 201, r.text
+        seq = int(r.json()["seq"])
+        workers = wait_for("the dry run's worker process", lambda: st.workers_of(pid), 120)
+        agent.proc.send_signal(signal.SIGKILL)  # the agent alone, not its process group
+        agent.proc.wait(30)
+        wait_for(f"no orphaned worker (had {workers})", lambda: not st.workers_of(pid), 10)
+        for w in workers:
+            assert not Path(f"/proc/{w}").exists() or "Z" in Path(f"/proc/{w}/stat").read_text().split()[2]
+        agent = st.agent(live, tmp_path / "robot.db", rid, token, key)
+        ack = wait_for(
+            f"message {seq} answered after the restart",
+            lambda: (m := op.get(f"/robots/{rid}/messages/{seq}").json())["status"] != "queued" and m,
+            180,
+        )
+        assert ack["status"] == "rejected", ack
+        assert "dry run: ran longer than its 5000 ms budget" in ack["reason"], ack
+        start = op.get(f"/robots/{rid}").json()["map_version"]
+        wait_for("mapping goes on", lambda: op.get(f"/robots/{rid}").json()["map_version"] >= start + 10, 120)
+        nxt = st.send(op, rid, "<noise-removal><dbscan><epsilon_m>0.06</epsilon_m></dbscan></noise-removal>")
+        assert nxt["status"] == "applied", nxt
+        assert st.noise(op, rid) == "dbscan@1.0.0"
+        wait_for("no worker left", lambda: not st.workers_of(agent.proc.pid), 30)
+    finally:
+        assert agent.stop() == 0, agent.output()
+        op.close()
+
+
+def test_a_stranger_key_never_starts_a_worker(live: Live, key: KeyPair, tmp_path: Path) -> None:
+    """Nothing of an unverified artifact runs anywhere: the signature is checked before any worker."""
+    stranger = generate_keypair()
+    with live.operator() as op:
+        assert (
+            op.post("/keys", json={"name": "stranger", "public_key": stranger.public_b64}).status_code == 201
+        )
+        digest = st.upload(op, stranger, st.dbscan("4.0.2", "import-hang"), "4.0.2")
+    agent, rid, _token, op = st.start(live, tmp_path, key)
+    try:
+        ack = st.send(op, rid, UPDATE.format(v="4.0.2", d=digest))
+        assert ack["status"] == "rejected" and "bad signature" in ack["reason"], ack
+        assert not st.workers_of(agent.proc.pid)
+    finally:
+        assert agent.stop() == 0, agent.output()
+        op.close()
