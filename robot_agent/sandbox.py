@@ -229,8 +229,10 @@ def confine(scratch: Path, packages: Sequence[Path], memory_mb: float, cpu_s: in
     _rlimit(resource.RLIMIT_NOFILE, OPEN_FILES)
     _rlimit(resource.RLIMIT_FSIZE, FILE_SIZE_BYTES)
     _rlimit(resource.RLIMIT_CORE, 0)
+    room = "unknown" if base is None else f"+{memory_mb:g} MB"
+    cpu = "unlimited" if cpu_s is None else f"{cpu_s} s"
     report["rlimits"] = (
-        f"applied (address space{' unknown' if base is None else ''} +{memory_mb:g} MB, cpu {cpu_s if cpu_s is not None else 'unlimited'} s,"
-        f" {OPEN_FILES} files, {FILE_SIZE_BYTES // 2**20} MB per file)"
+        f"applied (address space {room}, cpu {cpu}, {OPEN_FILES} files,"
+        f" {FILE_SIZE_BYTES // 2**20} MB per file)"
     )
     return report

@@ -78,7 +78,9 @@ FAULTS = {
     ),
     "wrong-type": "        return [[0.0, 0.0]]",
     # A C call that holds the GIL for ever (catastrophic backtracking): only another process can stop it.
-    "regex": "        import re\n        re.match(r'(a+)+$', 'a' * 40 + 'b')\n        return super().apply(points)",
+    "regex": (
+        "        import re\n        re.match(r'(a+)+$', 'a' * 40 + 'b')\n        return super().apply(points)"
+    ),
     # Loops only on an empty input: the dry run on real scans passes, the conformance battery hangs.
     "empty-loop": (
         "        if len(points) == 0:\n"
