@@ -65,7 +65,7 @@ def test_kill_9_during_a_dry_run_leaves_no_child_and_the_restart_refuses_the_mes
         assert "dry run: ran longer than its 5000 ms budget" in ack["reason"], ack
         start = op.get(f"/robots/{rid}").json()["map_version"]
         wait_for("mapping goes on", lambda: op.get(f"/robots/{rid}").json()["map_version"] >= start + 10, 120)
-        nxt = st.send(op, rid, "<noise-removal><dbscan><epsilon_m>0.06</epsilon_m></dbscan></noise-removal>")
+        nxt = st.send(op, rid, "<noise-removal><dbscan><epsilon>6</epsilon></dbscan></noise-removal>")
         assert nxt["status"] == "applied", nxt
         assert st.noise(op, rid) == "dbscan@1.0.0"
         wait_for("no worker left", lambda: not st.workers_of(agent.proc.pid), 30)
