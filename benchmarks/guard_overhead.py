@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
             check_result(self.stage, out, len(points))
             return out
 
-    remote = load_in_worker(
+    remote: Any = load_in_worker(
         SOURCE, "noise-removal", "dbscan", "1.9.0", memory_mb=256.0, call_s=5.0, import_s=30.0
     )
     variants: dict[str, Any] = {

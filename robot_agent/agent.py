@@ -147,15 +147,20 @@ class Agent:
         """The class of a downloaded kernel running in its own confined worker process."""
         from robot_agent.dryrun import load_in_worker
 
-        return load_in_worker(
-            source,
-            stage,
-            name,
-            version,
-            memory_mb=self.s.kernel_memory_mb,
-            call_s=self.s.kernel_hang_s,
-            import_s=self.s.dry_run_budget_s,
-        )
+        try:
+            return load_in_worker(
+                source,
+                stage,
+                name,
+                version,
+                memory_mb=self.s.kernel_memory_mb,
+                call_s=self.s.kernel_hang_s,
+                import_s=self.s.dry_run_budget_s,
+            )
+        except KernelRejected:
+            raise
+        except AgentError as exc:  # not the kernel's fault, but it cannot run: refused with the reason
+            raise KernelRejected(f"could not start its worker process: {exc}") from None
 
     def _register(self, cls: type[Kernel[Any]]) -> None:
         key = (str(cls.stage), cls.name, cls.version)
@@ -441,16 +446,21 @@ class Agent:
             # is served by a long-lived worker of its own.
             with self._recent_lock:
                 scans = list(self._recent)
-            verify_in_worker(
-                got.source,
-                op.stage,
-                op.name,
-                op.version,
-                None,
-                scans,
-                self.s.dry_run_budget_s,
-                conformance_s=self.s.dry_run_budget_s,
-            )
+            try:
+                verify_in_worker(
+                    got.source,
+                    op.stage,
+                    op.name,
+                    op.version,
+                    None,
+                    scans,
+                    self.s.dry_run_budget_s,
+                    conformance_s=self.s.dry_run_budget_s,
+                )
+            except KernelRejected:
+                raise
+            except AgentError as exc:  # the checks could not run: the kernel is not installed
+                raise KernelRejected(f"its checks could not run: {exc}") from None
             cls = self._load_in_worker(got.source, op.stage, op.name, op.version)
         except KernelRejected as exc:
             record.reason = exc.reason

@@ -131,6 +131,7 @@ def verify_in_worker(
     memory_limit_mb: float = 512,
     startup_s: float = STARTUP_ALLOWANCE_S,
     conformance_s: float | None = None,
+    started: list[float] | None = None,
 ) -> DryRunReport:
     """The dry run, then (with ``conformance_s``) the conformance battery, in one confined worker.
 
@@ -139,7 +140,8 @@ def verify_in_worker(
     space is its start-up footprint plus ``memory_limit_mb``; its CPU time after start-up is limited to
     the two budgets plus 2 s (RLIMIT_CPU: SIGXCPU, then SIGKILL). Raises :class:`KernelRejected`
     ("dry run: ..." or "conformance ...") naming what the kernel did; :class:`AgentError` when the worker
-    cannot start or build its inputs. The worker is always killed before this returns.
+    cannot start or build its inputs. The worker is always killed before this returns. ``started``, if
+    given, gets the ``time.perf_counter()`` at which the kernel's code began (after the worker's start-up).
     """
     want = Stage(stage)
     label = f"{name} {version}"
@@ -148,6 +150,8 @@ def verify_in_worker(
     worker, n_inputs = _start(label, want, memory_limit_mb, cpu_s, startup_s, scans)
     startup_ms = (time.perf_counter() - t_start) * 1e3
     t_run = time.perf_counter()
+    if started is not None:
+        started.append(t_run)
     phase = "dry run"
     try:
         try:

@@ -308,7 +308,8 @@ def remote_class(
             self._params = RemoteParams.model_validate(got[1])
 
         def apply(self, *args: Any) -> Any:
-            answer = worker.request({"op": "apply", "id": self._remote_id, "args": list(args)}, call_s)
+            req = {"op": "apply", "id": self._remote_id, "params": self.get_params(), "args": list(args)}
+            answer = worker.request(req, call_s)
             if "error" in answer:
                 raise KernelCallError(f"{label} {answer['error']}", str(answer.get("kind")))
             return answer["ok"]

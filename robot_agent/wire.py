@@ -81,13 +81,12 @@ def send(sock: socket.socket, value: Any, timeout_s: float | None = None) -> Non
     frames: list[Any] = []
     tree = _encode(value, frames)
     header = json.dumps({"n": len(frames), "v": tree}).encode()
-    sock.settimeout(timeout_s)
-    sock.sendall(struct.pack("!I", len(header)) + header)
+    parts: list[Any] = [struct.pack("!I", len(header)), header]
     for arr in frames:
         data = memoryview(arr).cast("B") if arr.size else b""
-        sock.sendall(struct.pack("!Q", len(data)))
-        if len(data):
-            sock.sendall(data)
+        parts += [struct.pack("!Q", len(data)), data]
+    sock.settimeout(timeout_s)
+    sock.sendall(b"".join(parts))  # one write: the peer wakes up once, not once per frame
 
 
 def _exact(sock: socket.socket, n: int, deadline: float | None) -> bytearray:

@@ -126,8 +126,11 @@ def _construct(st: _State, req: dict[str, Any]) -> dict[str, Any]:
 
 def _apply(st: _State, req: dict[str, Any]) -> dict[str, Any]:
     kernel = st.by_id.get(int(req["id"]))
-    if kernel is None:
-        return {"error": f"no kernel instance {req['id']}", "kind": "raised"}
+    if kernel is None:  # dropped from the cache meanwhile: built again from its parameters
+        built = _construct(st, req)
+        if "error" in built:
+            return built
+        kernel = st.by_id[built["ok"]["id"]]
     try:
         return {"ok": kernel.apply(*req["args"])}
     except (Exception, MemoryError) as exc:

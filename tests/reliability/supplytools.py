@@ -144,11 +144,11 @@ def workers_of(agent_pid: int) -> list[int]:
         if not entry.name.isdigit():
             continue
         try:
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
+            raw = (entry / "cmdline").read_bytes().split(b"\0")
             state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
         except OSError:
             continue
-        argv = [a.decode(errors="replace") for a in argv if a]
+        argv = [a.decode(errors="replace") for a in raw if a]
         if "robot_agent.worker" in argv and argv[-1] == str(agent_pid) and state != "Z":
             found.append(int(entry.name))
     return found
