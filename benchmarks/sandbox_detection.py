@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--budget-s", type=float, default=5.0, help="dry_run_budget_s [5]")
     args = p.parse_args(argv)
     points = wall_points(600)
+    Dbscan().apply(points)  # the fallback's compiled code loaded before anything is timed
     print(f"{'kind':34s} {'phase':8s} {'detected s':>10s} {'start-up s':>10s}  outcome")
     for i, (kind, (module, body, phase)) in enumerate(FAULTS.items()):
         source, version = _source(i, module, body)

@@ -341,8 +341,12 @@ class Agent:
 
     def _apply(self, prepared: Prepared) -> None:
         if self.db.outcome_of(prepared.seq) is not None:
+            for cls in prepared.classes.values():
+                _close_worker(cls)
             return  # dealt with already (exactly once)
         if prepared.error is not None:
+            for cls in prepared.classes.values():  # kernels of the message checked before the refusal
+                _close_worker(cls)
             self._reject(prepared.seq, prepared.error)
             return
         t0 = time.perf_counter()
@@ -402,20 +406,40 @@ class Agent:
         if downgrade is not None:
             prepared.error = downgrade
             return prepared
-        for op in msg.operations:
-            if op.kind not in (OperationKind.INSTALL, OperationKind.UPDATE):
-                continue
+        installs = [op for op in msg.operations if op.kind in (OperationKind.INSTALL, OperationKind.UPDATE)]
+        if not installs:
+            return prepared
+        # A message whose checks were cut short by the agent stopping (power cut, kill -9) twice is refused:
+        # whatever its kernels do, the control channel never stays stuck on one message.
+        checking = self.db.get(_CHECKING) or {}
+        tries = int(checking.get("tries", 0)) if checking.get("seq") == seq else 0
+        if tries >= _CHECK_TRIES:
+            self.db.put(_CHECKING, None)
+            prepared.error = (
+                f"its kernel checks were interrupted {tries} times (the agent stopped during them);"
+                " refused so that later messages are not held up; send it again to retry"
+            )
+            return prepared
+        self.db.put(_CHECKING, {"seq": seq, "tries": tries + 1})
+        try:
+            self._verify_all(prepared, installs)
+        finally:
+            self.db.put(_CHECKING, None)
+        return prepared
+
+    def _verify_all(self, prepared: Prepared, installs: list[Any]) -> None:
+        """Download and check each installed kernel of ``prepared``; the first refusal sets its error."""
+        for op in installs:
             try:
                 prepared.classes[(op.stage.value, op.name, op.version)] = self._fetch_and_verify(op)
             except KernelRejected as exc:
                 prepared.error = f"<kernel-{op.kind.value}> {op.name} {op.version}: {exc.reason}"
-                return prepared
+                return
             except LinkError as exc:
                 if _transient(exc):
                     raise  # a network fault: the poller fetches the message again after a backoff
                 prepared.error = f"<kernel-{op.kind.value}> {op.name} {op.version}: download failed: {exc}"
-                return prepared
-        return prepared
+                return
 
     def _fetch_and_verify(self, op: Any) -> type[Kernel[Any]]:
         from robot_agent.dryrun import verify_in_worker
@@ -623,6 +647,12 @@ class Agent:
         self.db.mark_uploaded(int(snap["version"]))
         self._need_snapshot = False
         return True
+
+
+#: Robot DB key: the message whose kernel checks are under way and how often they were started.
+_CHECKING = "kernel_checks_under_way"
+#: Checks cut short this often (the agent stopped during them) refuse the message.
+_CHECK_TRIES = 2
 
 
 def _used(config: PipelineConfig, stage: str, name: str, version: str) -> bool:
