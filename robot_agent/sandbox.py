@@ -7,7 +7,9 @@ reported (``{"layer": "applied" | "unavailable: why"}``), so the agent logs what
 - ``pdeathsig``: ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` (the worker dies with the agent) — applied first, by
   :func:`die_with_parent`;
 - ``no_new_privs``: ``prctl(PR_SET_NO_NEW_PRIVS)`` (no setuid gain; needed by the two layers below);
-- ``netns``: ``unshare(CLONE_NEWUSER | CLONE_NEWNET)``: a network namespace with only a downed loopback;
+- ``netns``: ``unshare(CLONE_NEWUSER | CLONE_NEWNET | CLONE_NEWNS)``: a network namespace with only a
+  downed loopback, and a mount namespace of its own;
+- ``scratch``: a private tmpfs (16 MB, 1024 files) mounted on the scratch directory, seen by nobody else;
 - ``landlock``: reads only below the Python installation, the system libraries and the agent's packages;
   reads and writes in the scratch directory; no other write, removal, creation or truncation anywhere;
   no TCP bind/connect (ABI >= 4); no abstract UNIX sockets and no signals out of the sandbox (ABI >= 6);
@@ -34,12 +36,21 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["FILE_SIZE_BYTES", "OPEN_FILES", "address_space_bytes", "confine", "die_with_parent"]
+__all__ = [
+    "FILE_SIZE_BYTES",
+    "OPEN_FILES",
+    "SCRATCH_BYTES",
+    "address_space_bytes",
+    "confine",
+    "die_with_parent",
+]
 
 #: RLIMIT_NOFILE of a worker.
 OPEN_FILES = 64
 #: RLIMIT_FSIZE of a worker (bytes): what it may write into its scratch directory per file.
 FILE_SIZE_BYTES = 16 * 2**20
+#: Size of the worker's private scratch file system (bytes), where mount namespaces are available.
+SCRATCH_BYTES = 16 * 2**20
 
 _PR_SET_PDEATHSIG = 1
 _PR_SET_NO_NEW_PRIVS = 38
@@ -47,6 +58,8 @@ _PR_SET_SECCOMP = 22
 _SECCOMP_MODE_FILTER = 2
 _CLONE_NEWUSER = 0x10000000
 _CLONE_NEWNET = 0x40000000
+_CLONE_NEWNS = 0x00020000
+_MS_NOSUID, _MS_NODEV = 2, 4
 _CLONE_THREAD = 0x00010000
 
 _libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
@@ -75,6 +88,28 @@ def address_space_bytes() -> int | None:
     except (OSError, ValueError):
         return None
     return None
+
+
+def _map_ids(uid: int, gid: int) -> None:
+    """Keep this process's user and group ids inside its new user namespace (files it creates in its
+    scratch need an owner); supplementary groups are dropped for good."""
+    for name, text in (("setgroups", "deny"), ("uid_map", f"{uid} {uid} 1"), ("gid_map", f"{gid} {gid} 1")):
+        try:
+            with open(f"/proc/self/{name}", "w", encoding="ascii") as f:
+                f.write(text)
+        except OSError:
+            return
+
+
+def _scratch_tmpfs(scratch: Path) -> str:
+    """Mount a private tmpfs of :data:`SCRATCH_BYTES` on ``scratch`` (in this process's own mount
+    namespace: nobody else sees it) and move into it: the worker's writes are bounded in total."""
+    _libc.mount.argtypes = (ctypes.c_char_p,) * 3 + (ctypes.c_ulong, ctypes.c_char_p)
+    opts = f"size={SCRATCH_BYTES},mode=0700,nr_inodes=1024".encode()
+    if _libc.mount(b"none", str(scratch).encode(), b"tmpfs", _MS_NOSUID | _MS_NODEV, opts) != 0:
+        return f"unavailable: mount tmpfs: {_err()}; RLIMIT_FSIZE bounds each file only"
+    os.chdir(scratch)
+    return f"applied (private tmpfs of {SCRATCH_BYTES // 2**20} MB, 1024 files)"
 
 
 # ----------------------------------------------------------------------------------------- landlock
@@ -214,10 +249,17 @@ def confine(scratch: Path, packages: Sequence[Path], memory_mb: float, cpu_s: in
     base = address_space_bytes()  # before Landlock hides /proc
     ok = _libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) == 0
     report["no_new_privs"] = "applied" if ok else f"unavailable: {_err()}"
-    if _libc.unshare(_CLONE_NEWUSER | _CLONE_NEWNET) == 0:
+    uid, gid = os.getuid(), os.getgid()
+    if _libc.unshare(_CLONE_NEWUSER | _CLONE_NEWNET | _CLONE_NEWNS) == 0:
         report["netns"] = "applied"
+        _map_ids(uid, gid)
+        report["scratch"] = _scratch_tmpfs(scratch)
+    elif _libc.unshare(_CLONE_NEWUSER | _CLONE_NEWNET) == 0:
+        report["netns"] = "applied"
+        report["scratch"] = "unavailable: no mount namespace; RLIMIT_FSIZE bounds each file only"
     else:
         report["netns"] = f"unavailable: unshare: {_err()}"
+        report["scratch"] = "unavailable: no user namespace; RLIMIT_FSIZE bounds each file only"
     report["landlock"] = _landlock(_readable_roots(packages), [scratch, Path("/dev/null")])
     report["seccomp"] = _seccomp()
     if base is not None:
