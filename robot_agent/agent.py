@@ -409,22 +409,7 @@ class Agent:
         installs = [op for op in msg.operations if op.kind in (OperationKind.INSTALL, OperationKind.UPDATE)]
         if not installs:
             return prepared
-        # A message whose checks were cut short by the agent stopping (power cut, kill -9) twice is refused:
-        # whatever its kernels do, the control channel never stays stuck on one message.
-        checking = self.db.get(_CHECKING) or {}
-        tries = int(checking.get("tries", 0)) if checking.get("seq") == seq else 0
-        if tries >= _CHECK_TRIES:
-            self.db.put(_CHECKING, None)
-            prepared.error = (
-                f"its kernel checks were interrupted {tries} times (the agent stopped during them);"
-                " refused so that later messages are not held up; send it again to retry"
-            )
-            return prepared
-        self.db.put(_CHECKING, {"seq": seq, "tries": tries + 1})
-        try:
-            self._verify_all(prepared, installs)
-        finally:
-            self.db.put(_CHECKING, None)
+        self._verify_all(prepared, installs)
         return prepared
 
     def _verify_all(self, prepared: Prepared, installs: list[Any]) -> None:
@@ -647,12 +632,6 @@ class Agent:
         self.db.mark_uploaded(int(snap["version"]))
         self._need_snapshot = False
         return True
-
-
-#: Robot DB key: the message whose kernel checks are under way and how often they were started.
-_CHECKING = "kernel_checks_under_way"
-#: Checks cut short this often (the agent stopped during them) refuse the message.
-_CHECK_TRIES = 2
 
 
 def _used(config: PipelineConfig, stage: str, name: str, version: str) -> bool:

@@ -77,7 +77,9 @@ def _start(
     """A confined worker (after building the dry run's inputs from ``scans``, if given): it, and the
     number of inputs. :class:`AgentError` when it cannot start (not the kernel's fault)."""
     try:
-        worker = KernelWorker(label, stage, memory_mb, cpu_s, startup_s)
+        worker = KernelWorker(
+            label, stage, memory_mb, cpu_s, startup_s, role="checks" if scans is not None else "service"
+        )
     except AgentError:
         raise
     try:

@@ -128,9 +128,18 @@ def live_workers() -> set[int]:
 
 # --------------------------------------------------------------------------------------------- worker
 class KernelWorker:
-    """One worker process. ``label`` names it in reasons (e.g. ``"dbscan 3.0.1"``). Thread-safe."""
+    """One worker process. ``label`` names it in reasons (e.g. ``"dbscan 3.0.1"``); ``role`` (``checks``
+    or ``service``) is on its command line, for whoever lists processes. Thread-safe."""
 
-    def __init__(self, label: str, stage: Stage | str, memory_mb: float, cpu_s: int | None, startup_s: float):
+    def __init__(
+        self,
+        label: str,
+        stage: Stage | str,
+        memory_mb: float,
+        cpu_s: int | None,
+        startup_s: float,
+        role: str = "service",
+    ):
         self.label = label
         self._lock = threading.Lock()
         self._dead: str | None = None

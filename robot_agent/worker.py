@@ -1,7 +1,7 @@
 """The kernel worker process: where a downloaded kernel's code runs, confined (docs/reliability/sandbox.md).
 
-Started by :mod:`robot_agent.supervisor` as ``python -B -m robot_agent.worker FD PARENT_PID`` with an empty
-environment, in a fresh scratch directory, with only the socket ``FD`` open. It dies with the agent
+Started by :mod:`robot_agent.supervisor` as ``python -B -m robot_agent.worker ROLE FD PARENT_PID`` with an
+empty environment, in a fresh scratch directory, with only the socket ``FD`` open. It dies with the agent
 (parent-death signal), then answers one request at a time over the socket (:mod:`robot_agent.wire`):
 
 ``{"op": "inputs", "stage", "scans"}``     build the dry run's stage inputs with the built-in kernels
@@ -238,10 +238,11 @@ def _serve(sock: socket.socket) -> None:
 
 
 def main(argv: list[str]) -> None:
-    """``FD PARENT_PID``: die with the parent, then serve requests on socket ``FD`` until it closes."""
+    """``ROLE FD PARENT_PID``: die with the parent, then serve requests on socket ``FD`` until it closes
+    (``ROLE``, ``checks`` or ``service``, only names the process)."""
     from robot_agent.sandbox import die_with_parent
 
-    fd, parent = int(argv[0]), int(argv[1])
+    fd, parent = int(argv[1]), int(argv[2])
     die_with_parent(parent)
     sys.dont_write_bytecode = True
     import numpy  # noqa: F401  (the heavy imports, before confinement)
