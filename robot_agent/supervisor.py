@@ -155,6 +155,7 @@ class KernelWorker:
                     "-s",
                     "-m",
                     "robot_agent.worker",
+                    role,
                     str(theirs.fileno()),
                     str(os.getpid()),
                 ],
