@@ -361,9 +361,8 @@ class Agent:
                 floors=self.db.run_floors(),
             )
         except Exception as exc:  # anything the message caused: reject it, keep mapping as before
-            for key, cls in prepared.classes.items():
-                if key not in self._probation:  # not registered: its worker serves nobody
-                    _close_worker(cls)
+            for cls in prepared.classes.values():  # registered ones were undone: their workers serve nobody
+                _close_worker(cls)
             self._reject(
                 prepared.seq, str(exc) if isinstance(exc, LinemapError) else f"{type(exc).__name__}: {exc}"
             )

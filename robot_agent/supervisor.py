@@ -48,7 +48,7 @@ from shared.kernels import (
     StraightLineKernel,
 )
 
-__all__ = ["KernelCallError", "KernelWorker", "RemoteParams", "WorkerError", "live_workers", "remote_class"]
+__all__ = ["KernelCallError", "KernelWorker", "RemoteParams", "WorkerError", "remote_class"]
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +91,6 @@ class RemoteParams(KernelParams):
 _spawn_jobs: queue.SimpleQueue[tuple[dict[str, Any], list[Any], threading.Event]] = queue.SimpleQueue()
 _spawn_lock = threading.Lock()
 _spawner: list[threading.Thread] = []
-_live: set[int] = set()
 
 
 def _spawn_loop() -> None:
@@ -119,11 +118,6 @@ def _popen(**kwargs: Any) -> subprocess.Popen[bytes]:
         raise box[0]
     proc: subprocess.Popen[bytes] = box[0]
     return proc
-
-
-def live_workers() -> set[int]:
-    """PIDs of the workers started and not yet reaped by this process."""
-    return set(_live)
 
 
 # --------------------------------------------------------------------------------------------- worker
@@ -179,7 +173,6 @@ class KernelWorker:
         finally:
             os.close(err)
             theirs.close()
-        _live.add(self.proc.pid)
         self.confinement: dict[str, str] = {}
         self._stage, self._memory_mb, self._cpu_s, self._startup_s = str(stage), memory_mb, cpu_s, startup_s
 
@@ -260,8 +253,6 @@ class KernelWorker:
             self.proc.wait(10)
         except subprocess.TimeoutExpired:
             log.error("kernel worker %s (pid %d) survived SIGKILL for 10 s", self.label, self.proc.pid)
-            return
-        _live.discard(self.proc.pid)
 
     def close(self) -> None:
         """Kill the worker (if still running) and remove its scratch directory."""
