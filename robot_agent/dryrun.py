@@ -90,7 +90,7 @@ def _start(
             )
             if "error" in got:
                 raise AgentError(f"dry run of {label}: could not build the inputs: {got['error']}")
-            n = int(got["ok"])
+            n = worker.parse(got, int, "building the inputs")
         worker.confine()
         return worker, n
     except WorkerError as exc:
@@ -111,7 +111,7 @@ def _load(
     )
     if "error" in got:
         raise KernelRejected(str(got["error"]))
-    meta: dict[str, Any] = dict(got["ok"])
+    meta: dict[str, Any] = worker.parse(got, dict, "the import")
     return meta
 
 
@@ -163,6 +163,9 @@ def verify_in_worker(
             total_ms = (time.perf_counter() - t_run) * 1e3
             if "error" in got:
                 raise KernelRejected(str(got["error"]))
+            times, load_ms = worker.parse(
+                got, lambda ok: ([float(t) for t in ok["times"]], float(ok["load_ms"])), "the dry run"
+            )
             if conformance_s is not None:
                 phase = "conformance"
                 checked = worker.request(
@@ -170,7 +173,7 @@ def verify_in_worker(
                 )
                 if "error" in checked:
                     raise KernelRejected(f"conformance battery: {checked['error']}")
-                problems = [str(p) for p in checked["ok"]]
+                problems = worker.parse(checked, lambda ok: [str(p) for p in ok], "the battery")
                 if problems:
                     raise KernelRejected(_problems(f"{want}/{name}@{version}", problems))
         except WorkerError as exc:
@@ -183,12 +186,11 @@ def verify_in_worker(
             raise
     finally:
         worker.close()
-    times = [float(t) for t in got["ok"]["times"]]
     return DryRunReport(
         calls=len(times),
         median_ms=statistics.median(times) if times else 0.0,
         max_ms=max(times, default=0.0),
-        load_ms=float(got["ok"]["load_ms"]),
+        load_ms=load_ms,
         startup_ms=startup_ms,
         total_ms=total_ms,
     )

@@ -26,9 +26,9 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from pydantic import ConfigDict
 
@@ -51,6 +51,7 @@ from shared.kernels import (
 __all__ = ["KernelCallError", "KernelWorker", "RemoteParams", "WorkerError", "remote_class"]
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 STAGE_BASES: Mapping[Stage, type[Kernel[Any]]] = {
     Stage.SEGMENTATION: SegmentationKernel,
@@ -193,7 +194,9 @@ class KernelWorker:
         if "error" in got:
             self.close()
             raise AgentError(f"kernel worker {self.label}: confinement failed: {got['error']}")
-        self.confinement = {str(k): str(v) for k, v in dict(got["ok"]).items()}
+        self.confinement = self.parse(
+            got, lambda ok: {str(k): str(v) for k, v in dict(ok).items()}, "confine"
+        )
         log.info("kernel worker %s (pid %d): %s", self.label, self.proc.pid, self.confinement)
         return self.confinement
 
@@ -228,6 +231,19 @@ class KernelWorker:
             self._dead = why
             self._kill()
             raise WorkerError(why)
+
+    def parse(self, answer: dict[str, Any], parse: Callable[[Any], T], what: str) -> T:
+        """``parse(answer["ok"])``; an answer of the wrong shape kills the worker (:class:`WorkerError`)."""
+        try:
+            return parse(answer["ok"])
+        except (KeyError, TypeError, ValueError, AttributeError, RecursionError) as exc:
+            why = (
+                f"{self.label}: its process answered garbage to {what} ({type(exc).__name__}); it was killed"
+            )
+            with self._lock:
+                self._dead = why
+                self._kill()
+            raise WorkerError(why) from None
 
     def _exit_text(self) -> str:
         try:
@@ -302,7 +318,7 @@ def remote_class(
                         problems = [(str(a), str(b)) for a, b in answer.get("problems") or []]
                         raise KernelParameterError(str(answer.get("kernel") or name), problems)
                     raise KernelCallError(f"{label} {answer['error']}", str(answer.get("kind")))
-                got = (int(answer["ok"]["id"]), dict(answer["ok"]["params"]))
+                got = worker.parse(answer, lambda ok: (int(ok["id"]), dict(ok["params"])), "construction")
                 if len(cache) < 1024:
                     cache[key] = got
             self._remote_id = got[0]

@@ -5,7 +5,7 @@ frame followed by one raw frame per numpy array (length-prefixed frames over a s
 header is a tree of JSON values in which an array is ``{"__nd__": i, "dtype": "<f8", "shape": [n, 2]}``
 (frame ``i``) and a dataclass is ``{"__dc__": "Segments", "f": {...}}`` with its ``__init__`` fields.
 :func:`decode` accepts only the dataclasses of :data:`TYPES`, numeric and boolean dtypes, shapes that
-match their frame's length, at most :data:`MAX_FRAMES` frames of at most :data:`MAX_FRAME_BYTES` each,
+match their frame's length, at most :data:`MAX_FRAMES` frames and :data:`MAX_MESSAGE_BYTES` in all,
 and raises :class:`WireError` naming what was wrong otherwise.
 
 Cost: one copy of each array into the pipe and one out of it (O(total bytes)); a 700-point scan and its
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import socket
 import struct
 import time
@@ -27,7 +28,16 @@ import numpy as np
 from shared.kernels.results import Clusters, Lines, Match, NoiseResult, Segments
 from shared.types import Pose2D, Scan
 
-__all__ = ["MAX_FRAMES", "MAX_FRAME_BYTES", "TYPES", "WireError", "decode", "receive", "send"]
+__all__ = [
+    "MAX_FRAMES",
+    "MAX_FRAME_BYTES",
+    "MAX_MESSAGE_BYTES",
+    "TYPES",
+    "WireError",
+    "decode",
+    "receive",
+    "send",
+]
 
 #: The dataclasses that may cross the pipe, by name.
 TYPES: dict[str, type[Any]] = {
@@ -35,8 +45,10 @@ TYPES: dict[str, type[Any]] = {
 }
 #: At most this many array frames per message.
 MAX_FRAMES = 64
-#: At most this many bytes per frame (the JSON header included): 256 MiB.
-MAX_FRAME_BYTES = 256 * 2**20
+#: At most this many bytes per frame (the JSON header included): 64 MiB.
+MAX_FRAME_BYTES = 64 * 2**20
+#: At most this many bytes per message, all frames together: 64 MiB (a scan's result is kilobytes).
+MAX_MESSAGE_BYTES = 64 * 2**20
 _KINDS = "biuf"  # bool, signed, unsigned, float
 _MAX_DEPTH = 16
 
@@ -117,15 +129,22 @@ def receive(sock: socket.socket, deadline: float | None = None) -> Any:
     try:
         top = json.loads(head)
         n = int(top["n"])
-    except (ValueError, TypeError, KeyError) as exc:
-        raise WireError(f"bad header: {exc}") from None
+    except (ValueError, TypeError, KeyError, RecursionError) as exc:
+        raise WireError(f"bad header: {type(exc).__name__}") from None
     if not 0 <= n <= MAX_FRAMES:
         raise WireError(f"{n} array frames: expected at most {MAX_FRAMES}")
     frames: list[bytes | bytearray] = []
+    total = size
     for _ in range(n):
         (length,) = struct.unpack("!Q", _exact(sock, 8, deadline))
+        total += length
+        if total > MAX_MESSAGE_BYTES:
+            raise WireError(f"a message of more than {MAX_MESSAGE_BYTES} bytes")
         frames.append(_exact(sock, length, deadline) if length else b"")
-    return decode(top.get("v"), frames)
+    try:
+        return decode(top.get("v"), frames)
+    except RecursionError:
+        raise WireError("value nested too deeply") from None
 
 
 def decode(value: Any, frames: Sequence[bytes | bytearray], depth: int = 0) -> Any:
@@ -168,7 +187,7 @@ def _array(value: dict[str, Any], frames: Sequence[bytes | bytearray]) -> np.nda
     if dtype.kind not in _KINDS or dtype.hasobject or len(shape) > 4 or any(s < 0 for s in shape):
         raise WireError(f"array of dtype {dtype} and shape {shape}: expected a numeric array of <= 4 dims")
     data = frames[index]
-    count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+    count = math.prod(shape)  # exact (Python integers): a huge shape cannot wrap around
     if count * dtype.itemsize != len(data):
         raise WireError(f"array of shape {shape} and dtype {dtype} does not fit its {len(data)} bytes")
     return np.frombuffer(data, dtype=dtype, count=count).reshape(shape)
