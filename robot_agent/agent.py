@@ -15,7 +15,7 @@ import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -92,20 +92,12 @@ class AgentSettings:
 class Agent:
     """One robot's daemon. ``run(stop)`` blocks until the source ends (or ``stop`` is set).
 
-    ``restart``, if given, is called (and does not return) when a downloaded kernel got stuck in service
-    (hung, or allocating without bound: :mod:`robot_agent.guard`), once its rollback is in the Robot DB:
-    the stuck thread cannot be stopped otherwise. The CLI passes one that re-executes the agent in place;
-    it resumes from the Robot DB as after a power cut. Without it the thread is left behind, logged."""
+    Downloaded kernels run in confined worker processes (:mod:`robot_agent.dryrun`,
+    docs/reliability/sandbox.md): one that hangs or dies in service is killed and rolled back, and the
+    agent goes on; nothing needs a restart."""
 
-    def __init__(
-        self,
-        settings: AgentSettings,
-        link: ServerLink | None = None,
-        restart: Callable[[str], None] | None = None,
-    ) -> None:
+    def __init__(self, settings: AgentSettings, link: ServerLink | None = None) -> None:
         self.s = settings
-        self._restart = restart
-        self._stuck: str | None = None
         self.db = RobotDB(settings.db_path)
         self.link = link
         if link is None and settings.server_url:
@@ -118,10 +110,6 @@ class Agent:
         self.trusted = [load_public_key(k) for k in settings.trusted_keys]
         self.stats = AgentStats(ErrorReport(settings.error_clear_s))
         self.threads: dict[str, Supervised] = {}
-        restarted = self.db.get("restart_reason")
-        if restarted:
-            self.stats.last_error = str(restarted)
-            self.db.put("restart_reason", None)
         self._inbox: queue.Queue[Prepared] = queue.Queue()
         self._recent: deque[Scan] = deque(maxlen=10)
         self._recent_lock = threading.Lock()
@@ -200,17 +188,36 @@ class Agent:
         return config
 
     def _register_record(self, rec: KernelRecord) -> None:
-        from robot_agent.kernels import load_kernel_class, verify_artifact
+        from robot_agent.kernels import verify_artifact
 
         verify_artifact(rec.source, rec.sha256, rec.signature, self.trusted, self.s.allow_unsigned)
-        cls = load_kernel_class(rec.source, Stage(rec.stage), rec.name, rec.version)
-        self._register(cls)
+        self._register(self._load_in_worker(rec.source, Stage(rec.stage), rec.name, rec.version))
+
+    def _load_in_worker(self, source: bytes, stage: Stage, name: str, version: str) -> type[Kernel[Any]]:
+        """The class of a downloaded kernel running in its own confined worker process."""
+        from robot_agent.dryrun import load_in_worker
+
+        try:
+            return load_in_worker(
+                source,
+                stage,
+                name,
+                version,
+                memory_mb=self.s.kernel_memory_mb,
+                call_s=self.s.kernel_hang_s,
+                import_s=self.s.dry_run_budget_s,
+            )
+        except KernelRejected:
+            raise
+        except AgentError as exc:  # not the kernel's fault, but it cannot run: refused with the reason
+            raise KernelRejected(f"could not start its worker process: {exc}") from None
 
     def _register(self, cls: type[Kernel[Any]]) -> None:
         key = (str(cls.stage), cls.name, cls.version)
         try:
             REGISTRY.get(cls.stage, cls.name, cls.version)
-            return  # registered already (built in, or installed earlier in this process)
+            _close_worker(cls)  # registered already (built in, or installed earlier in this process)
+            return
         except LinemapError:
             pass
         prev = self.pipeline.config if hasattr(self, "pipeline") else None
@@ -221,9 +228,6 @@ class Agent:
                 self._fallback_for(cls, prev),
                 self._on_kernel_failure,
                 self.s.kernel_budget_ms,
-                hang_s=self.s.kernel_hang_s,
-                memory_mb=self.s.kernel_memory_mb,
-                on_stuck=self._on_kernel_stuck,
             )
         )
         self._probation[key] = self.s.probation_steps
@@ -249,9 +253,6 @@ class Agent:
 
     def _on_kernel_failure(self, cls: type[Kernel[Any]], reason: str) -> None:
         self._failures.append((cls, reason))
-
-    def _on_kernel_stuck(self, cls: type[Kernel[Any]], reason: str) -> None:
-        self._stuck = reason
 
     # ------------------------------------------------------------------ main loop
     def run(self, stop: threading.Event) -> None:
@@ -362,27 +363,11 @@ class Agent:
             cls, reason = self._failures[0]
             self._failures.clear()
             self._roll_back(cls, reason)
-            if self._stuck is not None:
-                self._after_stuck(self._stuck)
             return
         for key in list(self._probation):
             self._probation[key] -= 1
             if self._probation[key] <= 0:
                 del self._probation[key]
-
-    def _after_stuck(self, reason: str) -> None:
-        """A kernel's call is stuck on its thread (rolled back already, recorded in the Robot DB)."""
-        self._stuck = None
-        if self._restart is None:
-            log.error("%s: its thread cannot be stopped and stays busy until the agent restarts", reason)
-            return
-        log.error(
-            "%s: restarting the agent in place to free its thread (it resumes from the Robot DB)", reason
-        )
-        # The operator keeps seeing why: the next process reports this as its last error.
-        why = f"{self.stats.last_error}; the agent restarted itself to free the thread"
-        self.db.put("restart_reason", why)
-        self._restart(reason)
 
     def _roll_back(self, cls: type[Kernel[Any]], reason: str) -> None:
         """Take ``cls`` out (between two steps): the configuration in force, with the version it replaced
@@ -392,7 +377,8 @@ class Agent:
         self.stats.last_error = f"rolled back: {reason}"
         log.error("kernel %s %s failed, rolling back: %s", cls.name, cls.version, reason)
         key = (str(cls.stage), cls.name, cls.version)
-        _unregister(*key)
+        _unregister(*key)  # and its worker process is killed
+        _close_worker(cls)
         previous = self.pipeline.config
         if key in kernels_run(previous):
             version = _replaced_version(cls, self._came_over.get(key))
@@ -432,8 +418,12 @@ class Agent:
 
     def _apply(self, prepared: Prepared) -> None:
         if self.db.outcome_of(prepared.seq) is not None:
+            for cls in prepared.classes.values():
+                _close_worker(cls)
             return  # dealt with already (exactly once)
         if prepared.error is not None:
+            for cls in prepared.classes.values():  # kernels of the message checked before the refusal
+                _close_worker(cls)
             self._reject(prepared.seq, prepared.error)
             return
         t0 = time.perf_counter()
@@ -448,6 +438,8 @@ class Agent:
                 floors=self.db.run_floors(),
             )
         except Exception as exc:  # anything the message caused: reject it, keep mapping as before
+            for cls in prepared.classes.values():  # registered ones were undone: their workers serve nobody
+                _close_worker(cls)
             self._reject(
                 prepared.seq, str(exc) if isinstance(exc, LinemapError) else f"{type(exc).__name__}: {exc}"
             )
@@ -495,23 +487,29 @@ class Agent:
         if downgrade is not None:
             prepared.error = downgrade
             return prepared
-        for op in msg.operations:
-            if op.kind not in (OperationKind.INSTALL, OperationKind.UPDATE):
-                continue
+        installs = [op for op in msg.operations if op.kind in (OperationKind.INSTALL, OperationKind.UPDATE)]
+        if not installs:
+            return prepared
+        self._verify_all(prepared, installs)
+        return prepared
+
+    def _verify_all(self, prepared: Prepared, installs: list[Any]) -> None:
+        """Download and check each installed kernel of ``prepared``; the first refusal sets its error."""
+        for op in installs:
             try:
                 prepared.classes[(op.stage.value, op.name, op.version)] = self._fetch_and_verify(op)
             except KernelRejected as exc:
                 prepared.error = f"<kernel-{op.kind.value}> {op.name} {op.version}: {exc.reason}"
-                return prepared
+                return
             except LinkError as exc:
                 if _transient(exc):
                     raise  # a network fault: the poller fetches the message again after a backoff
                 prepared.error = f"<kernel-{op.kind.value}> {op.name} {op.version}: download failed: {exc}"
-                return prepared
-        return prepared
+                return
 
     def _fetch_and_verify(self, op: Any) -> type[Kernel[Any]]:
-        from robot_agent.kernels import check_conformance, dry_run, load_kernel_class, verify_artifact
+        from robot_agent.dryrun import verify_in_worker
+        from robot_agent.kernels import verify_artifact
 
         assert self.link is not None
         got = self.link.fetch_kernel(op.name, op.version)
@@ -533,13 +531,27 @@ class Agent:
             record.key_id = verify_artifact(
                 got.source, sha, got.signature, self.trusted, self.s.allow_unsigned
             )
-            # Untrusted behaviour runs first in a child process with time and memory limits; only a kernel
-            # that passed it is imported into this process and run through the conformance battery.
+            # The kernel's code never runs in this process: the dry run and the conformance battery run in
+            # a confined worker with time, CPU and memory limits (killed at them), and a kernel that passed
+            # is served by a long-lived worker of its own.
             with self._recent_lock:
                 scans = list(self._recent)
-            dry_run(got.source, op.stage, op.name, op.version, None, scans, self.s.dry_run_budget_s)
-            cls = load_kernel_class(got.source, op.stage, op.name, op.version)
-            check_conformance(cls)
+            try:
+                verify_in_worker(
+                    got.source,
+                    op.stage,
+                    op.name,
+                    op.version,
+                    None,
+                    scans,
+                    self.s.dry_run_budget_s,
+                    conformance_s=self.s.dry_run_budget_s,
+                )
+            except KernelRejected:
+                raise
+            except AgentError as exc:  # the checks could not run: the kernel is not installed
+                raise KernelRejected(f"its checks could not run: {exc}") from None
+            cls = self._load_in_worker(got.source, op.stage, op.name, op.version)
         except KernelRejected as exc:
             record.reason = exc.reason
             self.db.save_kernel(record)
@@ -584,7 +596,21 @@ def _transient(exc: LinkError) -> bool:
 
 
 def _unregister(stage: str, name: str, version: str) -> None:
+    """Take a kernel version out of the registry; a downloaded one's worker process is killed."""
+    try:
+        cls = REGISTRY.get(stage, name, version)
+    except LinemapError:
+        cls = None
     REGISTRY.unregister(stage, name, version)
+    if cls is not None:
+        _close_worker(cls)
+
+
+def _close_worker(cls: type[Kernel[Any]]) -> None:
+    """Kill the worker process behind a downloaded kernel's class (nothing for a built-in)."""
+    close = getattr(cls, "close_worker", None)
+    if close is not None:
+        close()
 
 
 def _replaced_version(cls: type[Kernel[Any]], prev: PipelineConfig | None) -> str | None:

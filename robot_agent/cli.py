@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import logging
-import os
 import signal
-import sys
 import threading
 import tomllib
 from pathlib import Path
@@ -61,16 +59,6 @@ def _seconds(value: Any, path: Path | None, key: str, low: float, high: float) -
     if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
         raise LinemapError(f"agent file {path}: {key} = {value!r}: expected seconds in [{low:g}, {high:g}]")
     return float(value)
-
-
-def restart_in_place(reason: str) -> None:
-    """Replace this process by a new ``linemap agent`` with the same arguments (same PID: a supervisor
-    sees no exit). Used when a kernel got stuck in service: its thread cannot be stopped otherwise. What
-    was in flight is resumed from the Robot DB, exactly as after a power cut."""
-    typer.echo(f"linemap agent: restarting in place: {reason}", err=True)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os.execv(sys.executable, [sys.executable, *sys.orig_argv[1:]])
 
 
 def _key_text(value: str) -> str:
@@ -194,7 +182,7 @@ def agent_cmd(
     )
     if settings.allow_unsigned:
         typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)
-    agent = Agent(settings, restart=restart_in_place)
+    agent = Agent(settings)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -5,39 +5,29 @@ The agent installs a kernel only after every step below succeeded, cheapest firs
 
 1. :func:`verify_artifact`: the SHA-256 of the source matches the message's, and an Ed25519 signature by a
    key the robot trusts covers it (unsigned code only with the ``--allow-unsigned`` development flag);
-2. :func:`dry_run`: in a separate, memory-limited process, the module is imported and the kernel applied to
-   the inputs its stage would see on the last stored scans, within a wall-clock budget;
-3. :func:`load_kernel_class`: the module is imported in the agent, in its own module namespace, and the one
-   kernel class it declares for the requested stage/name/version is returned (never registered here);
-4. :func:`check_conformance`: the conformance battery of :mod:`shared.kernels.conformance`.
+2. the dry run and the conformance battery, in a confined worker process with time, CPU and memory limits
+   (:func:`robot_agent.dryrun.verify_in_worker`; :func:`dry_run` is its dry-run part);
+3. the kernel is then loaded in a long-lived worker process of its own (:func:`robot_agent.dryrun.
+   load_in_worker`), and the agent registers a class that forwards every call to it.
 
-Then the agent registers the class (``REGISTRY.register``) and swaps it in between two steps. Doing the dry
-run before importing the module in the agent means code that hangs or eats memory at import time or on
-real data is caught in the child process, where it can be killed. (The conformance battery still runs the
-kernel in the agent's process on small synthetic inputs; the signature is what makes that acceptable.)
-
-Nothing here touches the database or the network.
+The downloaded code never runs in the agent's process. :func:`load_kernel_class` (importing a module and
+finding its kernel class) and :func:`check_conformance` are what the worker runs; they are plain functions
+and can be used in-process for trusted code (tests). Nothing here touches the database or the network.
 """
 
 from __future__ import annotations
 
 import contextlib
 import inspect
-import multiprocessing
-import statistics
 import sys
 import threading
-import time
 import types
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from multiprocessing.connection import Connection
 from typing import Any
 
-import numpy as np
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
-from robot_agent.errors import AgentError, KernelRejected
+from robot_agent.errors import KernelRejected
 from shared.errors import LinemapError
 from shared.kernels import (
     REGISTRY,
@@ -50,9 +40,8 @@ from shared.kernels import (
     Stage,
     StraightLineKernel,
 )
-from shared.kernels.conformance import check_kernel, check_result, moved_copy
+from shared.kernels.conformance import check_kernel
 from shared.signing import SignatureError, key_id, sha256_hex, verify_digest
-from shared.types import FloatArray, IntArray, Pose2D, Scan
 
 __all__ = [
     "DEFAULT_INPUT_KERNELS",
@@ -64,19 +53,6 @@ __all__ = [
     "module_name",
     "verify_artifact",
 ]
-
-#: The default pipeline's kernels (``PipelineConfig()``) used to derive what each stage sees in a dry run.
-DEFAULT_INPUT_KERNELS: Mapping[Stage, str] = {
-    Stage.SEGMENTATION: "abd-iepf",
-    Stage.NOISE_REMOVAL: "dbscan",
-    Stage.CLUSTERING: "kmeans",
-}
-
-#: Seconds the dry-run child may take to start: spawn a Python interpreter, import numpy and the kernels
-#: (~0.5 s on a desktop, a few seconds on a small robot computer) and build the stage inputs from the scans
-#: with the built-in kernels. Not counted in the kernel's budget: the budget clock starts once the child
-#: reports it is ready, and covers importing the kernel's module plus every ``apply`` call.
-STARTUP_ALLOWANCE_S = 30.0
 
 _STAGE_BASES: Mapping[Stage, type[Kernel[Any]]] = {
     Stage.SEGMENTATION: SegmentationKernel,
@@ -299,278 +275,9 @@ def check_conformance(cls: type[Kernel[Any]], params: Mapping[str, Any] | None =
         )
 
 
-# ------------------------------------------------------------------------------------------ 4. dry run
-@dataclass(frozen=True, slots=True)
-class DryRunReport:
-    """Timing of a successful dry run (milliseconds of wall-clock time in the child process).
-
-    ``calls``: ``apply`` calls made (one per stage input); ``median_ms`` / ``max_ms``: per call;
-    ``load_ms``: importing the module and constructing the kernel; ``startup_ms``: spawning the child and
-    building the inputs (not the kernel's cost); ``total_ms``: the parent's wait for the run phase.
-    """
-
-    calls: int
-    median_ms: float
-    max_ms: float
-    load_ms: float
-    startup_ms: float
-    total_ms: float
-
-
-def dry_run(
-    source: bytes,
-    stage: Stage | str,
-    name: str,
-    version: str,
-    params: Mapping[str, Any] | None,
-    scans: Sequence[Scan],
-    budget_s: float,
-    memory_limit_mb: int = 512,
-    startup_s: float = STARTUP_ALLOWANCE_S,
-) -> DryRunReport:
-    """Import and run the kernel on real inputs in a child process, within a time and memory budget.
-
-    The child ('spawn' start method, so nothing of the agent's state is shared) derives from each of
-    ``scans`` the input the stage would see, using the default pipeline's kernels
-    (:data:`DEFAULT_INPUT_KERNELS`): segmentation gets the scan; noise removal its segmented points;
-    clustering the denoised points; straight-line the denoised points with their segment ids (or, for a
-    kernel that ``consumes = "centroids"``, k-means centroids per segment); scan matching each scan's points
-    against the previous scan's, from the odometry difference (a lone scan is matched against a moved copy
-    of itself). With no scans, a simulated room scan is used. The child then caps its address space
-    (``RLIMIT_AS``) at its start-up footprint plus ``memory_limit_mb`` MB, imports the module with
-    :func:`load_kernel_class`, builds the kernel with ``params`` and applies it to every input, checking
-    each result with the stage's result checker.
-
-    Time: the parent waits up to ``startup_s`` (:data:`STARTUP_ALLOWANCE_S`) for the child to be ready,
-    then at most ``budget_s`` seconds for the whole run phase (import + construction + every call) and
-    kills the child on overrun.
-
-    Raises :class:`KernelRejected` ("dry run: ...") for a failed import or bad declaration, rejected
-    parameters, an exception in the kernel (type, message and line), an overrun ("ran longer than its X ms
-    budget"), running out of memory (or the child dying), or a result that fails the stage's checks.
-    Raises :class:`AgentError` when the child cannot start or build its inputs (not the kernel's fault).
-    """
-    want = _stage(stage)
-    ctx = multiprocessing.get_context("spawn")
-    receiver, sender = ctx.Pipe(duplex=False)
-    proc = ctx.Process(
-        target=_dry_run_child,
-        args=(sender, source, str(want), name, version, dict(params or {}), list(scans), memory_limit_mb),
-        name=f"dry-run {want}/{name}@{version}",
-        daemon=True,
-    )
-    t_start = time.perf_counter()
-    proc.start()
-    sender.close()
-    try:
-        if not receiver.poll(startup_s):
-            raise AgentError(
-                f"dry run of {want}/{name}@{version}: the child process did not start in {startup_s} s"
-            )
-        first = _receive(receiver, proc, "starting")
-        if first[0] != "ready":
-            raise AgentError(f"dry run of {want}/{name}@{version}: could not build the inputs: {first[1]}")
-        startup_ms = (time.perf_counter() - t_start) * 1e3
-        t_run = time.perf_counter()
-        if not receiver.poll(budget_s):
-            raise KernelRejected(
-                f"dry run: ran longer than its {budget_s * 1e3:.0f} ms budget"
-                f" ({first[1]} input{'s' if first[1] != 1 else ''}); the process was killed"
-            )
-        result = _receive(receiver, proc, "running", memory_limit_mb)
-        total_ms = (time.perf_counter() - t_run) * 1e3
-    finally:
-        if proc.is_alive():
-            proc.kill()
-        proc.join(timeout=10)
-        receiver.close()
-    if result[0] != "ok":
-        raise KernelRejected(f"dry run: {result[1]}")
-    times: list[float] = result[1]
-    return DryRunReport(
-        calls=len(times),
-        median_ms=statistics.median(times) if times else 0.0,
-        max_ms=max(times, default=0.0),
-        load_ms=float(result[2]),
-        startup_ms=startup_ms,
-        total_ms=total_ms,
-    )
-
-
-def _receive(receiver: Connection, proc: Any, phase: str, memory_limit_mb: int | None = None) -> Any:
-    """One message from the child; a child that died without a word becomes a clear error."""
-    try:
-        return receiver.recv()
-    except (EOFError, OSError):
-        proc.join(timeout=5)
-        code = proc.exitcode
-        how = f"was killed by signal {-code}" if code is not None and code < 0 else f"exited with code {code}"
-        if memory_limit_mb is None:
-            raise AgentError(f"dry run: the child process {how} while {phase}") from None
-        raise KernelRejected(
-            f"dry run: the kernel's process {how} without reporting (out of memory with the"
-            f" {memory_limit_mb} MB limit, or a crash in native code)"
-        ) from None
-
-
-def _stage_inputs(stage: Stage, scans: Sequence[Scan]) -> list[tuple[tuple[Any, ...], int]]:
-    """``(apply args, n_in)`` per scan for ``stage`` (straight-line: points form, then centroids form)."""
-    if not scans:
-        from shared.kernels.conformance import room_scan
-
-        scans = [room_scan()]
-    seg_k: Any = REGISTRY.create(Stage.SEGMENTATION, DEFAULT_INPUT_KERNELS[Stage.SEGMENTATION])
-    noise_k: Any = REGISTRY.create(Stage.NOISE_REMOVAL, DEFAULT_INPUT_KERNELS[Stage.NOISE_REMOVAL])
-    cluster_k: Any = REGISTRY.create(Stage.CLUSTERING, DEFAULT_INPUT_KERNELS[Stage.CLUSTERING])
-    out: list[tuple[tuple[Any, ...], int]] = []
-    previous: tuple[Scan, FloatArray] | None = None
-    for scan in scans:
-        if stage == Stage.SEGMENTATION:
-            out.append(((scan,), len(scan.ranges_m)))
-            continue
-        seg = seg_k.apply(scan)
-        pts = np.asarray(seg.points)
-        if stage == Stage.NOISE_REMOVAL:
-            out.append(((pts,), len(pts)))
-        elif stage == Stage.SCAN_MATCHING:
-            if previous is None:
-                if len(scans) == 1:
-                    out.append(((pts, moved_copy(pts), Pose2D()), len(pts)))
-            else:
-                prev_scan, prev_pts = previous
-                initial = Pose2D()
-                if prev_scan.odometry is not None and scan.odometry is not None:
-                    initial = prev_scan.odometry.between(scan.odometry)
-                out.append(((prev_pts, pts, initial), len(pts)))
-            previous = (scan, pts)
-        else:
-            clean = noise_k.apply(pts)
-            groups = np.asarray(seg.labels)[np.asarray(clean.keep)]
-            denoised = np.asarray(clean.points)
-            if len(denoised) > len(groups):  # a noise kernel that adds points: they join no segment
-                groups = np.concatenate([groups, np.full(len(denoised) - len(groups), -1, dtype=np.intp)])
-            if stage == Stage.CLUSTERING:
-                out.append(((denoised,), len(denoised)))
-            else:
-                out.append(((denoised, groups), len(denoised)))
-                cents, cgroups = _centroids(cluster_k, denoised, groups)
-                out.append(((cents, cgroups), len(cents)))
-    return out
-
-
-def _centroids(kernel: Any, points: FloatArray, groups: IntArray) -> tuple[FloatArray, IntArray]:
-    """k-means centroids per segment (about one per 15 points, at least 2), in order along the segment."""
-    cents: list[FloatArray] = []
-    cgroups: list[IntArray] = []
-    for g in np.unique(groups[groups >= 0]):
-        block = points[groups == g]
-        if len(block) < 2:
-            continue
-        k = min(len(block), max(2, len(block) // 15))
-        c = np.asarray(kernel.with_params(n_clusters=k).apply(block).centroids)
-        centred = c - c.mean(axis=0)
-        axis = np.linalg.svd(centred, full_matrices=False)[2][0] if len(c) > 1 else np.zeros(2)
-        cents.append(c[np.argsort(centred @ axis, kind="stable")])
-        cgroups.append(np.full(len(c), g, dtype=np.intp))
-    if not cents:
-        return np.zeros((0, 2)), np.zeros(0, dtype=np.intp)
-    return np.vstack(cents), np.concatenate(cgroups)
-
-
-def _address_space_bytes() -> int | None:
-    """This process's virtual memory size (Linux ``/proc/self/status`` VmSize), or ``None``."""
-    try:
-        with open("/proc/self/status", encoding="ascii") as status:
-            for line in status:
-                if line.startswith("VmSize:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError):
-        return None
-    return None
-
-
-def _dry_run_child(
-    conn: Connection,
-    source: bytes,
-    stage_text: str,
-    name: str,
-    version: str,
-    params: dict[str, Any],
-    scans: list[Scan],
-    memory_limit_mb: int,
-) -> None:
-    """The dry-run child: build inputs, cap memory, report ready, then load and run the kernel.
-
-    Messages: ``("ready", n_inputs)`` or ``("setup-failed", why)``; then ``("ok", per-call ms, load ms)``
-    or ``("rejected", reason)``.
-    """
-    stage = Stage(stage_text)
-    try:
-        inputs = _stage_inputs(stage, scans)
-    except Exception as exc:
-        conn.send(("setup-failed", f"{type(exc).__name__}: {exc}"))
-        return
-    straight = stage == Stage.STRAIGHT_LINE
-    n_inputs = len(inputs) // 2 if straight else len(inputs)
-    base = _address_space_bytes()
-    if base is not None:
-        import resource
-
-        limit = base + memory_limit_mb * 1024 * 1024
-        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    conn.send(("ready", n_inputs))
-    reason = _run_kernel(conn, source, stage, name, version, params, inputs, memory_limit_mb)
-    if reason is not None:
-        conn.send(("rejected", reason))
-
-
-def _run_kernel(
-    conn: Connection,
-    source: bytes,
-    stage: Stage,
-    name: str,
-    version: str,
-    params: dict[str, Any],
-    inputs: list[tuple[tuple[Any, ...], int]],
-    memory_limit_mb: int,
-) -> str | None:
-    """Load and apply the kernel in the child; sends ``("ok", ...)`` and returns None, or returns why not.
-
-    The reason is built inside the ``except`` blocks but returned after them, so the traceback (and the
-    memory a runaway kernel still holds through its frames) is released before anything is sent.
-    """
-    filename = _source_file(stage, name, version)
-    out_of_memory = f"out of memory: the kernel needed more than its {memory_limit_mb} MB limit"
-    t0 = time.perf_counter()
-    try:
-        cls = load_kernel_class(source, stage, name, version)
-        kernel: Any = cls(params)
-    except KernelRejected as exc:
-        return exc.reason
-    except MemoryError:
-        return out_of_memory
-    except LinemapError as exc:
-        return f"parameters rejected: {exc}"
-    except Exception as exc:
-        return f"constructing the kernel raised {_describe(exc, filename)}"
-    load_ms = (time.perf_counter() - t0) * 1e3
-    if stage == Stage.STRAIGHT_LINE:  # keep the form the kernel consumes
-        form = 1 if getattr(cls, "consumes", "points") == "centroids" else 0
-        inputs = inputs[form::2]
-    times: list[float] = []
-    for i, (args, n_in) in enumerate(inputs):
-        where = f"input {i + 1} of {len(inputs)}"
-        try:
-            t = time.perf_counter()
-            result = kernel.apply(*args)
-            times.append((time.perf_counter() - t) * 1e3)
-        except MemoryError:
-            return f"{out_of_memory} (on {where})"
-        except Exception as exc:
-            return f"the kernel raised {_describe(exc, filename)} on {where}"
-        problems = check_result(stage, result, n_in)
-        if problems:
-            shown = "; ".join(problems[:5])
-            return f"result check failed on {where}: {shown}"
-    conn.send(("ok", times, load_ms))
-    return None
+from robot_agent.dryrun import (  # noqa: E402  (kept importable from here)
+    DEFAULT_INPUT_KERNELS,
+    STARTUP_ALLOWANCE_S,
+    DryRunReport,
+    dry_run,
+)

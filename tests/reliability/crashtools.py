@@ -45,6 +45,7 @@ __all__ = [
     "check_robot_db",
     "cmdline",
     "descendants",
+    "dry_run_child",
     "expected_stamps",
     "kernel_source",
     "power_cut",
@@ -107,9 +108,14 @@ def cmdline(pid: int) -> bytes:
         return b""
 
 
+def dry_run_child(cmd: bytes) -> bool:
+    """Whether command line ``cmd`` is a kernel's checks (dry run) worker of the agent."""
+    return b"spawn_main" in cmd or b"robot_agent.worker\0checks\0" in cmd
+
+
 def power_cut(agent: AgentProcess) -> list[str]:
-    """SIGKILL the agent, then the processes it had started (a kernel's dry-run child, multiprocessing's
-    resource tracker): as a power cut would. The agent dies first, so it records nothing about its
+    """SIGKILL the agent, then the processes it had started (a kernel's checks worker, a kernel's service
+    worker): as a power cut would. The agent dies first, so it records nothing about its
     children's end. Returns what the killed children were (``dry run``, ``resource tracker``, ``other``)."""
     kids = [(pid, cmdline(pid)) for pid in descendants(agent.proc.pid)]
     # The whole process group at once (the agent runs in its own session): a child spawned just after the
@@ -121,7 +127,7 @@ def power_cut(agent: AgentProcess) -> list[str]:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
     return [
-        "dry run" if b"spawn_main" in cmd else "resource tracker" if b"resource_tracker" in cmd else "other"
+        "dry run" if dry_run_child(cmd) else "resource tracker" if b"resource_tracker" in cmd else "other"
         for _, cmd in kids
     ]
 

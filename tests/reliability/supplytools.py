@@ -30,6 +30,7 @@ __all__ = [
     "state",
     "tamper",
     "upload",
+    "workers_of",
 ]
 
 upload, send, state, noise = _upload, _send, _state, _noise
@@ -76,6 +77,28 @@ FAULTS = {
         "        return NoiseResult(np.ones(3, dtype=bool), np.zeros((2, 3)), np.zeros(7, dtype=np.intp))"
     ),
     "wrong-type": "        return [[0.0, 0.0]]",
+    # A C call that holds the GIL for ever (catastrophic backtracking): only another process can stop it.
+    "regex": (
+        "        import re\n        re.match(r'(a+)+$', 'a' * 40 + 'b')\n        return super().apply(points)"
+    ),
+    # Loops only on an empty input: the dry run on real scans passes, the conformance battery hangs.
+    "empty-loop": (
+        "        if len(points) == 0:\n"
+        "            while True:\n"
+        "                pass\n"
+        "        return super().apply(points)"
+    ),
+    "socket": (
+        "        import socket\n"
+        "        socket.create_connection(('127.0.0.1', 9), timeout=1).close()\n"
+        "        return super().apply(points)"
+    ),
+    "read-file": "        open('/etc/hostname').read()\n        return super().apply(points)",
+    "write-file": (
+        "        import os\n"
+        "        open(os.path.expanduser('~') + '/../linemap-kernel-was-here', 'w').write('x')\n"
+        "        return super().apply(points)"
+    ),
     "slow": (
         "        total = 0\n"
         "        for i in range(20_000_000):  # over the 200 ms per-call budget, under the 5 s hang limit\n"
@@ -99,6 +122,8 @@ def dbscan(version: str, fault: str | None = None, after: int = 0) -> bytes:
         f'    """DBSCAN, version {version}."""\n\n'
         f'    version = "{version}"\n'
     )
+    if fault == "import-hang":  # at import time, before any class exists
+        return (head.replace("_calls = [0]", "while True:\n    pass\n_calls = [0]")).encode()
     if fault is None:
         return head.encode()
     body = (
@@ -109,6 +134,24 @@ def dbscan(version: str, fault: str | None = None, after: int = 0) -> bytes:
         f"{FAULTS[fault]}\n"
     )
     return (head + body).encode()
+
+
+def workers_of(agent_pid: int) -> list[int]:
+    """PIDs of the live kernel worker processes the agent ``agent_pid`` started (read from /proc: the
+    worker's command line ends with its agent's PID), whether the agent is still alive or not."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            raw = (entry / "cmdline").read_bytes().split(b"\0")
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        argv = [a.decode(errors="replace") for a in raw if a]
+        if "robot_agent.worker" in argv and argv[-1] == str(agent_pid) and state != "Z":
+            found.append(int(entry.name))
+    return found
 
 
 def tamper(live: Live, name: str, version: str, source: bytes, *, fix_digest: bool = False) -> str:

@@ -28,6 +28,7 @@ from tests.reliability.crashtools import (
     check_final,
     cmdline,
     descendants,
+    dry_run_child,
     power_cut,
     read_robot_db,
     server_messages,
@@ -133,7 +134,7 @@ class Crasher:
         if sub == "posted":
             return "kernel install: posted"
         hit: dict[str, Callable[[], bool]] = {
-            "dry run": lambda: any(b"spawn_main" in cmdline(p) for p in descendants(pid)),
+            "dry run": lambda: any(dry_run_child(cmdline(p)) for p in descendants(pid)),
             "verified": lambda: _max_kernel_id(self.rig.db) > before and seq not in _applied(self.rig.db),
             "applied": lambda: seq in _applied(self.rig.db),
         }

@@ -7,13 +7,14 @@ same through a real agent and server: test_rel_supply_live.py::test_supply_chain
 
 from __future__ import annotations
 
-import threading
 from typing import Any
 
 import numpy as np
 import pytest
 
-from robot_agent.guard import guarded, resident_mb
+from robot_agent.dryrun import load_in_worker
+from robot_agent.guard import guarded
+from shared.errors import KernelParameterError
 from shared.kernels import REGISTRY, NoiseResult
 from shared.kernels.noise.dbscan import Dbscan
 from shared.sim import default_world, simulate_scan
@@ -82,23 +83,31 @@ def test_a_good_result_passes_untouched() -> None:
 
 
 # ---------------------------------------------------------------------------------- stuck in service
-class _Blocking(Dbscan):
-    """Blocks on ``release`` (a hang the test can end), after ``hold`` MB were written, if any."""
-
-    version = "9.0.4"
-    release = threading.Event()
-    hold_mb = 0
-    calls = 0
-
-    def apply(self, points: Any) -> NoiseResult:
-        _Blocking.calls += 1
-        kept = np.ones(_Blocking.hold_mb * 2**17) if _Blocking.hold_mb else None  # 8-byte floats, written
-        _Blocking.release.wait(60)
-        del kept
-        return super().apply(points)
+# The kernels below run as the agent runs a downloaded kernel: in a confined worker process.
 
 
-def _guard(cls: type[Dbscan], **limits: float) -> tuple[Any, Dbscan, list[str], list[str]]:
+def _remote(version: str, body: str, **limits: float) -> type[Any]:
+    """A DBSCAN ``version`` whose ``apply`` is ``body``, loaded in its own worker process."""
+    source = (
+        "import numpy as np\n"
+        "from shared.kernels import NoiseResult\n"
+        "from shared.kernels.noise.dbscan import Dbscan\n\n\n"
+        f"class Planted(Dbscan):\n    version = '{version}'\n\n"
+        f"    def apply(self, points):\n{body}\n"
+    ).encode()
+    cls: type[Any] = load_in_worker(
+        source,
+        "noise-removal",
+        "dbscan",
+        version,
+        memory_mb=limits.get("memory_mb", 256.0),
+        call_s=limits.get("hang_s", 5.0),
+        import_s=30.0,
+    )
+    return cls
+
+
+def _guard(cls: type[Any]) -> tuple[Any, Dbscan, list[str], list[str]]:
     """``cls`` guarded with a built-in DBSCAN as its fallback and no time budget: the kernel, the fallback,
     and the lists its failures and stuck reports go to."""
     failures: list[str] = []
@@ -110,73 +119,85 @@ def _guard(cls: type[Dbscan], **limits: float) -> tuple[Any, Dbscan, list[str], 
         lambda c, why: failures.append(why),
         1e9,
         on_stuck=lambda c, why: stuck.append(why),
-        **limits,
     )()
     return kernel, fallback, failures, stuck
 
 
-def _stuck_run(hold_mb: int, memory_mb: float, hang_s: float) -> tuple[list[str], list[str], Any, Any]:
-    _Blocking.release = threading.Event()
-    _Blocking.hold_mb, _Blocking.calls = hold_mb, 0
-    kernel, fallback, failures, stuck = _guard(_Blocking, hang_s=hang_s, memory_mb=memory_mb)
-    points = _points()
+def _stuck_run(version: str, body: str, **limits: float) -> tuple[list[str], list[str]]:
+    cls = _remote(version, body, **limits)
+    worker = cls.worker
     try:
+        kernel, fallback, failures, stuck = _guard(cls)
+        points = _points()
         first = kernel.apply(points)
         second = kernel.apply(points)  # answered by the fallback: the stuck kernel is not called again
+        want = fallback.apply(points)
+        for got in (first, second):
+            assert np.array_equal(got.points, want.points) and np.array_equal(got.keep, want.keep)
+        assert worker.proc.poll() is not None  # killed, not left running
     finally:
-        _Blocking.release.set()
-    assert _Blocking.calls == 1
-    want = fallback.apply(points)
-    for got in (first, second):
-        assert np.array_equal(got.points, want.points) and np.array_equal(got.keep, want.keep)
-    return failures, stuck, first, second
+        worker.close()
+    return failures, stuck
 
 
-def test_a_call_that_hangs_is_answered_by_the_fallback_and_reported_stuck() -> None:
-    failures, stuck, _, _ = _stuck_run(hold_mb=0, memory_mb=1e6, hang_s=0.1)
-    assert failures == stuck == ["dbscan 9.0.4 did not return within 0.1 s (hung)"]
+def test_a_call_that_hangs_is_answered_by_the_fallback_and_its_worker_killed() -> None:
+    failures, stuck = _stuck_run("9.0.4", "        while True:\n            pass", hang_s=0.5)
+    assert failures == stuck == ["dbscan 9.0.4 did not return within 0.5 s (hung); its process was killed"]
 
 
-@pytest.mark.skipif(resident_mb() is None, reason="needs /proc/self/statm (Linux)")
-def test_a_call_that_allocates_past_its_limit_is_stuck_before_it_returns() -> None:
-    failures, stuck, _, _ = _stuck_run(hold_mb=200, memory_mb=64, hang_s=60)
-    assert len(failures) == 1 and failures == stuck
-    assert failures[0].startswith("dbscan 9.0.4 allocated ")
-    assert failures[0].endswith(" MB in one call (and counting), over its 64 MB limit")
+def test_a_call_stuck_in_c_holding_the_gil_does_not_stop_the_caller() -> None:
+    body = (
+        "        import re\n        re.match(r'(a+)+$', 'a' * 40 + 'b')\n        return super().apply(points)"
+    )
+    failures, stuck = _stuck_run("9.0.7", body, hang_s=0.5)
+    assert failures == stuck == ["dbscan 9.0.7 did not return within 0.5 s (hung); its process was killed"]
 
 
-def test_an_exception_from_the_worker_thread_is_a_failure_not_stuck() -> None:
-    class Raises(Dbscan):
-        version = "9.0.5"
+def test_a_call_that_allocates_past_its_limit_fails_in_its_worker() -> None:
+    body = "        blocks = []\n        while True:\n            blocks.append(np.ones(1 << 20))"
+    cls = _remote("9.0.8", body, memory_mb=64, hang_s=30)
+    try:
+        kernel, fallback, failures, stuck = _guard(cls)
+        got = kernel.apply(_points())
+        assert np.array_equal(got.points, fallback.apply(_points()).points)
+        assert failures == ["dbscan 9.0.8 out of memory: the kernel needed more than its 64 MB limit"]
+        assert stuck == []  # the worker survived its MemoryError; the agent rolls the kernel back
+    finally:
+        cls.worker.close()
 
-        def apply(self, points: Any) -> NoiseResult:
-            raise ZeroDivisionError("planted")
 
-    kernel, _, failures, stuck = _guard(Raises)
-    kernel.apply(_points())
-    assert failures == ["dbscan 9.0.5 raised ZeroDivisionError: planted"] and stuck == []
+def test_an_exception_in_the_worker_is_a_failure_not_stuck() -> None:
+    cls = _remote("9.0.5", "        raise ZeroDivisionError('planted')")
+    try:
+        kernel, _, failures, stuck = _guard(cls)
+        kernel.apply(_points())
+        assert len(failures) == 1 and stuck == []
+        assert failures[0].startswith("dbscan 9.0.5 raised ZeroDivisionError: planted (line ")
+    finally:
+        cls.worker.close()
 
 
-def test_an_idle_worker_thread_ends_and_the_next_call_starts_one(monkeypatch: pytest.MonkeyPatch) -> None:
-    from robot_agent import guard
+def test_a_worker_that_dies_is_detected_and_never_called_again() -> None:
+    cls = _remote("9.0.6", "        import os\n        os._exit(3)")
+    try:
+        kernel, fallback, failures, stuck = _guard(cls)
+        for _ in range(2):
+            got = kernel.apply(_points())
+            assert np.array_equal(got.points, fallback.apply(_points()).points)
+        assert failures == stuck and len(failures) == 1
+        assert failures[0].startswith("dbscan 9.0.6: its process exited with code 3 during a call")
+    finally:
+        cls.worker.close()
 
-    monkeypatch.setattr(guard, "IDLE_S", 0.05)
 
-    class Fine(Dbscan):
-        version = "9.0.6"
-
-    kernel: Any = guarded(Fine, lambda: pytest.fail("no fallback needed"), lambda c, why: None, 1e9)()
-    points = _points()
-
-    def workers() -> list[threading.Thread]:
-        return [t for t in threading.enumerate() if t.name == "kernel dbscan 9.0.6"]
-
-    kernel.apply(points)
-    deadline = threading.Event()
-    for _ in range(400):  # poll until the idle thread has ended (readiness wait, up to ~20 s)
-        if not workers():
-            break
-        deadline.wait(0.05)
-    assert workers() == [], "the idle worker thread did not end"
-    got = kernel.apply(points)  # a new thread takes the call
-    assert np.array_equal(got.points, Dbscan().apply(points).points)
+def test_parameters_are_validated_by_the_kernel_in_its_worker() -> None:
+    cls = _remote("9.0.9", "        return super().apply(points)")
+    try:
+        kernel: Any = cls({"epsilon_m": 0.07})
+        assert kernel.params.epsilon_m == 0.07 and kernel.get_params()["min_points"] == 3
+        got = kernel.apply(_points())
+        assert np.array_equal(got.points, Dbscan(epsilon_m=0.07).apply(_points()).points)
+        with pytest.raises(KernelParameterError, match="epsilon_m"):
+            cls({"epsilon_m": -1.0})
+    finally:
+        cls.worker.close()

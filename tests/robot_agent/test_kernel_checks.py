@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
+from robot_agent.dryrun import stage_inputs as _stage_inputs
 from robot_agent.errors import AgentError, KernelRejected
 from robot_agent.kernels import (
     DEFAULT_INPUT_KERNELS,
     DryRunReport,
-    _stage_inputs,
     check_conformance,
     dry_run,
     load_kernel_class,
