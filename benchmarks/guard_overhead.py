@@ -1,5 +1,5 @@
 """What the guarded path costs a downloaded kernel per call: the kernel runs in a confined worker process
-(robot_agent/supervisor.py, docs/reliability/sandbox.md), each call crosses a socket with a deadline, and
+(robot_agent/kernelproc.py, docs/reliability/sandbox.md), each call crosses a socket with a deadline, and
 the guard checks the result (robot_agent/guard.py). Built-in kernels run in-process, unguarded.
 
     .venv/bin/python benchmarks/guard_overhead.py [--calls 2000]

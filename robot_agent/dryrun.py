@@ -4,7 +4,7 @@
 last scans) and the conformance battery in a fresh, confined worker (:mod:`robot_agent.worker`) with a
 wall-time budget per phase, a CPU-time limit (RLIMIT_CPU) and a memory limit (RLIMIT_AS), then kills it.
 :func:`load_in_worker` starts the long-lived worker a kernel that passed serves from, and returns the
-kernel class that forwards to it (:func:`robot_agent.supervisor.remote_class`). Both are called on the
+kernel class that forwards to it (:func:`robot_agent.kernelproc.remote_class`). Both are called on the
 poller thread and return within their limits whatever the kernel does: a kernel that hangs or spins at
 import, in the dry run or in the battery is killed at its limit and refused with the reason.
 """
@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from robot_agent.errors import AgentError, KernelRejected
-from robot_agent.supervisor import KernelWorker, WorkerError, remote_class
+from robot_agent.kernelproc import KernelWorker, WorkerError, remote_class
 from shared.kernels import REGISTRY, Kernel, Stage
 from shared.kernels.conformance import moved_copy
 from shared.types import FloatArray, IntArray, Pose2D, Scan
@@ -250,7 +250,7 @@ def load_in_worker(
 ) -> type[Kernel[Any]]:
     """Start the long-lived confined worker a downloaded kernel runs in and import it there.
 
-    Returns the class to register (:func:`robot_agent.supervisor.remote_class`): constructing it and each
+    Returns the class to register (:func:`robot_agent.kernelproc.remote_class`): constructing it and each
     ``apply`` run in the worker within ``call_s``. The worker has ``memory_mb`` of address space above its
     footprint and no CPU limit (a per-call wall-time limit instead). Raises :class:`KernelRejected` when
     the import fails or takes longer than ``import_s`` (the worker is killed), :class:`AgentError` when

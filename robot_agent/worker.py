@@ -1,6 +1,6 @@
 """The kernel worker process: where a downloaded kernel's code runs, confined (docs/reliability/sandbox.md).
 
-Started by :mod:`robot_agent.supervisor` as ``python -B -m robot_agent.worker ROLE FD PARENT_PID`` with an
+Started by :mod:`robot_agent.kernelproc` as ``python -B -m robot_agent.worker ROLE FD PARENT_PID`` with an
 empty environment, in a fresh scratch directory, with only the socket ``FD`` open. It dies with the agent
 (parent-death signal), then answers one request at a time over the socket (:mod:`robot_agent.wire`):
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from robot_agent.dryrun import load_in_worker
-from robot_agent.supervisor import KernelCallError
+from robot_agent.kernelproc import KernelCallError
 
 PROBES = b"""
 import json, os, signal, socket
