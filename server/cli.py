@@ -59,7 +59,12 @@ def serve(
     typer.echo(f"linemap server on {base}  (API: {docs}, database: {app.state.linemap.db.url})")
     sys.stdout.flush()  # a pipe or log file must see these lines before the server blocks
     _tune_gc()
-    config = uvicorn.Config(app, host=host, port=port, log_level="warning", timeout_graceful_shutdown=5,
+    config = uvicorn.Config(
+        app,
+        host=host,
+        port=port,
+        log_level="warning",
+        timeout_graceful_shutdown=5,
         # proxy_headers=False: uvicorn would otherwise rewrite the client address from X-Forwarded-For sent
         # by any local client (its default trusts 127.0.0.1); the app reads forwarded headers itself, and
         # only from the operator's LINEMAP_TRUSTED_PROXIES (server.limiter.client_source).

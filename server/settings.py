@@ -73,7 +73,6 @@ class Settings(BaseSettings):
         "10 km is ten times the largest single building, and keeps float64 resolution near 1e-12 m.",
     )
 
-
     @field_validator("csrf_trusted_origins")
     @classmethod
     def _origins(cls, value: tuple[str, ...]) -> tuple[str, ...]:
@@ -83,8 +82,10 @@ class Settings(BaseSettings):
         for origin in value:
             norm = normalize_origin(origin)
             if norm is None:
-                raise ValueError(f"{origin[:100]!r} is not an origin: expected scheme://host[:port], e.g. "
-                                 "https://linemap.example.org")
+                raise ValueError(
+                    f"{origin[:100]!r} is not an origin: expected scheme://host[:port], e.g. "
+                    "https://linemap.example.org"
+                )
             out.append(norm)
         return tuple(out)
 
