@@ -1,6 +1,6 @@
 """How fast each kind of misbehaving downloaded kernel is detected and answered (docs/reliability/sandbox.md).
 
-    .venv/bin/python benchmarks/sandbox_detection.py [--hang-s 5] [--budget-s 5]
+    .venv/bin/python benchmarks/sandbox_detection.py [--hang-s S] [--budget-s S]  (default: the agent's own)
 
 For each kind, the kernel is run exactly as the agent runs it (robot_agent/dryrun.py: the checks in a
 confined worker, service calls guarded in a long-lived worker) and the time is measured from the start of
@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from robot_agent.agent import AgentSettings
 from robot_agent.dryrun import load_in_worker, verify_in_worker
 from robot_agent.errors import KernelRejected
 from robot_agent.guard import guarded
@@ -66,8 +67,8 @@ def _source(i: int, module: str, body: str) -> tuple[bytes, str]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    p.add_argument("--hang-s", type=float, default=5.0, help="kernel_hang_s [5]")
-    p.add_argument("--budget-s", type=float, default=5.0, help="dry_run_budget_s [5]")
+    p.add_argument("--hang-s", type=float, default=AgentSettings.kernel_hang_s, help="kernel_hang_s")
+    p.add_argument("--budget-s", type=float, default=AgentSettings.dry_run_budget_s, help="dry_run_budget_s")
     args = p.parse_args(argv)
     points = wall_points(600)
     Dbscan().apply(points)  # the fallback's compiled code loaded before anything is timed

@@ -75,9 +75,11 @@ class AgentSettings:
     upload_batch: int = 50
     probation_steps: int = 20
     kernel_budget_ms: float = 200.0
-    kernel_hang_s: float = 5.0  # a call of a downloaded kernel longer than this is stuck (see guard.py)
+    # A call of a downloaded kernel longer than this is stuck (guard.py); with the ~0.1-0.2 s it takes to kill
+    # its worker and answer, a hang is detected within 5 s (docs/reliability/sandbox.md).
+    kernel_hang_s: float = 4.5
     kernel_memory_mb: float = 256.0  # ... and so is one that grows the process by more than this
-    dry_run_budget_s: float = 5.0
+    dry_run_budget_s: float = 4.5  # import + dry run, and the conformance battery, each (same reason)
     max_steps: int | None = None
     stay: bool = True
     seed: int = 0
