@@ -24,8 +24,9 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from server import dashboard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState, AuthLimiter, retry_after_header
-from server.errors import ServerError
+from server.errors import RateLimitedError, ServerError
 from server.migrate import upgrade
+from server.quota import UploadQuota
 from server.routers import auth, control, kernels, maps, messages, meta, robots
 from server.settings import Settings
 from server.writer import WriteBatcher
@@ -74,6 +75,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
         lifespan=lifespan,
     )
     app.state.linemap = state
+    app.state.upload_quota = UploadQuota.from_settings(settings)  # per process (server.quota)
     app.add_exception_handler(ServerError, _server_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(HTTPException, _http_error)
@@ -114,6 +116,8 @@ async def _server_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, ServerError)
     body: dict[str, Any] = {"error": exc.code, "detail": exc.detail, **exc.extra}
     headers = {"WWW-Authenticate": "Bearer"} if exc.status == 401 else None
+    if isinstance(exc, RateLimitedError):
+        headers = {"Retry-After": retry_after_header(exc.retry_after_s)}
     return JSONResponse(body, status_code=exc.status, headers=headers)
 
 

@@ -12,15 +12,15 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import Connection, Table, delete, insert, select, update
+from sqlalchemy import Connection, Table, delete, func, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
-from server.errors import ConflictError, NotFoundError
+from server.errors import ConflictError, InvalidRequestError, NotFoundError
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
 from server.schemas import MapOut, MapUpload, MapUploadOut
 
-__all__ = ["AppliedUpload", "apply_upload", "map_version", "read_map"]
+__all__ = ["AppliedUpload", "apply_upload", "check_wall_cap", "map_version", "read_map"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,11 +106,62 @@ def _bulk_trajectory(conn: Connection, robot_id: int, version: int, rows: list[l
         _multi_row(conn, _TRAJECTORY_SQL, [(robot_id, version, r[0], r[1], r[2], r[3]) for r in rows])
 
 
+def _count(conn: Connection, robot_id: int, ids: list[int] | None = None) -> int:
+    """Walls of ``robot_id`` stored now (among ``ids`` if given). O(walls) on the primary-key index."""
+    if ids is None:
+        q = select(func.count()).select_from(_SEG).where(_SEG.c.robot_id == robot_id)
+        return int(conn.execute(q).scalar_one())
+    n = 0
+    for start in range(0, len(ids), _CHUNK_ROWS):
+        chunk = ids[start : start + _CHUNK_ROWS]
+        q = select(func.count()).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(chunk))
+        n += int(conn.execute(q).scalar_one())
+    return n
+
+
+def _walls_after(conn: Connection, robot_id: int, up: MapUpload, cap: int) -> tuple[int, int]:
+    """(walls stored now, walls after ``up``) for a delta; exact when it matters, i.e. when the map could
+    pass ``cap``. One count query for the common case, O(upload) more near the cap."""
+    before = _count(conn, robot_id)
+    ids = {int(r[0]) for r in up.segments}
+    if before + len(ids) <= cap:
+        return before, before + len(ids)  # an upper bound, under the cap: enough
+    removed = set(up.removed)
+    gone = _count(conn, robot_id, sorted(removed))  # stored walls the delta removes
+    kept_ids = sorted(ids - removed)
+    stay = _count(conn, robot_id, kept_ids)  # stored walls it only changes
+    return before, before - gone + len(ids) - stay
+
+
+def check_wall_cap(conn: Connection | None, robot_id: int, up: MapUpload, cap: int) -> None:
+    """Refuse (422) an upload after which the robot's map would hold more than ``cap`` walls, unless it
+    shrinks a map that is over the cap already. ``conn`` None: only what the body alone shows (a
+    snapshot's walls), no database."""
+    if up.base_version is None:
+        before, after = 0, len({int(r[0]) for r in up.segments})
+    elif conn is None:
+        return
+    else:
+        before, after = _walls_after(conn, robot_id, up, cap)
+    if after > cap and after > before:
+        raise InvalidRequestError(
+            f"robot {robot_id}'s map would hold {after} walls; the limit is {cap} walls per map "
+            "(server setting max_walls_per_map)",
+            max_walls_per_map=cap,
+        )
+
+
 def apply_upload(
-    conn: Connection, robot_id: int, up: MapUpload, key: str, seen_at: datetime | None = None
+    conn: Connection,
+    robot_id: int,
+    up: MapUpload,
+    key: str,
+    seen_at: datetime | None = None,
+    max_walls: int | None = None,
 ) -> AppliedUpload:
     """Apply one upload in the caller's transaction (SQLAlchemy Core: a robot sends one every few hundred
-    milliseconds). O(rows in the upload)."""
+    milliseconds); ``max_walls``: refuse (422, before writing) a delta after which the map would hold more
+    walls (:func:`check_wall_cap`). O(rows in the upload)."""
     # Lock the robot's row first: concurrent uploads of one robot (a retry racing its original) queue here,
     # so the idempotency check below sees every upload committed before it.
     robot = conn.execute(
@@ -130,6 +181,8 @@ def apply_upload(
                 f"snapshot version {up.version} is not newer than the server's map version {current}",
                 current_version=current,
             )
+        if max_walls is not None:
+            check_wall_cap(conn, robot_id, up, max_walls)
         conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id))
         conn.execute(delete(_TRAJ).where(_TRAJ.c.robot_id == robot_id))
     else:
@@ -139,6 +192,8 @@ def apply_upload(
                 "send a snapshot (base_version null)",
                 current_version=current,
             )
+        if max_walls is not None:
+            check_wall_cap(conn, robot_id, up, max_walls)
         if up.removed:
             conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(up.removed)))
     v = up.version
