@@ -26,6 +26,7 @@ from server.database import Database
 from server.deps import SESSION_COOKIE, AppState, AuthLimiter, retry_after_header
 from server.errors import RateLimitedError, ServerError
 from server.migrate import upgrade
+from server.parsepool import UploadParser
 from server.quota import UploadQuota
 from server.routers import auth, control, kernels, maps, messages, meta, robots
 from server.settings import Settings
@@ -66,6 +67,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
             task.cancel()
         await run_in_threadpool(state.flush_seen)
         await run_in_threadpool(state.writer.close)
+        await run_in_threadpool(parser.close)
         db.dispose()
 
     app = FastAPI(
@@ -76,6 +78,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     )
     app.state.linemap = state
     app.state.upload_quota = UploadQuota.from_settings(settings)  # per process (server.quota)
+    app.state.upload_parser = parser = UploadParser()  # big uploads parsed in a worker process
     app.add_exception_handler(ServerError, _server_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(HTTPException, _http_error)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import datetime
+from itertools import chain
 from typing import Any
 
 from sqlalchemy import Connection, Table, delete, func, insert, select, update
@@ -72,14 +73,18 @@ _CHUNK_ROWS = 500  # 7 parameters a row: well under SQLite's 32,766 and PostgreS
 def _multi_row(conn: Connection, sql: str, rows: list[tuple[Any, ...]]) -> None:
     """One multi-row ``VALUES`` statement per chunk, at driver level. A driver ``executemany`` goes back to
     Python (and the GIL) after every row, and under load each return waited for the GIL: 200-row uploads
-    stalled for 100+ ms. One statement per chunk costs one round trip."""
+    stalled for 100+ ms. One statement per chunk costs one round trip. Rows are flattened in C
+    (``itertools.chain``): a near-limit upload has ~120,000 rows, and every millisecond of Python here
+    holds the GIL that the event loop needs."""
+    if not rows:
+        return
     mark = "?" if conn.dialect.paramstyle == "qmark" else "%s"
-    width = len(rows[0])
-    one = "(" + ", ".join([mark] * width) + ")"
+    one = "(" + ", ".join([mark] * len(rows[0])) + ")"
+    full = sql.format(rows=", ".join([one] * _CHUNK_ROWS))
     for start in range(0, len(rows), _CHUNK_ROWS):
         chunk = rows[start : start + _CHUNK_ROWS]
-        params = tuple(v for row in chunk for v in row)
-        conn.exec_driver_sql(sql.format(rows=", ".join([one] * len(chunk))), params)
+        text = full if len(chunk) == _CHUNK_ROWS else sql.format(rows=", ".join([one] * len(chunk)))
+        conn.exec_driver_sql(text, tuple(chain.from_iterable(chunk)))
 
 
 def _bulk_segments(conn: Connection, robot_id: int, version: int, rows: list[list[float]]) -> None:
@@ -96,14 +101,12 @@ def _bulk_segments(conn: Connection, robot_id: int, version: int, rows: list[lis
         ]
         _upsert(conn, _SEG, ["robot_id", "segment_id"], _COORDS, values)
         return
-    _multi_row(
-        conn, _SEGMENT_SQL, [(robot_id, sid, r[1], r[2], r[3], r[4], version) for sid, r in last.items()]
-    )
+    _multi_row(conn, _SEGMENT_SQL, [(robot_id, sid, *r[1:5], version) for sid, r in last.items()])
 
 
 def _bulk_trajectory(conn: Connection, robot_id: int, version: int, rows: list[list[float]]) -> None:
     if rows:
-        _multi_row(conn, _TRAJECTORY_SQL, [(robot_id, version, r[0], r[1], r[2], r[3]) for r in rows])
+        _multi_row(conn, _TRAJECTORY_SQL, [(robot_id, version, *r) for r in rows])
 
 
 def _count(conn: Connection, robot_id: int, ids: list[int] | None = None) -> int:

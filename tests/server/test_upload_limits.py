@@ -5,6 +5,7 @@ Retry-After and, retried after it, delivers the same version (none is lost)."""
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -20,17 +21,17 @@ CAP = 50
 
 @pytest.fixture(scope="module", params=BACKENDS)
 def tight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
-    """A server with small quotas: 6 uploads at once then 1 every 2 s, 64 KiB at once then 8 KiB/s."""
+    """A server with small quotas: 6 uploads at once then 1 every 2 s, 256 KiB at once then 4 KiB/s."""
     tmp = tmp_path_factory.mktemp(f"quota-{request.param}")
     yield from start_live(
         request.param,
         tmp,
-        max_body_bytes=64 * 1024,
+        max_body_bytes=256 * 1024,
         max_walls_per_map=CAP,
         upload_burst_requests=6,
         upload_requests_per_s=0.5,
-        upload_burst_bytes=64 * 1024,
-        upload_bytes_per_s=8 * 1024,
+        upload_burst_bytes=256 * 1024,
+        upload_bytes_per_s=4 * 1024,
     )
 
 
@@ -74,14 +75,14 @@ def test_robot_over_its_request_rate_gets_429_while_another_robot_uploads(tight:
 
 def test_robot_over_its_byte_rate_gets_429_with_retry_after(tight: Live) -> None:
     rid, token = tight.new_robot()
-    big = _snapshot(1, trajectory=2500)  # ~45 kB: one fits the 64 KiB burst, two do not
+    big = _snapshot(1, trajectory=8000)  # ~230 kB: one fits the 256 KiB burst, two do not
     with tight.client(token) as robot:
         assert robot.post(f"/robots/{rid}/maps", json=big).status_code == 200
         big["version"] = 2
         r = robot.post(f"/robots/{rid}/maps", json=big)
     assert r.status_code == 429, r.text
     assert "bytes/s" in r.json()["detail"]
-    assert int(r.headers["Retry-After"]) >= 2  # ~25 kB missing at 8 KiB/s: several seconds
+    assert int(r.headers["Retry-After"]) >= 2  # ~100+ kB missing at 4 KiB/s: many seconds
 
 
 def test_snapshot_over_the_wall_cap_is_422_naming_the_cap(tight: Live) -> None:
@@ -142,3 +143,36 @@ def test_link_reports_429_and_the_retried_upload_delivers_the_version(tight: Liv
         link.close()
     with tight.operator() as op:
         assert op.get(f"/robots/{rid}/maps/latest").json()["version"] == 7
+
+
+def test_big_upload_is_parsed_off_the_event_loop_with_the_same_result_and_errors(live: Live) -> None:
+    """Bodies above INLINE_BODY_BYTES go through the parser process (server.parsepool): the stored map,
+    the validation errors and the wall cap answer exactly as for small bodies."""
+    from server.routers.maps import INLINE_BODY_BYTES
+
+    rid, token = live.new_robot()
+    n = 4000  # ~150 kB of JSON
+    body = _snapshot(1, n_walls=n, trajectory=200)
+    assert len(json.dumps(body)) > INLINE_BODY_BYTES
+    with live.client(token) as robot:
+        r = robot.post(f"/robots/{rid}/maps", json=body)
+        assert r.status_code == 200, r.text
+        bad = _snapshot(2, n_walls=n)
+        bad["segments"][1234][2] = "north"
+        r = robot.post(f"/robots/{rid}/maps", json=bad)
+        assert r.status_code == 422 and "segments.1234.2" in r.json()["detail"], r.text
+    with live.operator() as op:
+        m = op.get(f"/robots/{rid}/maps/latest").json()
+    assert m["version"] == 1 and m["segments"] == body["segments"] and m["trajectory"] == body["trajectory"]
+
+
+def test_big_upload_over_the_wall_cap_is_422_through_the_parser_process(tight: Live) -> None:
+    rid, token = tight.new_robot()
+    from server.routers.maps import INLINE_BODY_BYTES
+
+    body = _snapshot(1, n_walls=CAP + 1, trajectory=4000)  # over the inline size: the worker refuses it
+    assert len(json.dumps(body)) > INLINE_BODY_BYTES
+    with tight.client(token) as robot:
+        r = robot.post(f"/robots/{rid}/maps", json=body)
+    assert r.status_code == 422, r.text
+    assert r.json()["max_walls_per_map"] == CAP and f"limit is {CAP} walls" in r.json()["detail"]
