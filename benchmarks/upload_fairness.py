@@ -41,6 +41,9 @@ from benchmarks.server_load import API, Config, Load, Robot, Server, SetupError,
 __all__ = ["FairConfig", "HeavyStats", "Phase", "heavy_body", "main", "measure"]
 
 log = logging.getLogger("upload_fairness")
+#: Heavy uploads accepted in a row after which the server is taken to have no quota (the default burst,
+#: 8 MiB, passes two 3.7 MB snapshots).
+NO_QUOTA_AFTER = 4
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,14 +94,24 @@ def heavy_body(walls: int, size_bytes: int) -> tuple[bytes, bytes]:
     return b'{"version":', b"," + rest[1:].encode()
 
 
-def _heavy_robot(base: str, robot_id: int, token: str, body: tuple[bytes, bytes], end: float) -> HeavyStats:
-    """Back-to-back near-limit snapshots until ``end`` (perf_counter), waiting only the server's
-    Retry-After after a 429: the robot runs at its quota. In a thread with its own client."""
-    stats, version, start = HeavyStats(), 1, time.perf_counter()
+def _heavy_robot(
+    base: str,
+    robot_id: int,
+    token: str,
+    body: tuple[bytes, bytes],
+    end: list[float],
+    drained: threading.Event,
+) -> HeavyStats:
+    """Back-to-back near-limit snapshots until ``end[0]`` (perf_counter; set by the caller once
+    ``drained``), waiting only the server's Retry-After after a 429: the robot runs at its quota.
+    ``drained`` is set at the first 429 (its burst is spent: from then on it is at its sustained quota),
+    or after ``NO_QUOTA_AFTER`` uploads accepted back to back (a server without quotas).
+    In a thread with its own client."""
+    stats, version, drained_at = HeavyStats(), 1, time.perf_counter()
     url = f"{base}{API}/robots/{robot_id}/maps"
     headers = {"Authorization": f"Bearer {token}", "Content-Type": "application/json"}
     with httpx.Client(timeout=60.0) as client:
-        while (now := time.perf_counter()) < end:
+        while (now := time.perf_counter()) < end[0]:
             content = body[0] + str(version).encode() + body[1]
             try:
                 r = client.post(url, content=content, headers=headers)
@@ -106,14 +119,21 @@ def _heavy_robot(base: str, robot_id: int, token: str, body: tuple[bytes, bytes]
                 stats.other[type(exc).__name__] = stats.other.get(type(exc).__name__, 0) + 1
                 continue
             if r.status_code == 200:
+                if not drained.is_set() and stats.accepted + 1 >= NO_QUOTA_AFTER:  # a server without quotas
+                    stats, drained_at = HeavyStats(), time.perf_counter()
+                    drained.set()
                 stats.accepted += 1
                 stats.accepted_bytes += len(content)
                 stats.upload_s.append(time.perf_counter() - now)
                 version += 1
             elif r.status_code == 429:
-                stats.refused_429 += 1
+                if drained.is_set():
+                    stats.refused_429 += 1
+                else:  # the burst is spent: the measured part starts now
+                    stats, drained_at = HeavyStats(), time.perf_counter()
+                    drained.set()
                 wait_s = float(r.headers.get("Retry-After", "1"))
-                time.sleep(max(0.0, min(wait_s, end - time.perf_counter())))  # what a robot is told to do
+                time.sleep(max(0.0, min(wait_s, end[0] - time.perf_counter())))  # what a robot is told to do
             elif r.status_code == 409:
                 version = int(r.json().get("current_version", version)) + 1
             else:
@@ -121,7 +141,8 @@ def _heavy_robot(base: str, robot_id: int, token: str, body: tuple[bytes, bytes]
                 stats.other[key] = stats.other.get(key, 0) + 1
                 if len(stats.other) == 1 and stats.other[key] == 1:
                     log.warning("heavy upload refused: %s %s", r.status_code, r.text[:300])
-    stats.busy_s = time.perf_counter() - start
+    drained.set()  # also when it never met its quota
+    stats.busy_s = time.perf_counter() - drained_at
     return stats
 
 
@@ -140,20 +161,21 @@ async def _phase(
 ) -> Phase:
     """One phase: the normal robots' uploaders (server_load's), /healthz probes, and the heavy robot."""
     healthz: list[float] = []
-    load.t0 = time.perf_counter()
-    load.end = load.t0 + cfg.phase_s
     async with contextlib.AsyncExitStack() as stack:
         clients = [await stack.enter_async_context(httpx.AsyncClient(timeout=60.0)) for _ in load.robots]
         thread_result: list[HeavyStats] = []
-        thread = None
+        thread, end, drained = None, [float("inf")], threading.Event()
         if heavy is not None:
             rid, token, body = heavy
             thread = threading.Thread(
-                target=lambda: thread_result.append(_heavy_robot(base, rid, token, body, load.end)),
+                target=lambda: thread_result.append(_heavy_robot(base, rid, token, body, end, drained)),
                 name="heavy-robot",
                 daemon=True,
             )
             thread.start()
+            await asyncio.to_thread(drained.wait, 300.0)  # its burst spent: at its sustained quota now
+        load.t0 = time.perf_counter()
+        load.end = end[0] = load.t0 + cfg.phase_s
         await asyncio.gather(
             *(load.uploader(r, c) for r, c in zip(load.robots, clients, strict=True)),
             _healthz(base, load.end, healthz),

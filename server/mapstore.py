@@ -21,7 +21,15 @@ from server.errors import ConflictError, InvalidRequestError, NotFoundError
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
 from server.schemas import MapOut, MapUpload, MapUploadOut
 
-__all__ = ["AppliedUpload", "apply_upload", "check_wall_cap", "map_version", "read_map"]
+__all__ = [
+    "AppliedUpload",
+    "PreparedRows",
+    "apply_upload",
+    "check_wall_cap",
+    "map_version",
+    "prepare_rows",
+    "read_map",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,43 +78,64 @@ _TRAJECTORY_SQL = (
 _CHUNK_ROWS = 500  # 7 parameters a row: well under SQLite's 32,766 and PostgreSQL's 65,535
 
 
-def _multi_row(conn: Connection, sql: str, rows: list[tuple[Any, ...]]) -> None:
+@dataclass(frozen=True, slots=True)
+class PreparedRows:
+    """An upload's wall and pose rows as statement parameters, flat, one tuple per chunk of at most
+    ``_CHUNK_ROWS`` rows: ``(rows in the chunk, parameters)``. Built by :func:`prepare_rows` before the
+    write transaction, so a near-limit upload (~120,000 rows, ~0.3 s of Python) does not hold the writer
+    (SQLite's one write lock) while it is built."""
+
+    segments: list[tuple[int, tuple[Any, ...]]]
+    trajectory: list[tuple[int, tuple[Any, ...]]]
+
+
+def _chunks(rows: list[tuple[Any, ...]]) -> list[tuple[int, tuple[Any, ...]]]:
+    """``rows`` cut into chunks, each flattened in C (``itertools.chain``)."""
+    return [
+        (len(chunk), tuple(chain.from_iterable(chunk)))
+        for chunk in (rows[i : i + _CHUNK_ROWS] for i in range(0, len(rows), _CHUNK_ROWS))
+    ]
+
+
+def prepare_rows(robot_id: int, up: MapUpload) -> PreparedRows:
+    """The upload's rows for the multi-row inserts of :func:`apply_upload`. A segment id given twice keeps
+    its last row (``ON CONFLICT`` cannot touch one row twice in a statement). O(rows)."""
+    last = {int(r[0]): r for r in up.segments}
+    segments = [(robot_id, sid, *r[1:5], up.version) for sid, r in last.items()]
+    trajectory = [(robot_id, up.version, *r) for r in up.trajectory]
+    return PreparedRows(_chunks(segments), _chunks(trajectory))
+
+
+def _multi_row(conn: Connection, sql: str, width: int, chunks: list[tuple[int, tuple[Any, ...]]]) -> None:
     """One multi-row ``VALUES`` statement per chunk, at driver level. A driver ``executemany`` goes back to
     Python (and the GIL) after every row, and under load each return waited for the GIL: 200-row uploads
-    stalled for 100+ ms. One statement per chunk costs one round trip. Rows are flattened in C
-    (``itertools.chain``): a near-limit upload has ~120,000 rows, and every millisecond of Python here
-    holds the GIL that the event loop needs."""
-    if not rows:
-        return
+    stalled for 100+ ms. One statement per chunk costs one round trip."""
     mark = "?" if conn.dialect.paramstyle == "qmark" else "%s"
-    one = "(" + ", ".join([mark] * len(rows[0])) + ")"
-    full = sql.format(rows=", ".join([one] * _CHUNK_ROWS))
-    for start in range(0, len(rows), _CHUNK_ROWS):
-        chunk = rows[start : start + _CHUNK_ROWS]
-        text = full if len(chunk) == _CHUNK_ROWS else sql.format(rows=", ".join([one] * len(chunk)))
-        conn.exec_driver_sql(text, tuple(chain.from_iterable(chunk)))
+    one = "(" + ", ".join([mark] * width) + ")"
+    texts: dict[int, str] = {}
+    for n, params in chunks:
+        if n not in texts:
+            texts[n] = sql.format(rows=", ".join([one] * n))
+        conn.exec_driver_sql(texts[n], params)
 
 
-def _bulk_segments(conn: Connection, robot_id: int, version: int, rows: list[list[float]]) -> None:
+def _bulk_segments(
+    conn: Connection, robot_id: int, version: int, rows: list[list[float]], prepared: PreparedRows
+) -> None:
     """Upsert walls (the hot path: ~200 rows several times a second). SQLite and PostgreSQL both speak
     ``ON CONFLICT ... DO UPDATE``; other backends go through :func:`_upsert`. A segment id given twice in
     one upload keeps its last row."""
     if not rows:
         return
-    last = {int(r[0]): r for r in rows}  # ON CONFLICT cannot touch one row twice in a statement
     if conn.dialect.name not in ("sqlite", "postgresql"):
+        last = {int(r[0]): r for r in rows}
         values = [
             dict(zip(("robot_id", "segment_id", *_COORDS), (robot_id, sid, *r[1:5], version), strict=True))
             for sid, r in last.items()
         ]
         _upsert(conn, _SEG, ["robot_id", "segment_id"], _COORDS, values)
         return
-    _multi_row(conn, _SEGMENT_SQL, [(robot_id, sid, *r[1:5], version) for sid, r in last.items()])
-
-
-def _bulk_trajectory(conn: Connection, robot_id: int, version: int, rows: list[list[float]]) -> None:
-    if rows:
-        _multi_row(conn, _TRAJECTORY_SQL, [(robot_id, version, *r) for r in rows])
+    _multi_row(conn, _SEGMENT_SQL, 7, prepared.segments)
 
 
 def _count(conn: Connection, robot_id: int, ids: list[int] | None = None) -> int:
@@ -161,10 +190,12 @@ def apply_upload(
     key: str,
     seen_at: datetime | None = None,
     max_walls: int | None = None,
+    prepared: PreparedRows | None = None,
 ) -> AppliedUpload:
     """Apply one upload in the caller's transaction (SQLAlchemy Core: a robot sends one every few hundred
     milliseconds); ``max_walls``: refuse (422, before writing) a delta after which the map would hold more
-    walls (:func:`check_wall_cap`). O(rows in the upload)."""
+    walls (:func:`check_wall_cap`); ``prepared``: its rows from :func:`prepare_rows`, built before the
+    transaction (else here). O(rows in the upload)."""
     # Lock the robot's row first: concurrent uploads of one robot (a retry racing its original) queue here,
     # so the idempotency check below sees every upload committed before it.
     robot = conn.execute(
@@ -200,8 +231,9 @@ def apply_upload(
         if up.removed:
             conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(up.removed)))
     v = up.version
-    _bulk_segments(conn, robot_id, v, up.segments)
-    _bulk_trajectory(conn, robot_id, v, up.trajectory)
+    rows = prepared or prepare_rows(robot_id, up)
+    _bulk_segments(conn, robot_id, v, up.segments, rows)
+    _multi_row(conn, _TRAJECTORY_SQL, 6, rows.trajectory)
     now = utcnow()
     pose = {"x_m": up.pose[0], "y_m": up.pose[1], "theta_rad": up.pose[2]}
     _upsert(

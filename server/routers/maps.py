@@ -27,7 +27,7 @@ from fastapi.responses import StreamingResponse
 from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access
 from server.errors import ConflictError, InvalidRequestError, RateLimitedError
 from server.hub import OVERFLOW
-from server.mapstore import apply_upload, map_version, read_map
+from server.mapstore import apply_upload, map_version, prepare_rows, read_map
 from server.parsepool import UploadParser, parse_upload
 from server.quota import UploadQuota
 from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapUpload, MapUploadOut
@@ -99,8 +99,9 @@ async def upload_map(
         body = parse_upload(raw, robot_id, cap)
     key = idempotency_key or f"version-{body.version}"
     seen = state.last_seen(robot_id)
+    rows = await run_in_threadpool(prepare_rows, robot_id, body) if heavy else None  # before the writer
     applied = await state.writer.submit(
-        lambda conn: apply_upload(conn, robot_id, body, key, seen, cap), heavy=heavy
+        lambda conn: apply_upload(conn, robot_id, body, key, seen, cap, rows), heavy=heavy
     )
     if applied.event is not None:
         state.hub.publish(f"maps:{robot_id}", applied.event)
