@@ -46,6 +46,9 @@ _STATE: Table = MapState.__table__  # type: ignore[assignment]
 _UPLOADS: Table = MapUploadRecord.__table__  # type: ignore[assignment]
 _ROBOTS: Table = Robot.__table__  # type: ignore[assignment]
 _COORDS = ("x0_m", "y0_m", "x1_m", "y1_m", "version")
+#: First key of the per-robot upload advisory lock on PostgreSQL ("LMUP"; the second key is the robot id).
+#: Distinct from the high half of server.migrate.SCHEMA_LOCK_KEY, so the two never collide.
+_UPLOAD_LOCK_CLASS = 0x4C4D5550
 
 
 def _upsert(
@@ -196,11 +199,17 @@ def apply_upload(
     milliseconds); ``max_walls``: refuse (422, before writing) a delta after which the map would hold more
     walls (:func:`check_wall_cap`); ``prepared``: its rows from :func:`prepare_rows`, built before the
     transaction (else here). O(rows in the upload)."""
-    # Lock the robot's row first: concurrent uploads of one robot (a retry racing its original) queue here,
-    # so the idempotency check below sees every upload committed before it.
-    robot = conn.execute(
-        select(_ROBOTS.c.map_version).where(_ROBOTS.c.id == robot_id).with_for_update()
-    ).first()
+    # Serialise the robot's uploads first: concurrent uploads of one robot (a retry racing its original)
+    # queue here, so the idempotency check below sees every upload committed before it. PostgreSQL: a
+    # per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts seconds, and
+    # the row lock held all along stalled every write batch that touched the row (last-seen times). The
+    # row itself is updated at the end of the transaction only. SQLite: its one write lock serialises.
+    q = select(_ROBOTS.c.map_version).where(_ROBOTS.c.id == robot_id)
+    if conn.dialect.name == "postgresql":
+        conn.exec_driver_sql(f"SELECT pg_advisory_xact_lock({_UPLOAD_LOCK_CLASS}, %s)", (int(robot_id),))
+    elif conn.dialect.name != "sqlite":
+        q = q.with_for_update()
+    robot = conn.execute(q).first()
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
     seen = conn.execute(
