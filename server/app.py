@@ -24,10 +24,12 @@ from server import apidocs, dashboard
 from server.csrf import OriginGuard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState
-from server.errors import ServerError
-from server.limiter import AuthFailureLimit
+from server.errors import RateLimitedError, ServerError
+from server.limiter import AuthFailureLimit, retry_after_header
 from server.mediatype import require_media_type
 from server.migrate import upgrade
+from server.parsepool import UploadParser
+from server.quota import UploadQuota
 from server.routers import auth, control, kernels, maps, messages, meta, robots
 from server.settings import Settings
 from server.shutdown import DisconnectOnShutdown, ShutdownSignal
@@ -69,6 +71,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
             task.cancel()
         await run_in_threadpool(state.flush_seen)
         await run_in_threadpool(state.writer.close)
+        await run_in_threadpool(parser.close)
         db.dispose()
 
     app = FastAPI(
@@ -82,6 +85,8 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     )
     app.state.linemap = state
     app.state.shutdown = ShutdownSignal()  # set by ``linemap server`` when it begins to stop
+    app.state.upload_quota = UploadQuota.from_settings(settings)  # per process (server.quota)
+    app.state.upload_parser = parser = UploadParser()  # big uploads parsed in a worker process
     app.add_exception_handler(ServerError, _server_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(HTTPException, _http_error)
@@ -134,6 +139,8 @@ async def _server_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, ServerError)
     body: dict[str, Any] = {"error": exc.code, "detail": exc.detail, **exc.extra}
     headers = {"WWW-Authenticate": "Bearer"} if exc.status == 401 else None
+    if isinstance(exc, RateLimitedError):
+        headers = {"Retry-After": retry_after_header(exc.retry_after_s)}
     return JSONResponse(body, status_code=exc.status, headers=headers)
 
 

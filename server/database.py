@@ -89,6 +89,24 @@ class Database:
             yield conn
 
     @contextmanager
+    def try_write_conn(self) -> Iterator[Connection | None]:
+        """:meth:`write_conn` if this process's SQLite write queue is free now, else ``None`` at once (the
+        caller, on the event loop, must not wait for another thread's long write). Other databases: like
+        :meth:`write_conn`."""
+        if self._write_lock is None:
+            with self.engine.begin() as conn:
+                yield conn
+            return
+        if not self._write_lock.acquire(blocking=False):
+            yield None
+            return
+        try:
+            with self.engine.begin() as conn:
+                yield conn
+        finally:
+            self._write_lock.release()
+
+    @contextmanager
     def read(self) -> Iterator[Session]:
         """A unit of work that only reads (never takes the SQLite write queue)."""
         with self._factory() as session, session.begin():

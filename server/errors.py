@@ -17,6 +17,7 @@ __all__ = [
     "GoneError",
     "InvalidRequestError",
     "NotFoundError",
+    "RateLimitedError",
     "ServerError",
     "TooLargeError",
     "UnavailableError",
@@ -93,3 +94,14 @@ class UnavailableError(ServerError):
 
     status = 503
     code = "unavailable"
+
+
+class RateLimitedError(ServerError):
+    """Over a quota (429); ``retry_after_s`` becomes ``Retry-After`` (whole seconds, rounded up)."""
+
+    status = 429
+    code = "too_many_requests"
+
+    def __init__(self, detail: str, retry_after_s: float, **extra: Any) -> None:
+        super().__init__(detail, **extra)
+        self.retry_after_s = retry_after_s

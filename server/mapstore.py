@@ -10,17 +10,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import datetime
+from itertools import chain
 from typing import Any
 
-from sqlalchemy import Connection, Table, delete, insert, select, update
+from sqlalchemy import Connection, Table, delete, func, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
-from server.errors import ConflictError, NotFoundError
+from server.errors import ConflictError, InvalidRequestError, NotFoundError
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
 from server.schemas import MapOut, MapUpload, MapUploadOut
 
-__all__ = ["AppliedUpload", "apply_upload", "map_version", "read_map"]
+__all__ = [
+    "AppliedUpload",
+    "PreparedRows",
+    "apply_upload",
+    "check_wall_cap",
+    "map_version",
+    "prepare_rows",
+    "read_map",
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,6 +46,9 @@ _STATE: Table = MapState.__table__  # type: ignore[assignment]
 _UPLOADS: Table = MapUploadRecord.__table__  # type: ignore[assignment]
 _ROBOTS: Table = Robot.__table__  # type: ignore[assignment]
 _COORDS = ("x0_m", "y0_m", "x1_m", "y1_m", "version")
+#: First key of the per-robot upload advisory lock on PostgreSQL ("LMUP"; the second key is the robot id).
+#: Distinct from the high half of server.migrate.SCHEMA_LOCK_KEY, so the two never collide.
+_UPLOAD_LOCK_CLASS = 0x4C4D5550
 
 
 def _upsert(
@@ -69,53 +81,135 @@ _TRAJECTORY_SQL = (
 _CHUNK_ROWS = 500  # 7 parameters a row: well under SQLite's 32,766 and PostgreSQL's 65,535
 
 
-def _multi_row(conn: Connection, sql: str, rows: list[tuple[Any, ...]]) -> None:
+@dataclass(frozen=True, slots=True)
+class PreparedRows:
+    """An upload's wall and pose rows as statement parameters, flat, one tuple per chunk of at most
+    ``_CHUNK_ROWS`` rows: ``(rows in the chunk, parameters)``. Built by :func:`prepare_rows` before the
+    write transaction, so a near-limit upload (~120,000 rows, ~0.3 s of Python) does not hold the writer
+    (SQLite's one write lock) while it is built."""
+
+    segments: list[tuple[int, tuple[Any, ...]]]
+    trajectory: list[tuple[int, tuple[Any, ...]]]
+
+
+def _chunks(rows: list[tuple[Any, ...]]) -> list[tuple[int, tuple[Any, ...]]]:
+    """``rows`` cut into chunks, each flattened in C (``itertools.chain``)."""
+    return [
+        (len(chunk), tuple(chain.from_iterable(chunk)))
+        for chunk in (rows[i : i + _CHUNK_ROWS] for i in range(0, len(rows), _CHUNK_ROWS))
+    ]
+
+
+def prepare_rows(robot_id: int, up: MapUpload) -> PreparedRows:
+    """The upload's rows for the multi-row inserts of :func:`apply_upload`. A segment id given twice keeps
+    its last row (``ON CONFLICT`` cannot touch one row twice in a statement). O(rows)."""
+    last = {int(r[0]): r for r in up.segments}
+    segments = [(robot_id, sid, *r[1:5], up.version) for sid, r in last.items()]
+    trajectory = [(robot_id, up.version, *r) for r in up.trajectory]
+    return PreparedRows(_chunks(segments), _chunks(trajectory))
+
+
+def _multi_row(conn: Connection, sql: str, width: int, chunks: list[tuple[int, tuple[Any, ...]]]) -> None:
     """One multi-row ``VALUES`` statement per chunk, at driver level. A driver ``executemany`` goes back to
     Python (and the GIL) after every row, and under load each return waited for the GIL: 200-row uploads
     stalled for 100+ ms. One statement per chunk costs one round trip."""
     mark = "?" if conn.dialect.paramstyle == "qmark" else "%s"
-    width = len(rows[0])
     one = "(" + ", ".join([mark] * width) + ")"
-    for start in range(0, len(rows), _CHUNK_ROWS):
-        chunk = rows[start : start + _CHUNK_ROWS]
-        params = tuple(v for row in chunk for v in row)
-        conn.exec_driver_sql(sql.format(rows=", ".join([one] * len(chunk))), params)
+    texts: dict[int, str] = {}
+    for n, params in chunks:
+        if n not in texts:
+            texts[n] = sql.format(rows=", ".join([one] * n))
+        conn.exec_driver_sql(texts[n], params)
 
 
-def _bulk_segments(conn: Connection, robot_id: int, version: int, rows: list[list[float]]) -> None:
+def _bulk_segments(
+    conn: Connection, robot_id: int, version: int, rows: list[list[float]], prepared: PreparedRows
+) -> None:
     """Upsert walls (the hot path: ~200 rows several times a second). SQLite and PostgreSQL both speak
     ``ON CONFLICT ... DO UPDATE``; other backends go through :func:`_upsert`. A segment id given twice in
     one upload keeps its last row."""
     if not rows:
         return
-    last = {int(r[0]): r for r in rows}  # ON CONFLICT cannot touch one row twice in a statement
     if conn.dialect.name not in ("sqlite", "postgresql"):
+        last = {int(r[0]): r for r in rows}
         values = [
             dict(zip(("robot_id", "segment_id", *_COORDS), (robot_id, sid, *r[1:5], version), strict=True))
             for sid, r in last.items()
         ]
         _upsert(conn, _SEG, ["robot_id", "segment_id"], _COORDS, values)
         return
-    _multi_row(
-        conn, _SEGMENT_SQL, [(robot_id, sid, r[1], r[2], r[3], r[4], version) for sid, r in last.items()]
-    )
+    _multi_row(conn, _SEGMENT_SQL, 7, prepared.segments)
 
 
-def _bulk_trajectory(conn: Connection, robot_id: int, version: int, rows: list[list[float]]) -> None:
-    if rows:
-        _multi_row(conn, _TRAJECTORY_SQL, [(robot_id, version, r[0], r[1], r[2], r[3]) for r in rows])
+def _count(conn: Connection, robot_id: int, ids: list[int] | None = None) -> int:
+    """Walls of ``robot_id`` stored now (among ``ids`` if given). O(walls) on the primary-key index."""
+    if ids is None:
+        q = select(func.count()).select_from(_SEG).where(_SEG.c.robot_id == robot_id)
+        return int(conn.execute(q).scalar_one())
+    n = 0
+    for start in range(0, len(ids), _CHUNK_ROWS):
+        chunk = ids[start : start + _CHUNK_ROWS]
+        q = select(func.count()).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(chunk))
+        n += int(conn.execute(q).scalar_one())
+    return n
+
+
+def _walls_after(conn: Connection, robot_id: int, up: MapUpload, cap: int) -> tuple[int, int]:
+    """(walls stored now, walls after ``up``) for a delta; exact when it matters, i.e. when the map could
+    pass ``cap``. One count query for the common case, O(upload) more near the cap."""
+    before = _count(conn, robot_id)
+    ids = {int(r[0]) for r in up.segments}
+    if before + len(ids) <= cap:
+        return before, before + len(ids)  # an upper bound, under the cap: enough
+    removed = set(up.removed)
+    gone = _count(conn, robot_id, sorted(removed))  # stored walls the delta removes
+    kept_ids = sorted(ids - removed)
+    stay = _count(conn, robot_id, kept_ids)  # stored walls it only changes
+    return before, before - gone + len(ids) - stay
+
+
+def check_wall_cap(conn: Connection | None, robot_id: int, up: MapUpload, cap: int) -> None:
+    """Refuse (422) an upload after which the robot's map would hold more than ``cap`` walls, unless it
+    shrinks a map that is over the cap already. ``conn`` None: only what the body alone shows (a
+    snapshot's walls), no database."""
+    if up.base_version is None:
+        before, after = 0, len({int(r[0]) for r in up.segments})
+    elif conn is None:
+        return
+    else:
+        before, after = _walls_after(conn, robot_id, up, cap)
+    if after > cap and after > before:
+        raise InvalidRequestError(
+            f"robot {robot_id}'s map would hold {after} walls; the limit is {cap} walls per map "
+            "(server setting max_walls_per_map)",
+            max_walls_per_map=cap,
+        )
 
 
 def apply_upload(
-    conn: Connection, robot_id: int, up: MapUpload, key: str, seen_at: datetime | None = None
+    conn: Connection,
+    robot_id: int,
+    up: MapUpload,
+    key: str,
+    seen_at: datetime | None = None,
+    max_walls: int | None = None,
+    prepared: PreparedRows | None = None,
 ) -> AppliedUpload:
     """Apply one upload in the caller's transaction (SQLAlchemy Core: a robot sends one every few hundred
-    milliseconds). O(rows in the upload)."""
-    # Lock the robot's row first: concurrent uploads of one robot (a retry racing its original) queue here,
-    # so the idempotency check below sees every upload committed before it.
-    robot = conn.execute(
-        select(_ROBOTS.c.map_version).where(_ROBOTS.c.id == robot_id).with_for_update()
-    ).first()
+    milliseconds); ``max_walls``: refuse (422, before writing) a delta after which the map would hold more
+    walls (:func:`check_wall_cap`); ``prepared``: its rows from :func:`prepare_rows`, built before the
+    transaction (else here). O(rows in the upload)."""
+    # Serialise the robot's uploads first: concurrent uploads of one robot (a retry racing its original)
+    # queue here, so the idempotency check below sees every upload committed before it. PostgreSQL: a
+    # per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts seconds, and
+    # the row lock held all along stalled every write batch that touched the row (last-seen times). The
+    # row itself is updated at the end of the transaction only. SQLite: its one write lock serialises.
+    q = select(_ROBOTS.c.map_version).where(_ROBOTS.c.id == robot_id)
+    if conn.dialect.name == "postgresql":
+        conn.exec_driver_sql(f"SELECT pg_advisory_xact_lock({_UPLOAD_LOCK_CLASS}, %s)", (int(robot_id),))
+    elif conn.dialect.name != "sqlite":
+        q = q.with_for_update()
+    robot = conn.execute(q).first()
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
     seen = conn.execute(
@@ -130,6 +224,8 @@ def apply_upload(
                 f"snapshot version {up.version} is not newer than the server's map version {current}",
                 current_version=current,
             )
+        if max_walls is not None:
+            check_wall_cap(conn, robot_id, up, max_walls)
         conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id))
         conn.execute(delete(_TRAJ).where(_TRAJ.c.robot_id == robot_id))
     else:
@@ -139,11 +235,14 @@ def apply_upload(
                 "send a snapshot (base_version null)",
                 current_version=current,
             )
+        if max_walls is not None:
+            check_wall_cap(conn, robot_id, up, max_walls)
         if up.removed:
             conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(up.removed)))
     v = up.version
-    _bulk_segments(conn, robot_id, v, up.segments)
-    _bulk_trajectory(conn, robot_id, v, up.trajectory)
+    rows = prepared or prepare_rows(robot_id, up)
+    _bulk_segments(conn, robot_id, v, up.segments, rows)
+    _multi_row(conn, _TRAJECTORY_SQL, 6, rows.trajectory)
     now = utcnow()
     pose = {"x_m": up.pose[0], "y_m": up.pose[1], "theta_rad": up.pose[2]}
     _upsert(

@@ -1,20 +1,36 @@
-"""Run the Alembic migrations of ``migrations/server`` from code (the server does this on every start)."""
+"""Run the Alembic migrations of ``migrations/server`` from code (the server does this on every start).
+
+Any number of server processes may start at once on one database: the migration environment
+(``migrations/server/env.py``) runs every upgrade and downgrade in one transaction that first takes
+:func:`hold_schema_lock`, so one process migrates while the others wait, then find the schema at head and
+change nothing (before, two processes on a fresh PostgreSQL database both created ``alembic_version`` and
+one died). First-start set-up (the admin token) takes the same lock.
+"""
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Any
 
 from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine
+from sqlalchemy import Connection, Engine
 from sqlalchemy.exc import SQLAlchemyError
 
 from server.errors import ServerError
 
-__all__ = ["MIGRATIONS_DIR", "current_revision", "downgrade", "head_revision", "upgrade"]
+__all__ = [
+    "MIGRATIONS_DIR",
+    "SCHEMA_LOCK_KEY",
+    "current_revision",
+    "downgrade",
+    "head_revision",
+    "hold_schema_lock",
+    "upgrade",
+]
 
 log = logging.getLogger(__name__)
 
@@ -24,6 +40,27 @@ MIGRATIONS_DIR = (
     if (_PACKAGED / "env.py").is_file()
     else Path(__file__).resolve().parent.parent / "migrations" / "server"
 )
+
+
+#: The PostgreSQL advisory-lock key of schema changes (any fixed 64-bit number; "linemap" in ASCII).
+SCHEMA_LOCK_KEY = 0x6C696E656D6170
+
+
+def hold_schema_lock(conn: Connection) -> None:
+    """Take this database's schema lock for the rest of ``conn``'s transaction (waiting for another
+    process that holds it). PostgreSQL: ``pg_advisory_xact_lock`` (released at commit or rollback).
+    SQLite: ``BEGIN IMMEDIATE``, the file's write lock, held to the end of the transaction (the driver
+    would otherwise run DDL outside any transaction); waits up to the connection's busy timeout. Other
+    databases: no lock (a warning)."""
+    dialect = conn.dialect.name
+    if dialect == "postgresql":
+        conn.exec_driver_sql(f"SELECT pg_advisory_xact_lock({SCHEMA_LOCK_KEY})")
+    elif dialect == "sqlite":
+        raw: Any = conn.connection.driver_connection
+        if not raw.in_transaction:  # else the driver's transaction already holds the write lock
+            conn.exec_driver_sql("BEGIN IMMEDIATE")
+    else:
+        log.warning("no schema lock on %s databases: start one server process at a time", dialect)
 
 
 def _config(engine: Engine) -> Config:

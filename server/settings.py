@@ -5,7 +5,7 @@ from __future__ import annotations
 import ipaddress
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 __all__ = ["DEFAULT_DATABASE_URL", "Settings"]
@@ -64,6 +64,45 @@ class Settings(BaseSettings):
         le=86_400,
         description="How long a source over the limit has its failed attempts refused (its Retry-After, s).",
     )
+    max_walls_per_map: int = Field(
+        20_000,
+        ge=1,
+        le=200_000,
+        description="Most walls (segments) one robot's map may hold; an upload that would take the map "
+        "beyond it is refused with 422 naming the cap. A large floor (10,000 m2 of offices) maps to a few "
+        "thousand walls, so the default leaves several times that.",
+    )
+    upload_requests_per_s: float = Field(
+        20.0,
+        gt=0,
+        description="Sustained map uploads per second one robot may make (token bucket; 429 with Retry-After "
+        "beyond it). The agent uploads every 0.5 s, back to back only while it catches up.",
+    )
+    upload_burst_requests: float = Field(
+        60.0, ge=1, description="Map uploads one robot may make at once before upload_requests_per_s applies."
+    )
+    upload_bytes_per_s: float = Field(
+        256 * 1024,
+        gt=0,
+        description="Sustained map upload bytes per second one robot may send (token bucket; 429 with "
+        "Retry-After beyond it). A robot at 10 Hz sends about 20 kB/s of deltas.",
+    )
+    upload_burst_bytes: int = Field(
+        8 * 1024 * 1024,
+        ge=1024,
+        description="Map upload bytes one robot may send at once (at least max_body_bytes, so the largest "
+        "accepted body can always pass once the bucket is full).",
+    )
+
+    @model_validator(mode="after")
+    def _burst_fits_largest_body(self) -> Settings:
+        if self.upload_burst_bytes < self.max_body_bytes:
+            raise ValueError(
+                f"upload_burst_bytes ({self.upload_burst_bytes}) must be at least max_body_bytes "
+                f"({self.max_body_bytes}): a body of the largest accepted size could never pass the quota"
+            )
+        return self
+
     world_extent_m: float = Field(
         10_000.0,
         gt=0,

@@ -1,6 +1,9 @@
-"""The hot write path (map uploads). On SQLite each job runs at once on the caller's (event-loop) thread,
-in its own transaction. On other databases one writer thread applies queued jobs in batches, one
-transaction per batch (group commit).
+"""The hot write path (map uploads). On SQLite a small job runs at once on the caller's (event-loop) thread,
+in its own transaction, when no other thread of this process is writing; else (another thread holds the
+write queue, or the job is ``heavy``) it runs in the thread pool, so the event loop never waits behind a
+long write. On other databases one writer thread applies queued jobs in batches, one transaction per batch
+(group commit); a ``heavy`` job (a near-limit upload) runs alone in the thread pool instead, so it does not
+hold up the batch behind it.
 
 A database has one writer at a time anyway (SQLite) or pays a round trip per commit (PostgreSQL), so many
 request threads writing in turn only add thread switches and commits. Jobs are functions of a Core
@@ -21,6 +24,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any, Generic, TypeVar
 
+from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import Connection
 from sqlalchemy.exc import SQLAlchemyError
 
@@ -57,14 +61,23 @@ class WriteBatcher:
         # forth with a writer thread (measured with 100 robots: upload p95 ~80 -> ~29 ms).
         self.inline = db.is_sqlite
 
-    async def submit(self, fn: Callable[[Connection], T]) -> T:
-        """Run ``fn(conn)`` (inline on SQLite, else in the next batch); its result, or its error."""
-        if self.inline:
-            with self._db.write_conn() as conn:
-                return fn(conn)
+    async def submit(self, fn: Callable[[Connection], T], *, heavy: bool = False) -> T:
+        """Run ``fn(conn)`` (inline on SQLite when the write queue is free, else in the thread pool or the
+        next batch); its result, or its error. ``heavy``: a long job (many rows), kept off the event loop
+        and out of the batches."""
+        if self.inline and not heavy:
+            with self._db.try_write_conn() as conn:
+                if conn is not None:
+                    return fn(conn)
+        if self.inline or heavy:
+            return await run_in_threadpool(self._alone, fn)
         job: _Job[T] = _Job(fn)
         self._queue.put(job)
         return await asyncio.wrap_future(job.future)
+
+    def _alone(self, fn: Callable[[Connection], T]) -> T:
+        with self._db.write_conn() as conn:
+            return fn(conn)
 
     def close(self) -> None:
         self._queue.put(_STOP)

@@ -5,9 +5,10 @@ from __future__ import annotations
 import os
 
 from alembic import context
-from sqlalchemy import create_engine, pool
+from sqlalchemy import Connection, create_engine, pool
 
 from server.database import normalize_url
+from server.migrate import hold_schema_lock
 from server.models import Base
 from server.settings import DEFAULT_DATABASE_URL
 
@@ -26,19 +27,30 @@ def run_offline() -> None:
         context.run_migrations()
 
 
+def _migrate(connection: Connection) -> None:
+    """The migrations in ``connection``'s transaction, under the schema lock: processes starting together
+    on one database migrate one after the other (server.migrate.hold_schema_lock)."""
+    hold_schema_lock(connection)
+    context.configure(connection=connection, target_metadata=target_metadata, render_as_batch=True)
+    with context.begin_transaction():
+        context.run_migrations()
+
+
 def run_online() -> None:
     connection = config.attributes.get("connection")
     if connection is not None:
-        context.configure(connection=connection, target_metadata=target_metadata, render_as_batch=True)
-        with context.begin_transaction():
-            context.run_migrations()
+        if connection.in_transaction():
+            _migrate(connection)
+        else:
+            with connection.begin():
+                _migrate(connection)
         return
     engine = create_engine(_url(), poolclass=pool.NullPool)
-    with engine.connect() as conn:
-        context.configure(connection=conn, target_metadata=target_metadata, render_as_batch=True)
-        with context.begin_transaction():
-            context.run_migrations()
-    engine.dispose()
+    try:
+        with engine.begin() as conn:
+            _migrate(conn)
+    finally:
+        engine.dispose()
 
 
 if context.is_offline_mode():
