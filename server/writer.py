@@ -20,6 +20,7 @@ import asyncio
 import logging
 import queue
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any, Generic, TypeVar
@@ -36,6 +37,8 @@ __all__ = ["WriteBatcher"]
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 _STOP = object()
+#: A write batch slower than this is logged (debug level), in milliseconds.
+_SLOW_BATCH_MS = 30.0
 
 
 class _Job(Generic[T]):
@@ -98,13 +101,11 @@ class WriteBatcher:
                     self._queue.put(_STOP)
                     break
                 batch.append(nxt)
-            import time as _t
-
-            t0 = _t.perf_counter()
+            started = time.perf_counter()
             self._apply(batch)
-            ms = (_t.perf_counter() - t0) * 1e3
-            if ms > 30:
-                log.warning("LAG batch of %d took %.0f ms", len(batch), ms)
+            took_ms = (time.perf_counter() - started) * 1e3
+            if took_ms > _SLOW_BATCH_MS:
+                log.debug("write batch of %d jobs took %.0f ms", len(batch), took_ms)
 
     def _apply(self, batch: list[_Job[Any]]) -> None:
         results: list[tuple[_Job[Any], Any, BaseException | None]] = []
