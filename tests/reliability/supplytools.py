@@ -14,7 +14,7 @@ import httpx
 from sqlalchemy import select
 
 from server.models import KernelArtifact
-from shared.signing import KeyPair, sha256_hex
+from shared.signing import KeyPair, generate_keypair, sha256_hex
 from tests.robot_agent.agentproc import AgentProcess, wait_for
 from tests.robot_agent.test_agent_kernels_live import XML, _noise, _send, _state, _upload
 from tests.server.live import Live
@@ -29,6 +29,7 @@ __all__ = [
     "start",
     "state",
     "tamper",
+    "trusted_key",
     "upload",
     "workers_of",
 ]
@@ -167,3 +168,11 @@ def tamper(live: Live, name: str, version: str, source: bytes, *, fix_digest: bo
         if fix_digest:
             art.sha256 = sha256_hex(source)
         return art.sha256
+
+
+def trusted_key(live: Live) -> KeyPair:
+    """A new signing key pair whose public half the server ``live`` trusts (registered as 'ops')."""
+    pair = generate_keypair()
+    with live.operator() as op:
+        assert op.post("/keys", json={"name": "ops", "public_key": pair.public_b64}).status_code == 201
+    return pair

@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from shared.signing import KeyPair, generate_keypair
+from shared.signing import KeyPair
 from tests.reliability import supplytools as st
 from tests.robot_agent.agentproc import wait_for
 from tests.server.live import Live, start_live
@@ -27,10 +27,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
 
 @pytest.fixture(scope="module")
 def key(live: Live) -> KeyPair:
-    pair = generate_keypair()
-    with live.operator() as op:
-        assert op.post("/keys", json={"name": "ops", "public_key": pair.public_b64}).status_code == 201
-    return pair
+    return st.trusted_key(live)
 
 
 def test_the_built_in_fallback_cannot_be_deleted_and_a_later_failure_rolls_back(

@@ -28,10 +28,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
 
 @pytest.fixture(scope="module")
 def key(live: Live) -> KeyPair:
-    pair = generate_keypair()
-    with live.operator() as op:
-        assert op.post("/keys", json={"name": "ops", "public_key": pair.public_b64}).status_code == 201
-    return pair
+    return st.trusted_key(live)
 
 
 def _kill_9_during_the_checks(agent: AgentProcess) -> None:

@@ -19,7 +19,8 @@ from typing import Any
 import httpx
 import pytest
 
-from shared.signing import KeyPair, generate_keypair, load_private_key, sha256_hex, sign_digest
+from shared.signing import KeyPair, load_private_key, sha256_hex, sign_digest
+from tests.reliability import supplytools as st
 from tests.robot_agent.agentproc import AgentProcess, robot_db_meta, wait_for
 from tests.robot_agent.answerproxy import AnswerProxy
 from tests.robot_agent.test_agent_kernels_live import FLAKY, GOOD
@@ -43,10 +44,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
 
 @pytest.fixture(scope="module")
 def key(live: Live) -> KeyPair:
-    pair = generate_keypair()
-    with live.operator() as op:
-        assert op.post("/keys", json={"name": "ops", "public_key": pair.public_b64}).status_code == 201
-    return pair
+    return st.trusted_key(live)
 
 
 def _sign(key: KeyPair, source: bytes) -> tuple[str, str]:
