@@ -103,6 +103,12 @@ class AnswerProxy:
                 self.end_headers()
                 self.wfile.write(body)
 
+            def handle(self) -> None:
+                try:
+                    super().handle()
+                except OSError:  # the agent hung up, or the proxy closed under a request in flight
+                    self.close_connection = True
+
             do_GET = do_POST = do_PUT = do_DELETE = _serve  # noqa: N815
 
         self._server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
