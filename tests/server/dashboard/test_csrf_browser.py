@@ -19,6 +19,7 @@ from typing import Any
 
 import pytest
 
+from tests.robot_agent.agentproc import wait_for
 from tests.server.dashboard.browser import launch_chromium
 from tests.server.live import Live, start_live
 from tests.server.test_auth import _fill, routes
@@ -172,11 +173,18 @@ def test_a_page_on_another_port_cannot_act_as_the_operator(
             dash.get_by_test_id("raw-send").click()
             expect(dash.get_by_test_id("ack")).to_be_visible()
 
+        def queued_messages() -> list[dict[str, Any]]:
+            with live.operator() as op:
+                messages: list[dict[str, Any]] = op.get(f"/robots/{rid}/messages").json()["messages"]
+            return messages
+
         send_raw_xml()
         dash.reload()
         send_raw_xml()
-        with live.operator() as op:
-            queued = op.get(f"/robots/{rid}/messages").json()["messages"]
+        # The page may still show the first message's acknowledgement while the second POST is in flight:
+        # wait until the server holds a second message (or the deadline passes), then check both.
+        wait_for("the dashboard's second message", lambda: len(queued_messages()) >= 2 or None, 20.0)
+        queued = queued_messages()
         assert [(m["seq"], m["created_by"]) for m in queued] == [(1, "operator:admin"), (2, "operator:admin")]
         dash.goto(f"{live.base_url}/#/robots")
         dash.get_by_test_id("register-name").fill("made-by-the-dashboard")
