@@ -25,8 +25,9 @@ from shared.cli.mapping import MapRun, Source, map_scans
 from shared.metrics import absolute_trajectory_error, line_accuracy
 from shared.pipeline import PipelineConfig
 from shared.sim.worlds import KINDS, QUICK_KINDS, CaseRun, simulate_case
+from shared.types import FloatArray
 
-__all__ = ["QUICK_MAX_SCANS", "WorldResult", "run_case", "run_worlds", "summarize"]
+__all__ = ["QUICK_MAX_SCANS", "WorldResult", "measure_map", "run_case", "run_worlds", "summarize"]
 
 #: ``--quick`` maps at most this many scans per case.
 QUICK_MAX_SCANS = 150
@@ -62,44 +63,44 @@ class WorldResult:
         return {**asdict(self), "wall_ratio": self.wall_ratio}
 
 
-def run_case(case: CaseRun, config: PipelineConfig | None = None) -> tuple[WorldResult, MapRun]:
-    """Map ``case`` offline and measure the map; returns the figures and the mapping run."""
+def measure_map(case: CaseRun, segments: FloatArray, trajectory: FloatArray) -> dict[str, float | int]:
+    """The accuracy figures of a map of ``case``: ``segments`` ``(L, 4)`` and the robot ``trajectory``
+    ``(T, 4)`` rows ``[stamp_s, x_m, y_m, theta_rad]`` (NaN trajectory error unless T is the run's N)."""
     run = case.run
-    source = Source(
-        f"{case.kind} seed {case.seed}",
-        run.scans,
-        run.drive.laser_offset,
-        len(run),
-        run.world,
-        run.trajectory(),
-    )
-    mapped = map_scans(source, config or PipelineConfig())
-    snap = mapped.snapshot
-    acc = line_accuracy(snap.segments, run.world.walls)
-    seen = line_accuracy(snap.segments, case.seen_walls) if len(case.seen_walls) else None
+    acc = line_accuracy(segments, run.world.walls)
+    seen = line_accuracy(segments, case.seen_walls) if len(case.seen_walls) else None
     truth = run.trajectory("true")[:, 1:]
-    ate = (
-        absolute_trajectory_error(snap.trajectory[:, 1:], truth).rmse_m
-        if len(snap.trajectory) == len(truth)
-        else math.nan
-    )
-    odo = absolute_trajectory_error(run.trajectory("odometry")[:, 1:], truth).rmse_m
+    traj = np.asarray(trajectory, dtype=np.float64).reshape(-1, 4)
+    ate = absolute_trajectory_error(traj[:, 1:], truth).rmse_m if len(traj) == len(truth) else math.nan
+    return {
+        "mean_error_m": acc.mean_distance_m,
+        "p95_error_m": acc.p95_distance_m,
+        "completeness": seen.completeness if seen is not None else math.nan,
+        "spurious_share": acc.spurious_share,
+        "walls_mapped": acc.n_segments,
+        "walls_seen": case.walls_seen,
+        "ate_m": ate,
+        "odometry_ate_m": absolute_trajectory_error(run.trajectory("odometry")[:, 1:], truth).rmse_m,
+    }
+
+
+def run_case(case: CaseRun, config: PipelineConfig | None = None) -> tuple[WorldResult, MapRun]:
+    """Map ``case`` offline (as ``linemap map`` does) and measure the map with :func:`measure_map`;
+    returns the figures and the mapping run."""
+    run = case.run
+    name = f"{case.kind} seed {case.seed}"
+    source = Source(name, run.scans, run.drive.laser_offset, len(run), run.world, run.trajectory())
+    mapped = map_scans(source, config or PipelineConfig())
+    figures = measure_map(case, mapped.snapshot.segments, mapped.snapshot.trajectory)
     result = WorldResult(
         kind=case.kind,
         seed=case.seed,
         odometry=case.odometry,
         drive=case.drive,
         scans=mapped.scans,
-        mean_error_m=acc.mean_distance_m,
-        p95_error_m=acc.p95_distance_m,
-        completeness=seen.completeness if seen is not None else math.nan,
-        spurious_share=acc.spurious_share,
-        walls_mapped=acc.n_segments,
-        walls_seen=case.walls_seen,
-        ate_m=ate,
-        odometry_ate_m=odo,
         scans_per_s=mapped.scans_per_s,
         step_median_ms=mapped.step_median_ms,
+        **figures,  # type: ignore[arg-type]
     )
     return result, mapped
 
@@ -144,9 +145,15 @@ def run_worlds(
     return results
 
 
-def _nanmean(values: list[float]) -> float:
+def _nan(reduce: Callable[[FloatArray], float], values: list[float]) -> float:
+    """``reduce`` over the finite ``values`` (NaN if there is none)."""
     arr = np.array(values, dtype=np.float64)
-    return float(np.nanmean(arr)) if np.any(np.isfinite(arr)) else math.nan
+    arr = arr[np.isfinite(arr)]
+    return float(reduce(arr)) if len(arr) else math.nan
+
+
+def _nanmean(values: list[float]) -> float:
+    return _nan(np.mean, values)
 
 
 def summarize(results: Sequence[WorldResult]) -> dict[str, float | int]:
@@ -163,12 +170,12 @@ def summarize(results: Sequence[WorldResult]) -> dict[str, float | int]:
         "cases": len(rs),
         "scans": sum(r.scans for r in rs),
         "mean_error_m": _nanmean([r.mean_error_m for r in rs]),
-        "worst_mean_error_m": float(np.nanmax([r.mean_error_m for r in rs])),
+        "worst_mean_error_m": _nan(np.max, [r.mean_error_m for r in rs]),
         "p95_error_m": _nanmean([r.p95_error_m for r in rs]),
         "completeness": _nanmean([r.completeness for r in rs]),
-        "worst_completeness": float(np.nanmin([r.completeness for r in rs])),
+        "worst_completeness": _nan(np.min, [r.completeness for r in rs]),
         "spurious_share": _nanmean([r.spurious_share for r in rs]),
-        "worst_spurious_share": float(np.nanmax([r.spurious_share for r in rs])),
+        "worst_spurious_share": _nan(np.max, [r.spurious_share for r in rs]),
         "wall_ratio": _nanmean([r.wall_ratio for r in rs]),
         "ate_m": _nanmean([r.ate_m for r in rs]),
         "odometry_ate_m": _nanmean([r.odometry_ate_m for r in rs]),

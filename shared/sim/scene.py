@@ -268,9 +268,10 @@ def simulate_scene_scan(
         lo = scene_raycast(scene, origin, angles - quarter, t_s).range_m
         hi = scene_raycast(scene, origin, angles + quarter, t_s).range_m
         near, far = np.minimum(lo, hi), np.maximum(lo, hi)
-        edge = np.isfinite(far) & (far - near > scene.mixed_pixel_jump_m)
+        jump = np.where(np.isfinite(far), far - np.where(np.isfinite(near), near, far), 0.0)
+        edge = jump > scene.mixed_pixel_jump_m
         mixed = edge & (rng.random(true.shape) < scene.mixed_pixel_rate)
-        between = near + rng.random(true.shape) * np.where(edge, far - near, 0.0)
+        between = near + rng.random(true.shape) * np.where(edge, jump, 0.0)
         ranges = np.where(mixed, between, ranges)
     window = (ranges >= geometry.range_min_m) & (ranges <= geometry.range_max_m)
     ranges = np.where(window, ranges, np.nan)
