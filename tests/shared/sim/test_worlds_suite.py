@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -166,3 +168,9 @@ def test_unknown_names_are_clear_errors() -> None:
         simulate_case("corridor-long", 0, odometry="teleport")
     with pytest.raises(InvalidInputError, match="seed"):
         simulate_case("corridor-long", -1)
+
+
+def test_the_docs_describe_every_kind() -> None:
+    text = (Path(__file__).resolve().parents[3] / "docs" / "worlds.md").read_text(encoding="utf-8")
+    for kind in KINDS.values():
+        assert f"| `{kind.name}` |" in text and f"| {kind.odometry} | {kind.drive} |" in text
