@@ -18,6 +18,7 @@ from server.cli import server_app
 from shared.cli.demo import demo_cmd
 from shared.cli.keys import keys_app
 from shared.cli.report import report_cmd
+from shared.cli.worlds import bench_worlds_cmd
 from shared.errors import LinemapError
 
 __all__ = ["app"]
@@ -31,6 +32,7 @@ app = typer.Typer(
 )
 bench_app = typer.Typer(help="Benchmarks (figures, not tests).", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
+bench_app.command("worlds")(bench_worlds_cmd)
 app.add_typer(keys_app, name="keys")
 app.add_typer(server_app, name="server")
 app.command("agent")(agent_cmd)

@@ -8,6 +8,7 @@ from shared.metrics.errors import MapLeakError, MetricError, MetricInputError, R
 from shared.metrics.lines import LineAccuracy, line_accuracy
 from shared.metrics.relations import RelationError, relation_error
 from shared.metrics.relations_io import Relations, parse_relations, read_relations
+from shared.metrics.trajectory import TrajectoryError, absolute_trajectory_error
 
 __all__ = [
     "EnclosedArea",
@@ -18,6 +19,8 @@ __all__ = [
     "RelationError",
     "Relations",
     "RelationsFormatError",
+    "TrajectoryError",
+    "absolute_trajectory_error",
     "area_error_pct",
     "enclosed_area",
     "line_accuracy",

@@ -1,0 +1,222 @@
+"""``linemap bench worlds``: run the scenario suite (issue 19) and print its table, per world and seed."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from shared.bench.worlds import WorldResult, summarize
+from shared.errors import LinemapError
+
+__all__ = ["COLUMNS", "bench_worlds_cmd", "worlds_markdown", "worlds_rows", "worlds_table"]
+
+#: The table's columns (header, right-aligned).
+COLUMNS = (
+    ("world", False),
+    ("seed", True),
+    ("odometry", False),
+    ("drive", False),
+    ("scans", True),
+    ("mean cm", True),
+    ("p95 cm", True),
+    ("complete %", True),
+    ("spurious %", True),
+    ("walls / seen", True),
+    ("ATE m", True),
+    ("odometry ATE m", True),
+    ("scans/s", True),
+)
+
+
+def _f(value: float, scale: float = 1.0, digits: int = 1) -> str:
+    return "n/a" if not math.isfinite(value) else f"{value * scale:.{digits}f}"
+
+
+def worlds_rows(results: Sequence[WorldResult]) -> list[list[str]]:
+    """The table's rows as text: one per case, then the summary row (means; walls as the mean ratio)."""
+    rows = [
+        [
+            r.kind,
+            str(r.seed),
+            r.odometry,
+            r.drive,
+            f"{r.scans:,}",
+            _f(r.mean_error_m, 100, 2),
+            _f(r.p95_error_m, 100, 2),
+            _f(r.completeness, 100),
+            _f(r.spurious_share, 100),
+            f"{r.walls_mapped} / {r.walls_seen}",
+            _f(r.ate_m, 1, 3),
+            _f(r.odometry_ate_m, 1, 3),
+            f"{r.scans_per_s:,.0f}",
+        ]
+        for r in results
+    ]
+    s = summarize(results)
+    if results:
+        rows.append(
+            [
+                f"summary ({s['cases']} cases, {s['cases_meeting_targets']} on target)",
+                "",
+                "",
+                "",
+                f"{s['scans']:,}",
+                _f(s["mean_error_m"], 100, 2),
+                _f(s["p95_error_m"], 100, 2),
+                _f(s["completeness"], 100),
+                _f(s["spurious_share"], 100),
+                f"{_f(s['wall_ratio'], 1, 2)}x",
+                _f(s["ate_m"], 1, 3),
+                _f(s["odometry_ate_m"], 1, 3),
+                f"{s['scans_per_s']:,.0f}",
+            ]
+        )
+    return rows
+
+
+def worlds_table(results: Sequence[WorldResult]) -> Table:
+    """The suite's figures as a rich table."""
+    table = Table(
+        title="scenario suite: map against ground truth (targets: <= 2 cm, >= 95 %, <= 3 %, <= 1.5x)"
+    )
+    for name, right in COLUMNS:
+        table.add_column(name, justify="right" if right else "left")
+    rows = worlds_rows(results)
+    for i, row in enumerate(rows):
+        table.add_row(*row, end_section=i == len(rows) - 2)
+    return table
+
+
+def worlds_markdown(results: Sequence[WorldResult]) -> str:
+    """The suite's figures as a Markdown table."""
+    head = "| " + " | ".join(name for name, _ in COLUMNS) + " |"
+    rule = "|" + "|".join("---:" if right else "---" for _, right in COLUMNS) + "|"
+    body = ["| " + " | ".join(row) + " |" for row in worlds_rows(results)]
+    return "\n".join([head, rule, *body]) + "\n"
+
+
+def _finite(value: object) -> object:
+    """``value`` with every NaN or infinity replaced by ``None`` (JSON has no NaN)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    try:
+        seeds = tuple(int(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise LinemapError(f"--seeds {text!r}: expected comma-separated integers, e.g. 0,1,2") from None
+    if not seeds or any(s < 0 for s in seeds):
+        raise LinemapError(f"--seeds {text!r}: expected one or more non-negative integers")
+    return seeds
+
+
+def _kinds(text: str | None) -> list[str] | None:
+    from shared.sim.worlds import KINDS
+
+    if text is None:
+        return None
+    names = [k.strip() for k in text.split(",") if k.strip()]
+    unknown = [k for k in names if k not in KINDS]
+    if unknown or not names:
+        raise LinemapError(
+            f"--worlds {text!r}: unknown {unknown or 'empty'}; expected some of {', '.join(KINDS)}"
+        )
+    return names
+
+
+def bench_worlds_cmd(
+    worlds: Annotated[
+        str | None, typer.Option("--worlds", help="World kinds, comma-separated (default: all; see --list).")
+    ] = None,
+    seeds: Annotated[str, typer.Option(help="Seeds, comma-separated.")] = "0,1,2",
+    quick: Annotated[
+        bool, typer.Option("--quick", help="A small subset: 3 kinds, seed 0 only, 150 scans each.")
+    ] = False,
+    odometry: Annotated[
+        str | None, typer.Option(help="Odometry model for every world: perfect, slip, worn or bursts.")
+    ] = None,
+    drive: Annotated[
+        str | None, typer.Option(help="Driving pattern for every world: single, out-back, laps.")
+    ] = None,
+    json_path: Annotated[
+        Path | None, typer.Option("--json", help="Also write the figures to this JSON file.")
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Folder for one PNG per case (map over truth).")
+    ] = None,
+    markdown: Annotated[bool, typer.Option("--markdown", help="Print a Markdown table instead.")] = False,
+    list_kinds: Annotated[bool, typer.Option("--list", help="List the world kinds and exit.")] = False,
+) -> None:
+    """Map every world of the scenario suite (issue 19) offline and print, per world and seed, wall error,
+    completeness, spurious share, wall count, trajectory error beside odometry's, and throughput."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from shared.bench.worlds import run_worlds
+    from shared.sim.worlds import KINDS
+
+    console = Console(width=None if sys.stdout.isatty() else 200)
+    err = Console(stderr=True)
+    if list_kinds:
+        table = Table(title="world kinds of the scenario suite")
+        for col in ("kind", "odometry", "drive", "what"):
+            table.add_column(col)
+        for k in KINDS.values():
+            table.add_row(k.name, k.odometry, k.drive, k.summary)
+        console.print(table)
+        return
+    try:
+        kinds = _kinds(worlds)
+        seed_list = (0,) if quick and seeds == "0,1,2" else _seeds(seeds)
+        if json_path is not None and not json_path.resolve().parent.is_dir():
+            raise LinemapError(f"cannot write {json_path}: folder {json_path.parent} does not exist")
+        columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()]
+        with Progress(*columns, console=err, transient=True) as progress:
+            task = progress.add_task("simulating", total=None)
+
+            def note(label: str, done: int, total: int) -> None:
+                progress.update(task, description=f"mapping {label}", completed=done, total=total)
+
+            results = run_worlds(
+                kinds, seed_list, quick=quick, odometry=odometry, drive=drive, pictures=out, progress=note
+            )
+        if json_path is not None:
+            data = {
+                "settings": {
+                    "worlds": kinds or "all",
+                    "seeds": list(seed_list),
+                    "quick": quick,
+                    "odometry": odometry,
+                    "drive": drive,
+                },
+                "results": [r.as_dict() for r in results],
+                "summary": summarize(results),
+            }
+            try:
+                json_path.write_text(json.dumps(_finite(data), indent=2) + "\n", encoding="utf-8")
+            except OSError as exc:
+                raise LinemapError(f"cannot write {json_path}: {exc.strerror}") from None
+    except LinemapError as exc:
+        err.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from None
+    if markdown:
+        typer.echo(worlds_markdown(results), nl=False)
+    else:
+        console.print(worlds_table(results))
+    if json_path is not None:
+        err.print(f"figures written to {json_path}")
+    if out is not None:
+        err.print(f"pictures written to {out}")
