@@ -10,13 +10,14 @@ import typer
 
 from shared.errors import LinemapError
 
-__all__ = ["DEFAULT_DATA", "report_cmd"]
+__all__ = ["DEFAULT_DATA", "parse_seeds", "report_cmd"]
 
 #: The benchmark logs beside a checkout of the project (``../shared/data``), unless LINEMAP_DATA says.
 DEFAULT_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
-def _seeds(text: str) -> tuple[int, ...]:
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """Seeds from a `--seeds` option: comma-separated non-negative integers ("0,1,2")."""
     try:
         seeds = tuple(int(s) for s in text.split(",") if s.strip())
     except ValueError:
@@ -49,7 +50,10 @@ def report_cmd(
     folder = data or Path(os.environ.get("LINEMAP_DATA", DEFAULT_DATA))
     if data is not None and not data.is_dir():
         raise LinemapError(f"--data {data}: no such folder (expected the SLAM benchmark logs)")
-    settings = ReportSettings.quick_run(folder) if quick else ReportSettings(seeds=_seeds(seeds), data=folder)
+    if quick:
+        settings = ReportSettings.quick_run(folder)
+    else:
+        settings = ReportSettings(seeds=parse_seeds(seeds), data=folder)
     if not folder.is_dir():
         typer.echo(f"note: no benchmark logs at {folder}: the relation-error section is left out", err=True)
     console = Console(stderr=True)

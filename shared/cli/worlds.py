@@ -14,6 +14,7 @@ from rich.console import Console
 from rich.table import Table
 
 from shared.bench.worlds import WorldResult, summarize
+from shared.cli.report import parse_seeds
 from shared.errors import LinemapError
 
 __all__ = ["COLUMNS", "bench_worlds_cmd", "worlds_markdown", "worlds_rows", "worlds_table"]
@@ -114,16 +115,6 @@ def _finite(value: object) -> object:
     return value
 
 
-def _seeds(text: str) -> tuple[int, ...]:
-    try:
-        seeds = tuple(int(s) for s in text.split(",") if s.strip())
-    except ValueError:
-        raise LinemapError(f"--seeds {text!r}: expected comma-separated integers, e.g. 0,1,2") from None
-    if not seeds or any(s < 0 for s in seeds):
-        raise LinemapError(f"--seeds {text!r}: expected one or more non-negative integers")
-    return seeds
-
-
 def _kinds(text: str | None) -> list[str] | None:
     from shared.sim.worlds import KINDS
 
@@ -180,7 +171,7 @@ def bench_worlds_cmd(
         return
     try:
         kinds = _kinds(worlds)
-        seed_list = (0,) if quick and seeds == "0,1,2" else _seeds(seeds)
+        seed_list = (0,) if quick and seeds == "0,1,2" else parse_seeds(seeds)
         if json_path is not None and not json_path.resolve().parent.is_dir():
             raise LinemapError(f"cannot write {json_path}: folder {json_path.parent} does not exist")
         columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()]

@@ -9,7 +9,7 @@ import numpy as np
 from shared.sim.world import World
 from shared.types import URG04LX, BeamGeometry, FloatArray, Pose2D, Scan
 
-__all__ = ["RangeNoise", "raycast", "simulate_scan"]
+__all__ = ["RangeNoise", "ray_wall_hits", "raycast", "simulate_scan"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -36,6 +36,16 @@ def raycast(walls: FloatArray, origin_xy: tuple[float, float], angles_rad: Float
 
     Vectorised segment-ray intersection, O(beams x walls).
     """
+    dist, _u = ray_wall_hits(walls, origin_xy, angles_rad)
+    return np.asarray(dist.min(axis=1))
+
+
+def ray_wall_hits(
+    walls: FloatArray, origin_xy: tuple[float, float], angles_rad: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Distance ``(B, W)`` from ``origin_xy`` along each world-frame angle to each wall (inf where the ray
+    misses it) and where along the wall it hits (``u`` in 0..1 from its first end point). O(beams x walls).
+    """
     ox, oy = origin_xy
     dx, dy = np.cos(angles_rad)[:, None], np.sin(angles_rad)[:, None]
     ax, ay = walls[:, 0] - ox, walls[:, 1] - oy
@@ -45,8 +55,7 @@ def raycast(walls: FloatArray, origin_xy: tuple[float, float], angles_rad: Float
         t = (ax * ey - ay * ex) / denom
         u = (ax * dy - ay * dx) / denom
     hit = (np.abs(denom) > 1e-12) & (t > 0.0) & (u >= 0.0) & (u <= 1.0)
-    dist = np.where(hit, t, np.inf)
-    return np.asarray(dist.min(axis=1))
+    return np.where(hit, t, np.inf), u
 
 
 def simulate_scan(

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from shared.errors import InvalidInputError
-from shared.sim.scans import RangeNoise
+from shared.sim.scans import RangeNoise, ray_wall_hits
 from shared.sim.world import World
 from shared.types import URG04LX, BeamGeometry, FloatArray, IntArray, Pose2D, Scan
 
@@ -171,19 +171,6 @@ class Hits:
     person: FloatArray
 
 
-def _ray_walls(walls: FloatArray, ox: float, oy: float, angles: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Distance ``(B, W)`` along each ray to each wall (inf where missed) and the hit's place ``u``."""
-    dx, dy = np.cos(angles)[:, None], np.sin(angles)[:, None]
-    ax, ay = walls[:, 0] - ox, walls[:, 1] - oy
-    ex, ey = walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1]
-    denom = dx * ey - dy * ex
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ax * ey - ay * ex) / denom
-        u = (ax * dy - ay * dx) / denom
-    hit = (np.abs(denom) > 1e-12) & (t > 0.0) & (u >= 0.0) & (u <= 1.0)
-    return np.where(hit, t, np.inf), u
-
-
 def _ray_circles(centres: FloatArray, radius: float, ox: float, oy: float, angles: FloatArray) -> FloatArray:
     """Distance ``(B,)`` along each ray to the nearest circle (inf where missed; circles round the origin
     are ignored)."""
@@ -211,7 +198,7 @@ def scene_raycast(scene: Scene, origin_xy: tuple[float, float], angles_rad: Arra
     ox, oy = origin_xy
     live = scene.present(t_s) & (scene.surface != GLASS)
     idx = np.flatnonzero(live)
-    dist, u = _ray_walls(scene.walls[idx], ox, oy, angles)
+    dist, u = ray_wall_hits(scene.walls[idx], (ox, oy), angles)
     if len(idx):
         k = dist.argmin(axis=1)
         rows = np.arange(len(angles))
