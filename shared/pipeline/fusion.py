@@ -188,7 +188,9 @@ def fuse_gated(
     Odometry's term is robust (Huber): when the match lies farther than ``odom_huber`` standard deviations
     from it (Mahalanobis distance under the sum of odometry's and the scan's covariance, so only what the
     scan constrains counts: a wheel slipping in a turn, a stalled encoder stream), its information is
-    scaled down by ``(odom_huber / distance)^2``."""
+    scaled down by ``(odom_huber / distance)^2``. A fused pose whose heading is farther from the match's than
+    the gate's ``max_correction_rad`` (Gauss-Newton converged elsewhere: a scan fixes the heading well
+    everywhere, corridors included) is not taken."""
     if not gate.fuse_odometry:
         return matched
     info = odometry_information(
@@ -215,4 +217,8 @@ def fuse_gated(
     if m2 > gate.odom_huber**2:
         info = info * (gate.odom_huber**2 / m2)
     fused = fuse_with_odometry(reference, current, odometry, odometry, info, sigma_m=gate.match_sigma_m)
-    return matched if fused is None else fused.pose
+    if fused is None:
+        return matched
+    if abs(math.remainder(fused.pose.theta_rad - matched.theta_rad, math.tau)) > gate.max_correction_rad:
+        return matched  # Gauss-Newton fell into another basin: scans fix the heading, it must agree
+    return fused.pose
