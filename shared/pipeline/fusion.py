@@ -35,7 +35,7 @@ from shared.kernels.matching._local_lines import _local_lines
 from shared.pipeline.gate import IcpGate
 from shared.types import FloatArray, Pose2D
 
-__all__ = ["Fused", "fuse_gated", "fuse_with_odometry", "odometry_information"]
+__all__ = ["Fused", "fuse_gated", "fuse_with_odometry", "odometry_information", "wheel_prior"]
 
 #: local reference lines as point-to-line ICP fits them (radius m, most neighbours a side, ABD angle rad,
 #: range noise m, straightness ratio)
@@ -222,3 +222,20 @@ def fuse_gated(
     if abs(math.remainder(fused.pose.theta_rad - matched.theta_rad, math.tau)) > gate.max_correction_rad:
         return matched  # Gauss-Newton fell into another basin: scans fix the heading, it must agree
     return fused.pose
+
+
+def wheel_prior(gate: IcpGate, scanner: Pose2D, motion: Pose2D) -> tuple[Pose2D | None, FloatArray | None]:
+    """The odometry-predicted ``scanner`` pose and its information for the wall refinement
+    (:func:`shared.pipeline.localize.refine_to_walls`), scaled to its residuals' variance
+    (``match_sigma_m``): odometry's noise over one step's ``motion``. ``(None, None)`` unless
+    ``refine_with_odometry``."""
+    if not gate.refine_with_odometry:
+        return None, None
+    info = odometry_information(
+        motion,
+        sigma_m=gate.odom_sigma_m,
+        sigma_ratio=gate.odom_sigma_ratio,
+        sigma_rad=gate.odom_sigma_rad,
+        sigma_rad_per_rad=gate.odom_sigma_rad_per_rad,
+    )
+    return scanner, info * gate.match_sigma_m**2

@@ -58,11 +58,16 @@ class IcpGate:
     fused with the odometry motion since the keyframe by their information
     (:mod:`shared.pipeline.fusion`): odometry's standard deviations ``odom_sigma_m + odom_sigma_ratio x
     distance`` and ``odom_sigma_rad + odom_sigma_rad_per_rad x turn``, the scan's ``match_sigma_m`` per
-    point-to-line residual; odometry farther than ``odom_huber`` of its standard deviations from the match
-    counts less (:func:`shared.pipeline.fusion.fuse_gated`). Off by default: it keeps a simulated corridor
+    point-to-line residual. With ``refine_with_odometry`` the wall refinement's directions that the walls
+    barely constrain (``refine_degeneracy``) move towards the odometry prediction by its share of the
+    information along them, under the same noise figures, instead of keeping the scan match's value
+    (:func:`shared.pipeline.localize.refine_to_walls`; not after a second-chance match). In the scan
+    match, odometry farther than ``odom_huber`` of its standard deviations from the match counts less
+    (:func:`shared.pipeline.fusion.fuse_gated`). Both are off by default: they keep a simulated corridor
     beyond the range from shrinking (0.79 m short over 19 m -> 4 cm) and the demo's patrol at 1-2 cm of pose
-    error, but on the benchmark logs it moved the relation error up (ACES 0.165 -> 0.17-0.21, MIT CSAIL
-    0.084 -> 0.13, Freiburg 079 once to 0.56; issue 19), so real odometry needs a better noise model first.
+    error, but on the benchmark logs neither holds on all three (issue 19; fused: ACES 0.151, Freiburg 079
+    0.078, MIT CSAIL 0.158; refinement only: 0.148, 0.075, 0.056; today's 0.165, 0.048, 0.084), so real
+    odometry needs a better noise model first.
     """
 
     min_inlier_ratio: float = 0.5
@@ -90,6 +95,7 @@ class IcpGate:
     search_m: float = 0.2
     constant_velocity: bool = True
     fuse_odometry: bool = False
+    refine_with_odometry: bool = False
     odom_sigma_m: float = 0.01
     odom_sigma_ratio: float = 0.05
     odom_sigma_rad: float = 0.01

@@ -27,7 +27,7 @@ import numpy as np
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Stage
 from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
-from shared.pipeline.fusion import fuse_gated
+from shared.pipeline.fusion import fuse_gated, wheel_prior
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.regroup import regroup
@@ -83,8 +83,8 @@ class Pipeline:
         # shown. It is local: two maps restart in turn every `local_map_steps` steps or `local_map_m`
         # metres of travel, and the older one is matched against, so old, drifted walls of a loop never
         # pull the pose.
-        self._merge = merge
-        self._loc_maps = [WallMap(merge), WallMap(merge)]
+        self._merge = replace(merge or MergeTolerances(), short_by_band=False)
+        self._loc_maps = [WallMap(self._merge), WallMap(self._merge)]
         self.local_map_restarts = 0
         self._since_steps = 0
         self._since_m = 0.0
@@ -170,6 +170,7 @@ class Pipeline:
         predicted = self._pose @ delta
         self._prev_odom = odom
         icp_used = False
+        plain = odom is not None  # odometry not found wrong this step (no second-chance match)
         matchers = self._kernels[Stage.SCAN_MATCHING]
         key_pose, key_points = self._key_pose, self._key_points
         if (
@@ -201,7 +202,7 @@ class Pipeline:
                 starts = [self._to_laser(key_pose, self._pose @ self._last_motion)] if steady else []
                 second = rematch(matchers[0], key_points, points, guess, match, g, starts)
                 if second is not None:
-                    match, trusted = second, True
+                    match, trusted, plain = second, True, False
                     self.rematches += 1
             if trusted:
                 predicted = key_pose @ self._offset @ match.pose @ self._offset.inverse()
@@ -213,7 +214,15 @@ class Pipeline:
             g = self._gate
             near = points[np.einsum("ij,ij->i", points, points) <= g.refine_range_m**2]
             scanner = predicted @ self._offset
-            fit = refine_to_walls(near, scanner, local.segments(), degeneracy_ratio=g.refine_degeneracy)
+            prior, info = wheel_prior(g, self._pose @ delta @ self._offset, delta) if plain else (None, None)
+            fit = refine_to_walls(
+                near,
+                scanner,
+                local.segments(),
+                degeneracy_ratio=g.refine_degeneracy,
+                prior=prior,
+                prior_information=info,
+            )
             if fit is not None and fit.matched >= g.refine_min_share * len(near):
                 corr = scanner.between(fit.pose)
                 if self._plausible(corr, delta):
