@@ -65,9 +65,9 @@ class IcpGate:
     match, odometry farther than ``odom_huber`` of its standard deviations from the match counts less
     (:func:`shared.pipeline.fusion.fuse_gated`). Both are off by default: they keep a simulated corridor
     beyond the range from shrinking (0.79 m short over 19 m -> 4 cm) and the demo's patrol at 1-2 cm of pose
-    error, but on the benchmark logs neither holds on all three (issue 19; fused: ACES 0.151, Freiburg 079
-    0.078, MIT CSAIL 0.158; refinement only: 0.148, 0.075, 0.056; today's 0.165, 0.048, 0.084), so real
-    odometry needs a better noise model first.
+    error, but on the benchmark logs neither holds on all three (issue 19; scan match fused: ACES 0.168,
+    Freiburg 079 0.060, MIT CSAIL 0.131; refinement only: 0.148, 0.075, 0.056; both: 0.151, 0.078, 0.158;
+    today's 0.165, 0.048, 0.084), so real odometry needs a better noise model first.
     """
 
     min_inlier_ratio: float = 0.5
