@@ -227,8 +227,9 @@ def fuse_gated(
 def wheel_prior(gate: IcpGate, scanner: Pose2D, motion: Pose2D) -> tuple[Pose2D | None, FloatArray | None]:
     """The odometry-predicted ``scanner`` pose and its information for the wall refinement
     (:func:`shared.pipeline.localize.refine_to_walls`), scaled to its residuals' variance
-    (``match_sigma_m``): odometry's noise over one step's ``motion``. ``(None, None)`` unless
-    ``refine_with_odometry``."""
+    (``match_sigma_m``): odometry's noise over one step's ``motion``, for the translation only (a heading
+    prior moved Freiburg 079's relation error from 0.054 to 0.075 m and ACES's from 0.129 to 0.148 m).
+    ``(None, None)`` unless ``refine_with_odometry``."""
     if not gate.refine_with_odometry:
         return None, None
     info = odometry_information(
@@ -238,4 +239,5 @@ def wheel_prior(gate: IcpGate, scanner: Pose2D, motion: Pose2D) -> tuple[Pose2D 
         sigma_rad=gate.odom_sigma_rad,
         sigma_rad_per_rad=gate.odom_sigma_rad_per_rad,
     )
+    info[2, 2] = 0.0  # translation only: the walls fix the heading wherever they fix anything
     return scanner, info * gate.match_sigma_m**2

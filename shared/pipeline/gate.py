@@ -60,14 +60,14 @@ class IcpGate:
     distance`` and ``odom_sigma_rad + odom_sigma_rad_per_rad x turn``, the scan's ``match_sigma_m`` per
     point-to-line residual. With ``refine_with_odometry`` the wall refinement's directions that the walls
     barely constrain (``refine_degeneracy``) move towards the odometry prediction by its share of the
-    information along them, under the same noise figures, instead of keeping the scan match's value
-    (:func:`shared.pipeline.localize.refine_to_walls`; not after a second-chance match). In the scan
-    match, odometry farther than ``odom_huber`` of its standard deviations from the match counts less
+    information along them, under the same noise figures (translation only), instead of keeping the scan
+    match's value (:func:`shared.pipeline.localize.refine_to_walls`; not after a second-chance match). In
+    the scan match, odometry farther than ``odom_huber`` of its standard deviations from the match counts less
     (:func:`shared.pipeline.fusion.fuse_gated`). Both are off by default: they keep a simulated corridor
     beyond the range from shrinking (0.79 m short over 19 m -> 4 cm) and the demo's patrol at 1-2 cm of pose
     error, but on the benchmark logs neither holds on all three (issue 19; scan match fused: ACES 0.168,
-    Freiburg 079 0.060, MIT CSAIL 0.131; refinement only: 0.148, 0.075, 0.056; both: 0.151, 0.078, 0.158;
-    today's 0.165, 0.048, 0.084), so real odometry needs a better noise model first.
+    Freiburg 079 0.060, MIT CSAIL 0.131; refinement only (translation prior): 0.129, 0.054,
+    0.051; today's 0.165, 0.048, 0.084), so real odometry needs a better noise model first.
     """
 
     min_inlier_ratio: float = 0.5

@@ -114,3 +114,12 @@ def test_a_corridor_beyond_the_range_follows_odometry_without_shrinking() -> Non
     # (without fusion: 0.79 m short at the end)
     assert abs(err[-1, 0]) < 0.05 and np.abs(err[:, 0]).mean() < 0.04
     assert np.abs(err[:, 1]).max() < 0.02
+
+
+def test_the_wall_refinement_prior_alone_keeps_most_of_the_corridor() -> None:
+    world = corridor(20.0)
+    plain = along_track_errors(world, gate=IcpGate(), slip=NO_SLIP)
+    refined = along_track_errors(world, gate=IcpGate(refine_with_odometry=True), slip=NO_SLIP)
+    # the plain pipeline comes out metres short (point-to-point ICP under-estimates the motion along it)
+    assert plain[-1, 0] < -1.0
+    assert abs(refined[-1, 0]) < 0.2 * abs(plain[-1, 0])
