@@ -40,7 +40,7 @@ from robot_agent.link import DEFAULT_MAX_RETRY_AFTER_S, ServerLink
 from robot_agent.models import KernelRecord
 from robot_agent.poller import Poller
 from robot_agent.recover import repair_config
-from robot_agent.sources import is_live, open_scans
+from robot_agent.sources import is_live, laser_offset, open_scans
 from robot_agent.store import RobotDB, StepRecord
 from robot_agent.supervise import Supervised, run_supervised, supervise
 from robot_agent.uploader import Uploader
@@ -49,7 +49,7 @@ from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Kernel, Stage
 from shared.pipeline import Pipeline, PipelineConfig
 from shared.signing import load_public_key
-from shared.types import Scan
+from shared.types import Pose2D, Scan
 
 __all__ = ["Agent", "AgentSettings"]
 
@@ -89,6 +89,7 @@ class AgentSettings:
     stop_grace_s: float = 10.0  # after a stop, the uploader keeps retrying this long to empty the outbox
     max_retry_after_s: float = DEFAULT_MAX_RETRY_AFTER_S  # a longer Retry-After is capped to this
     error_clear_s: float = 60.0  # last_error is cleared after this long without a new one (health.py)
+    laser_offset: Pose2D | None = None  # scanner pose in the robot frame; None: the source's own (sources.py)
 
 
 class Agent:
@@ -123,7 +124,8 @@ class Agent:
         self._wake_uploader = threading.Event()
         self._mapping_over = threading.Event()  # set once the mapping thread recorded its last step
         self._stepped: tuple[int, float] = (0, 0.0)
-        self.pipeline = Pipeline(self._initial_config())
+        offset = settings.laser_offset if settings.laser_offset is not None else laser_offset(settings.source)
+        self.pipeline = Pipeline(self._initial_config(), laser_offset=offset)
         self._prev_walls: dict[int, tuple[float, float, float, float]] = {}
         stored = self.db.walls()
         self._id_offset = int(max((w[0] for w in stored), default=-1)) + 1

@@ -24,9 +24,9 @@ from pathlib import Path
 
 from robot_agent.errors import SourceError
 from shared.errors import LinemapError
-from shared.types import Scan
+from shared.types import Pose2D, Scan
 
-__all__ = ["default_rate_hz", "is_live", "open_scans"]
+__all__ = ["default_rate_hz", "is_live", "laser_offset", "open_scans"]
 
 
 def is_live(spec: str) -> bool:
@@ -37,6 +37,29 @@ def is_live(spec: str) -> bool:
 def default_rate_hz(spec: str) -> float:
     """The pace a source runs at unless told otherwise: the URG-04LX's 10 Hz."""
     return 10.0
+
+
+def laser_offset(spec: str) -> Pose2D:
+    """The scanner's pose in the robot frame for the scans of ``spec`` (m, rad): the simulated robot's
+    (:data:`shared.odometry.MINES_ROVER`, which :func:`shared.sim.simulate_run` drives), a log's own (its
+    header, as ``linemap map`` reads it), identity for a live sensor (the robot's configuration gives it).
+
+    The pipeline needs it: odometry is the robot's motion, the scan the scanner's; with the scanner 0.145 m
+    ahead of the axle and no offset, every turn in place moves the scanner along an arc the pose does not
+    follow, and the walls seen on the way out and on the way back land 10-30 cm apart (issue 19)."""
+    if spec == "sim" or spec.startswith("sim:"):
+        from shared.odometry import MINES_ROVER
+
+        return MINES_ROVER.laser_offset
+    if is_live(spec) or not Path(spec).exists():
+        return Pose2D()
+    from shared.io import open_log
+
+    try:
+        with open_log(Path(spec), None) as reader:
+            return reader.info.laser_offset
+    except LinemapError as exc:
+        raise SourceError(f"source {spec!r}: {exc}") from None
 
 
 def open_scans(

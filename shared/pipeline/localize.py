@@ -68,12 +68,20 @@ def _nearest_wall(points: FloatArray, walls: FloatArray) -> tuple[FloatArray, Fl
 
 
 def _step(
-    n: FloatArray, jt: FloatArray, r: FloatArray, lever: FloatArray, damping: float, ratio: float
+    n: FloatArray,
+    jt: FloatArray,
+    r: FloatArray,
+    lever: FloatArray,
+    damping: float,
+    ratio: float,
+    prior: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[float, float, float]:
     """The damped Gauss-Newton step ``(dx, dy, dtheta)`` for the residuals ``r`` with normals ``n`` and
     rotation derivatives ``jt``; with ``ratio > 0`` only along the eigen-directions of the normal matrix
     (in ``(dx, dy, s dtheta)``, ``s`` the RMS ``lever``) whose eigenvalue exceeds ``ratio`` times the
-    largest: directions the walls barely constrain get no update. O(N)."""
+    largest: directions the walls barely constrain get no update, or with a ``prior`` ``(e, P)`` (the pose
+    minus the prior pose as ``(dx, dy, dtheta)`` and its information, in units of the residuals' variance)
+    move towards the prior by its share of the information along them. O(N)."""
     if ratio <= 0.0:  # the plain damped step
         a = np.column_stack([n, jt])
         h = a.T @ a + damping * np.diag([1.0, 1.0, 4.0])
@@ -83,9 +91,19 @@ def _step(
     a = np.column_stack([n, jt / scale])  # unknowns (dx, dy, scale dtheta): all lengths
     h = a.T @ a + damping * np.diag([1.0, 1.0, 4.0 / scale**2])  # the same damping as above
     w, v = np.linalg.eigh(h)
-    keep = v[:, w > ratio * w[-1]]
-    lam = w[w > ratio * w[-1]]
+    strong = w > ratio * w[-1]
+    keep = v[:, strong]
+    lam = w[strong]
     step = keep @ ((keep.T @ -(a.T @ r)) / lam)
+    if prior is not None:
+        e, info = prior
+        unscale = np.array([1.0, 1.0, 1.0 / scale])
+        e_s = e * np.array([1.0, 1.0, scale])
+        info_s = info * np.outer(unscale, unscale)
+        for k in np.flatnonzero(~strong):
+            u = v[:, k]
+            pe = float(u @ info_s @ u)
+            step = step - u * float(u @ e_s) * pe / (pe + max(float(w[k]), 0.0))
     return float(step[0]), float(step[1]), float(step[2]) / scale
 
 
@@ -101,11 +119,15 @@ def refine_to_walls(
     min_matches: int = 30,
     range_m: float = 8.0,
     degeneracy_ratio: float = 0.0,
+    prior: Pose2D | None = None,
+    prior_information: FloatArray | None = None,
 ) -> WallFit | None:
     """Refine ``scanner_pose`` so the scan ``points`` (scanner frame) lie on ``walls`` (world frame).
 
     ``degeneracy_ratio`` (0: off, the plain damped step) leaves out poorly constrained directions (module
-    docstring).
+    docstring); with a ``prior`` scanner pose (odometry's) and its ``prior_information`` (3x3, per m^2
+    and rad^2, already scaled to the residuals' variance) those directions follow the prior by information
+    instead of keeping ``scanner_pose``'s value (issue 19: a corridor's axis follows the wheels).
     Returns ``None`` when fewer than ``min_matches`` points find a wall (then keep the unrefined pose).
     """
     if len(points) < min_matches or len(walls) == 0:
@@ -132,7 +154,17 @@ def refine_to_walls(
         lever = world[use] - np.array([pose.x_m, pose.y_m])
         # d(residual) / d(theta) for a rotation about the scanner: n . (J lever), J = rot90
         jt = -n[:, 0] * lever[:, 1] + n[:, 1] * lever[:, 0]
-        dx, dy, dth = _step(n, jt, r, lever, damping, degeneracy_ratio)
+        pr = None
+        if prior is not None and prior_information is not None:
+            e = np.array(
+                [
+                    pose.x_m - prior.x_m,
+                    pose.y_m - prior.y_m,
+                    math.remainder(pose.theta_rad - prior.theta_rad, math.tau),
+                ]
+            )
+            pr = (e, prior_information)
+        dx, dy, dth = _step(n, jt, r, lever, damping, degeneracy_ratio, pr)
         # a rotation about the scanner position, then a translation
         pose = Pose2D(pose.x_m + dx, pose.y_m + dy, pose.theta_rad + dth)
         rmse = float(np.sqrt(np.mean(r * r)))

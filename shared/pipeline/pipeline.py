@@ -19,7 +19,7 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -27,6 +27,7 @@ import numpy as np
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Stage
 from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
+from shared.pipeline.fusion import fuse_gated, wheel_prior
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.regroup import regroup
@@ -82,8 +83,8 @@ class Pipeline:
         # shown. It is local: two maps restart in turn every `local_map_steps` steps or `local_map_m`
         # metres of travel, and the older one is matched against, so old, drifted walls of a loop never
         # pull the pose.
-        self._merge = merge
-        self._loc_maps = [WallMap(merge), WallMap(merge)]
+        self._merge = replace(merge or MergeTolerances(), short_by_band=False)
+        self._loc_maps = [WallMap(self._merge), WallMap(self._merge)]
         self.local_map_restarts = 0
         self._since_steps = 0
         self._since_m = 0.0
@@ -96,6 +97,7 @@ class Pipeline:
         self._last_icp = False  # whether that motion came from a believed match
         self._key_pose: Pose2D | None = None  # robot pose of the keyframe
         self._key_points: FloatArray | None = None  # keyframe scan points, scanner frame
+        self._key_odom: Pose2D | None = None  # odometry at the keyframe
         self._next_group = 0
         self._version = 0
         self._stamp = 0.0
@@ -160,7 +162,7 @@ class Pipeline:
         if self._pose is None:
             self._pose = odom or Pose2D()
             self._prev_odom = odom
-            self._key_pose, self._key_points = self._pose, points
+            self._key_pose, self._key_points, self._key_odom = self._pose, points, odom
             return False
         delta = Pose2D()
         if odom is not None and self._prev_odom is not None:
@@ -168,6 +170,7 @@ class Pipeline:
         predicted = self._pose @ delta
         self._prev_odom = odom
         icp_used = False
+        plain = odom is not None  # odometry not found wrong this step (no second-chance match)
         matchers = self._kernels[Stage.SCAN_MATCHING]
         key_pose, key_points = self._key_pose, self._key_points
         if (
@@ -191,12 +194,15 @@ class Pipeline:
                     and math.hypot(corr.x_m, corr.y_m) <= g.strong_max_m
                     and abs(corr.theta_rad) <= g.strong_max_rad
                 )
+            if trusted and odom is not None and self._key_odom is not None:  # odometry where scans are blind
+                motion = self._offset.inverse() @ self._key_odom.between(odom) @ self._offset
+                match = replace(match, pose=fuse_gated(g, key_points, points, match.pose, motion))
             if not trusted and g.rematch:
                 steady = self._last_icp and g.constant_velocity
                 starts = [self._to_laser(key_pose, self._pose @ self._last_motion)] if steady else []
                 second = rematch(matchers[0], key_points, points, guess, match, g, starts)
                 if second is not None:
-                    match, trusted = second, True
+                    match, trusted, plain = second, True, False
                     self.rematches += 1
             if trusted:
                 predicted = key_pose @ self._offset @ match.pose @ self._offset.inverse()
@@ -208,7 +214,15 @@ class Pipeline:
             g = self._gate
             near = points[np.einsum("ij,ij->i", points, points) <= g.refine_range_m**2]
             scanner = predicted @ self._offset
-            fit = refine_to_walls(near, scanner, local.segments(), degeneracy_ratio=g.refine_degeneracy)
+            prior, info = wheel_prior(g, self._pose @ delta @ self._offset, delta) if plain else (None, None)
+            fit = refine_to_walls(
+                near,
+                scanner,
+                local.segments(),
+                degeneracy_ratio=g.refine_degeneracy,
+                prior=prior,
+                prior_information=info,
+            )
             if fit is not None and fit.matched >= g.refine_min_share * len(near):
                 corr = scanner.between(fit.pose)
                 if self._plausible(corr, delta):
@@ -223,7 +237,7 @@ class Pipeline:
             or math.hypot(moved.x_m, moved.y_m) > self._gate.keyframe_m
             or abs(moved.theta_rad) > self._gate.keyframe_rad
         ):
-            self._key_pose, self._key_points = predicted, points
+            self._key_pose, self._key_points, self._key_odom = predicted, points, odom
         return icp_used
 
     def _local_map(self, travel_m: float) -> WallMap:

@@ -6,7 +6,9 @@ mass ``L`` along it (mean ``(a + b) / 2``, covariance ``L^2 / 12 d d^T``). A wal
 least squares fit of its moments (the principal axis, as SVD in paper eq. 27-32) and its extent is the
 union of the merged segments' projections on that line.
 
-A new segment merges into a wall when it is collinear (angle within ``angle_tol_deg``, both end points
+A new segment merges into a wall when it is collinear (angle within ``angle_tol_deg``, or for a piece
+shorter than ``2 offset_tol_m / sin(angle_tol_deg)`` within the tilt its end band allows,
+``asin(2 offset_tol_m / length)``: a short noisy piece's direction is not known better; both end points
 within ``offset_tol_m`` of the wall's line) and overlaps it or leaves a gap of at most ``gap_tol_m``.
 A merged wall is then checked against the others again, so chains of pieces fuse into one wall. Walls keep
 stable integer ids; when two walls fuse, the older id survives and the other is reported removed. A wall is
@@ -38,6 +40,9 @@ class MergeTolerances:
     gap_tol_m: float = 0.30
     min_length_m: float = 0.05
     min_observations: int = 3
+    #: short pieces may tilt as far as their end band allows (the shown map; the pipeline's localisation
+    #: maps keep the plain angle test: merging tilted pieces there moved the benchmark logs' poses)
+    short_by_band: bool = True
 
 
 class WallMap:
@@ -113,6 +118,7 @@ class WallMap:
             t.min_length_m,
             max(int(observations), 1),
             removed,
+            t.short_by_band,
         )
         self.removed.extend(int(r) for r in removed[:n_removed])
 
@@ -145,6 +151,7 @@ def _insert_all(
     min_length: float,
     observations: int,
     removed: IntArray,
+    by_band: bool,
 ) -> tuple[int, int, int]:
     """Insert and settle every segment; returns the new wall count, next id and number of removed ids."""
     n_removed = 0
@@ -172,7 +179,7 @@ def _insert_all(
         lo[i], hi[i] = -0.5 * length, 0.5 * length
         n += 1
         while True:
-            j = _match(i, n, c, d, lo, hi, cos_tol, offset_tol, gap_tol)
+            j = _match(i, n, c, d, lo, hi, cos_tol, offset_tol, gap_tol, by_band)
             if j < 0:
                 break
             keep, drop = (i, j) if ids[i] < ids[j] else (j, i)
@@ -203,12 +210,20 @@ def _match(
     cos_tol: float,
     offset_tol: float,
     gap_tol: float,
+    by_band: bool,
 ) -> int:
     """The first wall wall ``i`` should merge with (collinear, close, overlapping or a small gap), or -1."""
     ax, ay = c[i, 0] + d[i, 0] * lo[i], c[i, 1] + d[i, 1] * lo[i]
     bx, by = c[i, 0] + d[i, 0] * hi[i], c[i, 1] + d[i, 1] * hi[i]
+    # a short piece's direction is only known to within its ends' band: both ends within offset_tol of a
+    # line allow a tilt of up to asin(2 offset_tol / length), so that bounds the angle test from below
+    length = hi[i] - lo[i]
+    cos_i = cos_tol
+    if by_band:
+        sin_band = min(2.0 * offset_tol / max(length, 1e-12), 1.0)
+        cos_i = min(cos_tol, np.sqrt(1.0 - sin_band * sin_band))
     for j in range(n):
-        if j == i or abs(d[j, 0] * d[i, 0] + d[j, 1] * d[i, 1]) < cos_tol:
+        if j == i or abs(d[j, 0] * d[i, 0] + d[j, 1] * d[i, 1]) < cos_i:
             continue
         nx, ny = -d[j, 1], d[j, 0]
         rax, ray, rbx, rby = ax - c[j, 0], ay - c[j, 1], bx - c[j, 0], by - c[j, 1]

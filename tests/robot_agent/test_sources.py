@@ -14,8 +14,10 @@ import pytest
 from robot_agent.errors import SourceError
 from robot_agent.sensors.emulator import UrgEmulator
 from robot_agent.sensors.encoder_emulator import BridgeEmulator, SimOdometry, open_pty
-from robot_agent.sources import open_scans
+from robot_agent.sources import laser_offset, open_scans
+from shared.io.carmen_write import write_carmen
 from shared.sim import default_world, simulate_run
+from shared.types import Pose2D
 
 
 def test_one_lap_is_the_plain_simulated_run() -> None:
@@ -37,6 +39,15 @@ def test_patrol_runs_on_with_continuous_time_and_odometry() -> None:
         # at 0.4 m/s and 0.8 rad/s, 10 Hz: no jump between laps
         assert math.hypot(b.x_m - a.x_m, b.y_m - a.y_m) < 0.08
         assert abs(math.remainder(b.theta_rad - a.theta_rad, math.tau)) < 0.15
+
+
+def test_the_scanner_offset_is_the_sources_own(tmp_path: Path) -> None:
+    run = simulate_run(default_world(), seed=0)
+    assert laser_offset("sim") == run.drive.laser_offset != Pose2D()  # the simulated robot's, 0.145 m ahead
+    log = tmp_path / "run.clf"
+    write_carmen(log, run.scans[:3], laser_offset=Pose2D(0.2, 0.0, 0.0))
+    assert laser_offset(str(log)).x_m == pytest.approx(0.2)  # a log's header
+    assert laser_offset("urg:/dev/none") == Pose2D()  # a live sensor: the robot's configuration says
 
 
 def test_laps_count_is_kept() -> None:

@@ -39,9 +39,7 @@ class CoarseMatch:
 
 
 @njit
-def _table(
-    ref: FloatArray, x0: float, y0: float, cell: float, nx: int, ny: int, radius: float
-) -> FloatArray:
+def _table(ref: FloatArray, x0: float, y0: float, cell: float, nx: int, ny: int, radius: float) -> FloatArray:
     """The look-up table: ``1 - (d / radius)^2`` clipped at 0 for the distance d to the nearest point."""
     table = np.zeros((nx, ny))
     reach = math.ceil(radius / cell)

@@ -44,6 +44,19 @@ def test_corridor_keeps_the_along_wall_guess() -> None:
     assert fit.pose.x_m == pytest.approx(0.3, abs=1e-3), "along the corridor: left alone"
 
 
+def test_corridor_axis_follows_the_prior_where_the_walls_are_blind() -> None:
+    walls = np.array([[-10.0, -1.0, 10.0, -1.0], [-10.0, 1.0, 10.0, 1.0]])
+    x = np.linspace(-5, 5, 200)
+    pts = np.vstack([np.column_stack([x, np.full_like(x, -1.0)]), np.column_stack([x, np.full_like(x, 1.0)])])
+    guess = Pose2D(0.3, 0.05, 0.0)  # a scan match that slid 30 cm along the corridor
+    wheels = Pose2D(0.0, 0.04, 0.0)  # odometry: right along it, 4 cm off across it
+    info = np.diag([1e4, 1e4, 1e4]) * 0.02**2  # 1 cm, 0.01 rad, in units of a 2 cm residual's variance
+    fit = refine_to_walls(pts, guess, walls, degeneracy_ratio=0.05, prior=wheels, prior_information=info)
+    assert fit is not None
+    assert fit.pose.y_m == pytest.approx(0.0, abs=1e-3), "across the corridor: the walls"
+    assert fit.pose.x_m == pytest.approx(0.0, abs=0.01), "along the corridor: odometry"
+
+
 def test_too_few_matches_gives_none() -> None:
     assert refine_to_walls(scan_points(), Pose2D(50.0, 50.0, 0.0), WORLD.walls) is None
     assert refine_to_walls(np.zeros((0, 2)), TRUE, WORLD.walls) is None

@@ -163,8 +163,17 @@ def turning_run(odom_heading_rad: list[float], seed: int = 0) -> list[Scan]:
         pose = Pose2D(2.0 + 0.02 * i, 2.0, math.radians(10.0) * i)
         s = simulate_scan(world, pose, rng, RangeNoise(outlier_rate=0.0), stamp_s=0.1 * i)
         odom = Pose2D(pose.x_m, pose.y_m, heading)
-        scans.append(Scan(s.stamp_s, s.angle_min_rad, s.angle_increment_rad, s.range_min_m, s.range_max_m,
-                          s.ranges_m, odometry=odom))
+        scans.append(
+            Scan(
+                s.stamp_s,
+                s.angle_min_rad,
+                s.angle_increment_rad,
+                s.range_min_m,
+                s.range_max_m,
+                s.ranges_m,
+                odometry=odom,
+            )
+        )
     return scans
 
 

@@ -45,6 +45,27 @@ def test_angle_tolerance() -> None:
     assert len(m) == 2
 
 
+def test_a_short_noisy_piece_on_a_wall_joins_it_instead_of_crossing_it() -> None:
+    m = WallMap(ALL)
+    m.add_segments([[0, 0, 4, 0]])
+    tilt = math.radians(20)  # a 0.3 m piece whose noisy fit came out 20 degrees off (ends within 5.2 cm)
+    m.add_segments(
+        [
+            [
+                2 - 0.15 * math.cos(tilt),
+                -0.15 * math.sin(tilt),
+                2 + 0.15 * math.cos(tilt),
+                0.15 * math.sin(tilt),
+            ]
+        ]
+    )
+    assert len(m) == 1
+    (seg,) = m.segments()
+    assert abs(seg[1]) < 0.01 and abs(seg[3]) < 0.01  # the wall stays where it was
+    m.add_segments([[2, 0.05, 2, 0.35]])  # a short piece of a perpendicular wall touching it: not the wall
+    assert len(m) == 2
+
+
 def test_ids_are_stable_and_older_id_survives() -> None:
     m = WallMap(ALL)
     m.add_segments([[0, 0, 1, 0], [5, 0, 6, 0]])
