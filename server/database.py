@@ -106,6 +106,13 @@ class Database:
         finally:
             self._write_lock.release()
 
+    def wait_writable(self) -> None:
+        """Block until this process's SQLite write queue is free (returns at once on other databases); the
+        caller then tries :meth:`try_write_conn` again (another writer may come first)."""
+        if self._write_lock is not None:
+            with self._write_lock:
+                pass
+
     @contextmanager
     def read(self) -> Iterator[Session]:
         """A unit of work that only reads (never takes the SQLite write queue)."""
