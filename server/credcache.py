@@ -154,12 +154,15 @@ class CredentialCache:
             self._thread.join(timeout=10)
             self._thread = None
 
-    def get(self, key: str) -> tuple[Principal | None, bool]:
-        """``(principal, hit)`` from the cache alone (cheap enough for the event loop)."""
+    def get(self, key: str, max_age_s: float | None = None) -> tuple[Principal | None, bool]:
+        """``(principal, hit)`` from the cache alone (cheap enough for the event loop); ``max_age_s``: a
+        miss unless the answer's query began at most that long ago (else up to ``ttl_s``)."""
         now = self.clock()
         with self._lock:
             entry = self._entries.get(key)
             if entry is None or entry.until <= now:
+                return None, False
+            if max_age_s is not None and now - (entry.until - self.ttl_s) > max_age_s:
                 return None, False
             entry.used = now
             return entry.principal, True

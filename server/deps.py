@@ -5,7 +5,7 @@ the browser's session cookie (operators only). Lookups go by the token's SHA-256
 cache of at most ``credential_cache_s`` (<= 1 s), re-checked in bulk in the background
 (:mod:`server.credcache`), spares the database a read per request, so a token revoked or expired on any
 server process stops working everywhere within that time (in the revoking process at once). Streams
-re-check their credential bypassing the cache (:func:`still_valid`).
+re-check their credential often, against answers at most 0.5 s old (:func:`still_valid`).
 
 The failed-authentication limit lives in :mod:`server.limiter`.
 """
@@ -52,6 +52,8 @@ __all__ = [
 ]
 
 SESSION_COOKIE = "linemap_session"
+#: :func:`still_valid` takes a cached answer only if its database read began at most this long ago (s).
+STILL_VALID_MAX_AGE_S = 0.5
 
 
 @dataclass
@@ -78,10 +80,11 @@ class AppState:
         """Drop cached lookups (after a token is revoked or a session closed)."""
         self.credentials.clear()
 
-    def cached(self, credential: str) -> tuple[str, Principal | None, bool]:
-        """``(hash, principal, hit)`` from the cache alone (cheap enough for the event loop)."""
+    def cached(self, credential: str, max_age_s: float | None = None) -> tuple[str, Principal | None, bool]:
+        """``(hash, principal, hit)`` from the cache alone (cheap enough for the event loop); ``max_age_s``:
+        see :meth:`CredentialCache.get`."""
         key = hash_token(credential)
-        found, hit = self.credentials.get(key)
+        found, hit = self.credentials.get(key, max_age_s)
         return key, found, hit
 
     def lookup(self, credential: str, *, fresh: bool = False) -> Principal | None:
@@ -220,12 +223,19 @@ PrincipalDep = Annotated[Principal, Depends(get_principal)]
 
 
 async def still_valid(request: Request, state: AppState) -> bool:
-    """Whether the credential this request was authenticated with still works, read from the database
-    (no cache): a stream calls it every fraction of a second and ends when it says no (revoked token,
-    revoked parent token, closed or expired session, rotated robot token), whichever process revoked it."""
+    """Whether the credential this request was authenticated with still works: a stream calls it every
+    fraction of a second and ends when it says no (revoked token, revoked parent token, closed or expired
+    session, rotated robot token), whichever process revoked it. Answered from the cache only when that
+    answer's database read began at most ``STILL_VALID_MAX_AGE_S`` ago (the cache re-checks the
+    credentials in use every ``credential_cache_s / 2``: :mod:`server.credcache`), else read from the
+    database. A thread-pool read per stream and check was slow under load (1.8 s median measured under
+    server_load: the stream fell seconds behind its map)."""
     credential = getattr(request.state, "credential", None)
     if not credential:
         return False
+    _key, found, hit = state.cached(credential, STILL_VALID_MAX_AGE_S)
+    if hit:
+        return found is not None
     return await run_in_threadpool(lambda: state.lookup(credential, fresh=True) is not None)
 
 

@@ -179,3 +179,18 @@ def test_a_zero_ttl_caches_nothing(db: Database) -> None:
     _rid, token = _robot(db, "r1")
     assert _lookup(cache, db, token) is not None
     assert len(cache) == 0 and cache.refresh(db.read) == 0
+
+
+def test_a_stream_check_takes_only_a_recent_answer(db: Database) -> None:
+    """server.deps.still_valid asks for answers at most 0.5 s old, whatever ``ttl_s`` allows."""
+    clock = Clock()
+    cache = CredentialCache(1.0, clock=clock)
+    _rid, token = _robot(db, "r1")
+    assert _lookup(cache, db, token) is not None
+    clock.now += 0.4
+    assert cache.get(hash_token(token), max_age_s=0.5)[1] is True
+    clock.now += 0.2  # 0.6 s after its query began: still cached for requests, not for a stream
+    assert cache.get(hash_token(token), max_age_s=0.5) == (None, False)
+    assert cache.get(hash_token(token))[1] is True
+    assert cache.refresh(db.read) == 1  # re-checked now: recent again
+    assert cache.get(hash_token(token), max_age_s=0.5)[1] is True
