@@ -77,7 +77,10 @@ class WriteBatcher:
         batch); its result, or its error. ``heavy``: a long job (many rows), kept off the event loop
         and out of the batches."""
         while self.inline and not heavy:
-            with self._db.try_write_conn(INLINE_WAIT_S) as conn:
+            # Block the loop only when no job waits off the loop yet: behind a long write, each upload
+            # arriving would otherwise block it again.
+            waiting = self._writable is not None and not self._writable.done()
+            with self._db.try_write_conn(0.0 if waiting else INLINE_WAIT_S) as conn:
                 if conn is not None:
                     return fn(conn)
             # Another thread is writing a long job: wait for it off the loop (the loop goes on), then write

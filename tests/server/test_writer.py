@@ -9,6 +9,7 @@ import asyncio
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from sqlalchemy import Connection, text
@@ -84,3 +85,44 @@ def test_a_heavy_job_runs_in_the_thread_pool(db: Database) -> None:
     finally:
         writer.close()
     assert who == "heavy" and thread != loop_thread
+
+
+def test_behind_a_long_write_only_the_first_job_blocks_the_loop(db: Database) -> None:
+    """Each job that finds the write queue taken may block the loop for INLINE_WAIT_S; the jobs that come
+    while one already waits off the loop do not (behind a 1 s write, 200 uploads/s would otherwise keep the
+    loop blocked all along)."""
+    writer = WriteBatcher(db)
+    holding, release = threading.Event(), threading.Event()
+    timeouts: list[float] = []
+    real = db.try_write_conn
+
+    def recording(timeout_s: float = 0.0) -> Any:
+        timeouts.append(timeout_s)
+        return real(timeout_s)
+
+    def long_writer() -> None:
+        with db.write_conn():
+            holding.set()
+            release.wait(30)
+
+    async def scenario() -> list[tuple[str, int]]:
+        other = threading.Thread(target=long_writer)
+        other.start()
+        await asyncio.to_thread(holding.wait, 30)
+        jobs = [asyncio.ensure_future(writer.submit(_insert(f"u{i}"))) for i in range(10)]
+        for _ in range(5):
+            await asyncio.sleep(0)
+        blocking_tries = sum(1 for t in timeouts if t > 0)
+        release.set()
+        done = await asyncio.gather(*jobs)
+        await asyncio.to_thread(other.join, 30)
+        assert blocking_tries == 1, timeouts
+        return done
+
+    db.try_write_conn = recording  # type: ignore[method-assign]
+    try:
+        done = asyncio.run(scenario())
+    finally:
+        release.set()
+        writer.close()
+    assert sorted(who for who, _ in done) == sorted(f"u{i}" for i in range(10))
