@@ -84,6 +84,8 @@ class AppState:
         """``(hash, principal, hit)`` from the cache alone (cheap enough for the event loop); ``max_age_s``:
         see :meth:`CredentialCache.get`."""
         key = hash_token(credential)
+        if credential_kind(credential) is None:
+            return key, None, True  # no known prefix: no table holds it, no read needed
         found, hit = self.credentials.get(key, max_age_s)
         return key, found, hit
 
