@@ -65,10 +65,12 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         tasks = [asyncio.create_task(_flush_seen(state)), asyncio.create_task(_checkpoint(state))]
+        state.credentials.start(db.read)  # keeps the credentials in use cached (server.credcache)
         yield
         _app.state.shutdown.set()
         for task in tasks:
             task.cancel()
+        await run_in_threadpool(state.credentials.stop)
         await run_in_threadpool(state.flush_seen)
         await run_in_threadpool(state.writer.close)
         await run_in_threadpool(parser.close)

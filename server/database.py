@@ -89,15 +89,16 @@ class Database:
             yield conn
 
     @contextmanager
-    def try_write_conn(self) -> Iterator[Connection | None]:
-        """:meth:`write_conn` if this process's SQLite write queue is free now, else ``None`` at once (the
-        caller, on the event loop, must not wait for another thread's long write). Other databases: like
-        :meth:`write_conn`."""
+    def try_write_conn(self, timeout_s: float = 0.0) -> Iterator[Connection | None]:
+        """:meth:`write_conn` if this process's SQLite write queue is free now or within ``timeout_s``, else
+        ``None`` (the caller, on the event loop, must not wait for another thread's long write). Other
+        databases: like :meth:`write_conn`."""
         if self._write_lock is None:
             with self.engine.begin() as conn:
                 yield conn
             return
-        if not self._write_lock.acquire(blocking=False):
+        lock = self._write_lock
+        if not (lock.acquire(timeout=timeout_s) if timeout_s > 0 else lock.acquire(blocking=False)):
             yield None
             return
         try:
@@ -105,6 +106,13 @@ class Database:
                 yield conn
         finally:
             self._write_lock.release()
+
+    def wait_writable(self) -> None:
+        """Block until this process's SQLite write queue is free (returns at once on other databases); the
+        caller then tries :meth:`try_write_conn` again (another writer may come first)."""
+        if self._write_lock is not None:
+            with self._write_lock:
+                pass
 
     @contextmanager
     def read(self) -> Iterator[Session]:

@@ -2,9 +2,10 @@
 
 Credentials: ``Authorization: Bearer <token>`` (operator token ``lmo_...`` or robot token ``lmr_...``), or
 the browser's session cookie (operators only). Lookups go by the token's SHA-256 (an indexed read); a
-cache of at most ``credential_cache_s`` (<= 1 s) spares the database a read per request, so a token
-revoked or expired on any server process stops working everywhere within that time (in the revoking
-process at once). Streams re-check their credential bypassing the cache (:func:`still_valid`).
+cache of at most ``credential_cache_s`` (<= 1 s), re-checked in bulk in the background
+(:mod:`server.credcache`), spares the database a read per request, so a token revoked or expired on any
+server process stops working everywhere within that time (in the revoking process at once). Streams
+re-check their credential often, against answers at most 0.5 s old (:func:`still_valid`).
 
 The failed-authentication limit lives in :mod:`server.limiter`.
 """
@@ -16,19 +17,20 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
-from typing import Annotated, Literal
+from typing import Annotated
 
 from fastapi import Depends, Request
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import Connection, bindparam, or_, select, update
+from sqlalchemy import Connection, bindparam, update
 
+from server.credcache import CredentialCache, Principal, credential_kind, find_principals
 from server.csrf import CSRF_HEADER, require_csrf_token
 from server.database import Database
 from server.errors import AuthError, ForbiddenError
 from server.hub import Hub
 from server.limiter import AuthLimiter, retry_after_header
-from server.models import OperatorToken, Robot, Session, utcnow
-from server.security import OPERATOR_PREFIX, ROBOT_PREFIX, SESSION_PREFIX, hash_token
+from server.models import Robot, utcnow
+from server.security import SESSION_PREFIX, hash_token
 from server.settings import Settings
 from server.writer import WriteBatcher
 
@@ -50,20 +52,8 @@ __all__ = [
 ]
 
 SESSION_COOKIE = "linemap_session"
-
-
-@dataclass(frozen=True, slots=True)
-class Principal:
-    """Who is asking: an operator (token or session) or one robot."""
-
-    kind: Literal["operator", "robot"]
-    id: int
-    name: str
-
-    @property
-    def actor(self) -> str:
-        """How the audit log names this principal."""
-        return f"{self.kind}:{self.name}"
+#: :func:`still_valid` takes a cached answer only if its database read began at most this long ago (s).
+STILL_VALID_MAX_AGE_S = 0.5
 
 
 @dataclass
@@ -75,7 +65,7 @@ class AppState:
     writer: WriteBatcher
     hub: Hub = field(default_factory=Hub)
     limiter: AuthLimiter = field(init=False)
-    _cache: dict[str, tuple[float, Principal | None]] = field(default_factory=dict)
+    credentials: CredentialCache = field(init=False)
     _seen: dict[int, datetime] = field(default_factory=dict)
     _seen_mono: dict[int, float] = field(default_factory=dict)  # time.monotonic() when last heard from
     mono_clock: Callable[[], float] = time.monotonic
@@ -84,20 +74,20 @@ class AppState:
 
     def __post_init__(self) -> None:
         self.limiter = AuthLimiter.from_settings(self.settings, self.db)
+        self.credentials = CredentialCache(self.settings.credential_cache_s)
 
     def forget_credentials(self) -> None:
         """Drop cached lookups (after a token is revoked or a session closed)."""
-        with self._lock:
-            self._cache.clear()
+        self.credentials.clear()
 
-    def cached(self, credential: str) -> tuple[str, Principal | None, bool]:
-        """``(hash, principal, hit)`` from the cache alone (cheap enough for the event loop)."""
+    def cached(self, credential: str, max_age_s: float | None = None) -> tuple[str, Principal | None, bool]:
+        """``(hash, principal, hit)`` from the cache alone (cheap enough for the event loop); ``max_age_s``:
+        see :meth:`CredentialCache.get`."""
         key = hash_token(credential)
-        with self._lock:
-            hit = self._cache.get(key)
-        if hit is not None and hit[0] > time.monotonic():
-            return key, hit[1], True
-        return key, None, False
+        if credential_kind(credential) is None:
+            return key, None, True  # no known prefix: no table holds it, no read needed
+        found, hit = self.credentials.get(key, max_age_s)
+        return key, found, hit
 
     def lookup(self, credential: str, *, fresh: bool = False) -> Principal | None:
         """The principal behind a bearer token or session id, or ``None`` (cache, then database; only the
@@ -105,13 +95,13 @@ class AppState:
         key, found, hit = self.cached(credential)
         if hit and not fresh:
             return found
-        found = self._lookup_db(credential, key)
-        ttl_s = self.settings.credential_cache_s
-        if ttl_s > 0:
-            with self._lock:
-                if len(self._cache) > 10_000:
-                    self._cache.clear()
-                self._cache[key] = (time.monotonic() + ttl_s, found)
+        kind = credential_kind(credential)
+        if kind is None:
+            return None
+        begun = self.credentials.started()
+        with self.db.read() as s:
+            found = find_principals(s, kind, [key]).get(key)
+        self.credentials.put(key, kind, found, begun)
         return found
 
     async def authenticate(self, credential: str) -> bool:
@@ -120,34 +110,6 @@ class AppState:
         if not hit:
             found = await run_in_threadpool(self.lookup, credential)
         return found is not None
-
-    def _lookup_db(self, credential: str, key: str) -> Principal | None:
-        now = utcnow()
-        live = (
-            OperatorToken.revoked_at.is_(None),
-            or_(OperatorToken.expires_at.is_(None), OperatorToken.expires_at > now),
-        )
-        with self.db.read() as s:
-            if credential.startswith(ROBOT_PREFIX):
-                robot = s.execute(
-                    select(Robot.id, Robot.name).where(
-                        Robot.token_hash == key, Robot.token_revoked_at.is_(None)
-                    )
-                ).first()
-                return None if robot is None else Principal("robot", robot[0], robot[1])
-            if credential.startswith(OPERATOR_PREFIX):
-                op = s.execute(
-                    select(OperatorToken.id, OperatorToken.name).where(OperatorToken.token_hash == key, *live)
-                ).first()
-                return None if op is None else Principal("operator", op[0], op[1])
-            if credential.startswith(SESSION_PREFIX):
-                row = s.execute(
-                    select(OperatorToken.id, OperatorToken.name)
-                    .join(Session, Session.operator_id == OperatorToken.id)
-                    .where(Session.token_hash == key, Session.expires_at > now, *live)
-                ).first()
-                return None if row is None else Principal("operator", row[0], row[1])
-        return None
 
     def mark_seen(self, robot_id: int) -> None:
         """Note that the robot was heard from now (in memory, on the wall clock for display and storage and
@@ -263,12 +225,19 @@ PrincipalDep = Annotated[Principal, Depends(get_principal)]
 
 
 async def still_valid(request: Request, state: AppState) -> bool:
-    """Whether the credential this request was authenticated with still works, read from the database
-    (no cache): a stream calls it every fraction of a second and ends when it says no (revoked token,
-    revoked parent token, closed or expired session, rotated robot token), whichever process revoked it."""
+    """Whether the credential this request was authenticated with still works: a stream calls it every
+    fraction of a second and ends when it says no (revoked token, revoked parent token, closed or expired
+    session, rotated robot token), whichever process revoked it. Answered from the cache only when that
+    answer's database read began at most ``STILL_VALID_MAX_AGE_S`` ago (the cache re-checks the
+    credentials in use every ``credential_cache_s / 2``: :mod:`server.credcache`), else read from the
+    database. A thread-pool read per stream and check was slow under load (1.8 s median measured under
+    server_load: the stream fell seconds behind its map)."""
     credential = getattr(request.state, "credential", None)
     if not credential:
         return False
+    _key, found, hit = state.cached(credential, STILL_VALID_MAX_AGE_S)
+    if hit:
+        return found is not None
     return await run_in_threadpool(lambda: state.lookup(credential, fresh=True) is not None)
 
 

@@ -8,6 +8,7 @@ refused with 409 and the server's version, and the robot sends a snapshot instea
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from datetime import datetime
 from itertools import chain
@@ -51,6 +52,16 @@ _COORDS = ("x0_m", "y0_m", "x1_m", "y1_m", "version")
 _UPLOAD_LOCK_CLASS = 0x4C4D5550
 
 
+@functools.lru_cache(maxsize=16)
+def _on_conflict_update(dialect: str, table: Table, keys: tuple[str, ...], columns: tuple[str, ...]) -> Any:
+    """``INSERT ... ON CONFLICT (keys) DO UPDATE SET columns`` (its values come at execution), built once per
+    table: building ``excluded`` anew took ~0.3 ms of a routine upload's ~2.7 ms on the event loop."""
+    ins: Any = (postgresql if dialect == "postgresql" else sqlite).insert(table)
+    return ins.on_conflict_do_update(
+        index_elements=list(keys), set_={c: getattr(ins.excluded, c) for c in columns}
+    )
+
+
 def _upsert(
     conn: Connection, table: Any, keys: list[str], columns: tuple[str, ...], values: list[dict[str, Any]]
 ) -> None:
@@ -59,11 +70,7 @@ def _upsert(
         return
     dialect = conn.dialect.name
     if dialect in ("postgresql", "sqlite"):
-        ins: Any = (postgresql if dialect == "postgresql" else sqlite).insert(table)
-        stmt = ins.on_conflict_do_update(
-            index_elements=keys, set_={c: getattr(ins.excluded, c) for c in columns}
-        )
-        conn.execute(stmt, values)
+        conn.execute(_on_conflict_update(dialect, table, tuple(keys), columns), values)
         return
     for row in values:  # other backends: delete then insert
         conn.execute(delete(table).where(*(table.c[k] == row[k] for k in keys)))

@@ -1,9 +1,9 @@
-"""The hot write path (map uploads). On SQLite a small job runs at once on the caller's (event-loop) thread,
-in its own transaction, when no other thread of this process is writing; else (another thread holds the
-write queue, or the job is ``heavy``) it runs in the thread pool, so the event loop never waits behind a
-long write. On other databases one writer thread applies queued jobs in batches, one transaction per batch
-(group commit); a ``heavy`` job (a near-limit upload) runs alone in the thread pool instead, so it does not
-hold up the batch behind it.
+"""The hot write path (map uploads). On SQLite a small job runs on the caller's (event-loop) thread, in its
+own transaction: at once when no other thread of this process is writing or that thread is done within
+``INLINE_WAIT_S``, else as soon as it is done (waited for in a thread of its own, so the event loop never
+waits behind a long write); a ``heavy`` job runs in the thread pool. On other databases one writer thread
+applies queued jobs in batches, one transaction per batch (group commit); a ``heavy`` job (a near-limit
+upload) runs alone in the thread pool instead, so it does not hold up the batch behind it.
 
 A database has one writer at a time anyway (SQLite) or pays a round trip per commit (PostgreSQL), so many
 request threads writing in turn only add thread switches and commits. Jobs are functions of a Core
@@ -22,7 +22,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Generic, TypeVar
 
 from fastapi.concurrency import run_in_threadpool
@@ -37,6 +37,12 @@ __all__ = ["WriteBatcher"]
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 _STOP = object()
+#: SQLite: how long a small job blocks the event loop for another thread's write before it waits off the
+#: loop (s). A short block is the quicker: blocked, the loop lets go of the GIL and the other writer (a
+#: checkpoint, a control message) finishes in milliseconds; waited for off the loop, that writer competes
+#: for the GIL with the busy loop and held the write queue ~1 s each time under server_load (with every
+#: upload of that second waiting for it).
+INLINE_WAIT_S = 0.05
 #: A write batch slower than this is logged (debug level), in milliseconds.
 _SLOW_BATCH_MS = 30.0
 
@@ -63,16 +69,31 @@ class WriteBatcher:
         # SQLite writes are short local I/O: done on the event loop they avoid handing the GIL back and
         # forth with a writer thread (measured with 100 robots: upload p95 ~80 -> ~29 ms).
         self.inline = db.is_sqlite
+        self._writable: asyncio.Future[None] | None = None
+        self._waiter = ThreadPoolExecutor(1, thread_name_prefix="linemap-write-wait")
 
     async def submit(self, fn: Callable[[Connection], T], *, heavy: bool = False) -> T:
-        """Run ``fn(conn)`` (inline on SQLite when the write queue is free, else in the thread pool or the
-        next batch); its result, or its error. ``heavy``: a long job (many rows), kept off the event loop
+        """Run ``fn(conn)`` (on SQLite inline, once this process's write queue is free; else in the next
+        batch); its result, or its error. ``heavy``: a long job (many rows), kept off the event loop
         and out of the batches."""
-        if self.inline and not heavy:
-            with self._db.try_write_conn() as conn:
+        while self.inline and not heavy:
+            # Block the loop only when no job waits off the loop yet: behind a long write, each upload
+            # arriving would otherwise block it again.
+            waiting = self._writable is not None and not self._writable.done()
+            with self._db.try_write_conn(0.0 if waiting else INLINE_WAIT_S) as conn:
                 if conn is not None:
                     return fn(conn)
-        if self.inline or heavy:
+            # Another thread is writing a long job: wait for it off the loop (the loop goes on), then write
+            # here. Not the job itself in the thread pool: it would hold the write queue across thread
+            # switches, the next uploads would find it taken and follow it there, and the whole stream of
+            # uploads would move to the pool for good (measured: 26% of the server's samples).
+            # One waiting thread of its own for all waiting jobs, not the shared thread pool: under load the
+            # pool is full of long-poll reads, and a wait queued behind them held uploads for seconds.
+            if self._writable is None or self._writable.done():
+                loop = asyncio.get_running_loop()
+                self._writable = loop.run_in_executor(self._waiter, self._db.wait_writable)
+            await asyncio.shield(self._writable)
+        if heavy:
             return await run_in_threadpool(self._alone, fn)
         job: _Job[T] = _Job(fn)
         self._queue.put(job)
@@ -85,6 +106,7 @@ class WriteBatcher:
     def close(self) -> None:
         self._queue.put(_STOP)
         self._thread.join(timeout=10)
+        self._waiter.shutdown(wait=False, cancel_futures=True)
 
     def _run(self) -> None:
         while True:

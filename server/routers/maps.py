@@ -4,8 +4,9 @@ Stream events (``text/event-stream``): ``snapshot`` (the whole map, :class:`serv
 and whenever the subscriber must resynchronise, then one ``delta`` per upload, carrying ``version``,
 ``base_version``, changed ``segments``, ``removed`` ids, ``centroids``, ``pose`` and new ``trajectory``
 rows. Each event's ``id`` is the map version. A comment line every 15 s keeps proxies from closing it.
-The stream re-checks its credential in the database every ``AUTH_RECHECK_S`` and ends when it no longer
-works (token revoked or rotated, on any server process; session closed or expired).
+The stream re-checks its credential every ``AUTH_RECHECK_S`` (:func:`server.deps.still_valid`: an answer
+read from the database at most 0.5 s before) and ends when it no longer works (token revoked or rotated, on
+any server process; session closed or expired).
 
 ``GET /export?format=geojson|svg|dxf|pgm|yaml`` returns the latest map as a file (the same writers as
 ``linemap map``); ``pgm`` and ``yaml`` are the two halves of a ROS map_server map at ``resolution`` metres
@@ -47,8 +48,9 @@ __all__ = ["router"]
 router = APIRouter(prefix="/robots/{robot_id}/maps", tags=["maps"])
 RobotAccess = Annotated[Principal, Depends(robot_access)]
 KEEPALIVE_S = 15.0
-#: How often an open stream re-reads its credential (s): a revocation ends it within about this time.
-AUTH_RECHECK_S = 0.5
+#: How often an open stream re-checks its credential (s): with answers at most 0.5 s old
+#: (server.deps.STILL_VALID_MAX_AGE_S), a revocation ends it within 0.75 s plus one database read.
+AUTH_RECHECK_S = 0.25
 
 
 _UPLOAD_BODY = {
