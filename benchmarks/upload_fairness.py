@@ -102,11 +102,13 @@ class HeavyBody:
         self.walls, self.changing, self.extend = walls, changing, extend
         self._wall_text = [self._wall(i, 0) for i in range(walls)]
         self._now, self._at = list(self._wall_text), 0  # the walls as of version _at
-        head = len(b",".join(self._wall_text)) + 100
-        pose_bytes = len(self._pose(0))
-        self._poses0 = max(0, (size_bytes - head) // pose_bytes)
-        most = self._poses0 + extend * 1000 if changing else self._poses0
-        text = [self._pose(j) for j in range(most)]
+        budget = size_bytes - len(b",".join(self._wall_text)) - 100  # for the poses of version 1
+        text: list[bytes] = []
+        while budget > 0 and (pose := self._pose(len(text))):
+            text.append(pose)
+            budget -= len(pose) + 1
+        self._poses0 = len(text)
+        text += [self._pose(j) for j in range(len(text), len(text) + (extend * 1000 if changing else 0))]
         self._traj = b",".join(text)
         self._ends = [0, *np.cumsum([len(t) + 1 for t in text]).tolist()]  # poses[:n] end at _ends[n] - 1
 
