@@ -114,6 +114,8 @@ async def upload_map(
     )
     if applied.event is not None:
         state.hub.publish(f"maps:{robot_id}", applied.event)
+        if diff is not None:  # the parser process may diff the robot's next snapshot against this one
+            parser.wrote(robot_id, body.version)
     return applied.out
 
 

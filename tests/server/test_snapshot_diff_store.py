@@ -171,3 +171,41 @@ def test_big_snapshots_through_the_server_are_written_as_diffs_with_the_full_rep
             if body["version"] == 2:  # appended: version 1's 1000 pose rows stayed
                 assert pose_versions() == [1] * 1000 + [2] * 200
         assert pose_versions() == [3] * 900  # replaced
+
+
+def test_the_parser_diffs_against_its_last_snapshot_only_while_that_is_what_is_stored(live: Live) -> None:
+    """The worker remembers the last snapshot it parsed per robot (server.parsepool): used only when the
+    server process says it wrote that version and the stored map is still at it; otherwise the map is read."""
+    from server import parsepool
+
+    url = live.state.settings.database_url
+    rid, _ = live.new_robot()
+    walls = [[float(i), float(i), 0.0, i + 0.5, 1.0] for i in range(50)]
+    raw = json.dumps(_big(1, walls, 20)).encode()
+    kind, fields, diff = parsepool._parse_packed(raw, rid, 20_000, 1e5, url, None)
+    assert kind == "ok" and diff is not None and diff.rows == 70  # against the empty map, read
+    up = parsepool._unpack(fields)
+    with live.state.db.write_conn() as conn:
+        apply_upload(conn, rid, up, "version-1", None, 20_000, prepare_rows(rid, up, diff))
+    remembered = parsepool._LAST[(url, rid)]
+    assert parsepool._remembered(url, rid, 1) is remembered  # written and still stored: no read needed
+    assert parsepool._remembered(url, rid, None) is None  # not confirmed written by the server process
+    stored = read_stored(url, rid)
+    assert stored is not None and stored.wall_ids.tolist() == remembered.wall_ids.tolist()
+    assert _bits_equal(stored.trajectory, remembered.trajectory) and _bits_equal(
+        stored.walls, remembered.walls
+    )
+    delta = MapUpload.model_validate({"version": 2, "base_version": 1, "segments": [[99.0, 1, 1, 2, 2]]})
+    with live.state.db.write_conn() as conn:
+        apply_upload(conn, rid, delta, "delta-2")
+    assert parsepool._remembered(url, rid, 1) is None  # the map moved on: read it
+    kind, fields, diff = parsepool._parse_packed(
+        json.dumps(_big(3, walls, 20)).encode(), rid, 20_000, 1e5, url, 1
+    )
+    assert diff is not None and diff.base_version == 2 and diff.removed.tolist() == [99]
+
+
+def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(
+        np.array_equal(np.ascontiguousarray(a).view(np.int64), np.ascontiguousarray(b).view(np.int64))
+    )
