@@ -20,7 +20,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import multiprocessing
-import os
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
@@ -180,13 +179,6 @@ def _parse_packed(
     return "ok", fields, diff
 
 
-def _lower_priority(nice: int) -> None:
-    """The worker's initializer: run at ``nice`` more niceness, so that the server's other requests win the
-    CPU over a big upload's parsing."""
-    if nice > 0:
-        os.nice(nice)
-
-
 def _file_database(db_url: str | None) -> str | None:
     """``db_url`` if another process can open the same database (not an in-memory SQLite one)."""
     if db_url is None:
@@ -207,10 +199,9 @@ def _unpack(fields: dict[str, Any]) -> MapUpload:
 class UploadParser:
     """The worker process (started lazily, ``spawn``: no copy of this process's threads or sockets)."""
 
-    def __init__(self, db_url: str | None = None, nice: int = 0) -> None:
+    def __init__(self, db_url: str | None = None) -> None:
         self._pool: ProcessPoolExecutor | None = None
         self._db_url = _file_database(db_url)
-        self._nice = nice
         self._written: dict[int, int] = {}  # robot id -> version last written from a snapshot parsed here
 
     async def parse(
@@ -219,12 +210,7 @@ class UploadParser:
         """:func:`parse_upload` in the worker; the same result or error, and a snapshot's diff against the
         stored map (``None`` for a delta, or when the database given at construction could not be read)."""
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(
-                1,
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=_lower_priority,
-                initargs=(self._nice,),
-            )
+            self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
         loop = asyncio.get_running_loop()
         try:
             kind, value, extra = await loop.run_in_executor(

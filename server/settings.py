@@ -72,13 +72,6 @@ class Settings(BaseSettings):
         "beyond it is refused with 422 naming the cap. A large floor (10,000 m2 of offices) maps to a few "
         "thousand walls, so the default leaves several times that.",
     )
-    upload_parser_nice: int = Field(
-        0,
-        ge=0,
-        le=19,
-        description="CPU niceness added to the process that parses big uploads (os.nice): above 0 the "
-        "other requests of the server win the CPU over a near-limit upload's parsing.",
-    )
     upload_requests_per_s: float = Field(
         20.0,
         gt=0,
