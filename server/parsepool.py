@@ -6,10 +6,12 @@ worker returns the big row lists as NumPy arrays (a memory copy to send and rece
 lists cost as much as parsing again) and the rest as it parsed it; :meth:`UploadParser.parse` rebuilds
 the :class:`~server.schemas.MapUpload` without validating it again (O(rows) in C: ``ndarray.tolist``).
 
-For a snapshot the worker also reads the robot's stored map (its own read-only connection to the
-database) and computes the diff from it (:mod:`server.snapdiff`), so that the write transaction applies
-only what changed: a near-limit snapshot that repeats the stored map holds SQLite's write lock for
-milliseconds instead of the 0.3-0.7 s of deleting and re-inserting ~120,000 rows.
+For a snapshot the worker also reads the robot's stored map (on its own connection, only reading) and
+computes the diff from it (:mod:`server.snapdiff`), so that the write transaction applies only what
+changed: a near-limit snapshot that repeats the stored map holds SQLite's write lock for milliseconds
+instead of the 0.3-0.7 s of deleting and re-inserting ~120,000 rows. A robot's next snapshot is diffed
+against the last one parsed here, without reading the map, while that is what is stored
+(:func:`_remembered`).
 
 One worker per server process (spawned on first use): big uploads queue for it; each robot's quota
 (:mod:`server.quota`) bounds how often one comes.
