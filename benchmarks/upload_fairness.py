@@ -7,6 +7,11 @@ registers fresh normal robots. Figures: the normal robots' upload latency p50 / 
 idle vs heavy, all from this one run (pooled, and the median of the per-round p99s), and what the heavy
 robot got through. Target (docs/reliability/load.md): heavy p99 at most 2x idle p99.
 
+By default every heavy snapshot repeats the same map (only its version changes), which the server writes
+as an empty diff against the stored map (server.snapdiff); ``--heavy-changing N`` makes each accepted
+snapshot move N walls and extend the trajectory by ``--heavy-extend-poses`` poses, as a mapping robot's
+snapshots do.
+
 Reuses :mod:`benchmarks.server_load` (the server process, the normal robots' uploader and payloads). Exit 0
 when it ran (figures, not pass/fail), 2 when the setup failed. ``--help`` for the options."""
 
@@ -29,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 from rich.console import Console
 from rich.logging import RichHandler
 from rich.table import Table
@@ -38,7 +44,7 @@ if __package__ in (None, ""):  # run as a script: benchmarks/ is not a package o
 
 from benchmarks.server_load import API, Config, Load, Robot, Server, SetupError, nearest_rank
 
-__all__ = ["FairConfig", "HeavyStats", "Phase", "heavy_body", "main", "measure"]
+__all__ = ["FairConfig", "HeavyBody", "HeavyStats", "Phase", "main", "measure"]
 
 log = logging.getLogger("upload_fairness")
 #: Heavy uploads accepted in a row after which the server is taken to have no quota (the default burst,
@@ -56,6 +62,12 @@ class FairConfig:
     rounds: int = field(default=3, metadata={"help": "idle + heavy phase pairs"})
     heavy_walls: int = field(default=20_000, metadata={"help": "walls in each heavy snapshot"})
     heavy_bytes: int = field(default=3_700_000, metadata={"help": "size of each heavy snapshot (bytes)"})
+    heavy_changing: int = field(
+        default=0, metadata={"help": "walls each accepted heavy snapshot moves (0: identical snapshots)"}
+    )
+    heavy_extend_poses: int = field(
+        default=150, metadata={"help": "poses each accepted heavy snapshot adds (with --heavy-changing)"}
+    )
     port: int = field(default=0, metadata={"help": "server port (0: a free one)"})
 
 
@@ -78,27 +90,63 @@ class Phase:
     heavy: HeavyStats | None = None
 
 
-def heavy_body(walls: int, size_bytes: int) -> tuple[bytes, bytes]:
-    """A near-limit snapshot as (prefix, suffix) around its version number: ``walls`` walls, then
-    trajectory poses up to about ``size_bytes``. Encoded once: the client must not spend its own event
-    loop on 4 MB of JSON while it measures the others."""
-    segments = [[float(i), i * 0.01, 1.0, i * 0.01 + 0.5, 2.0] for i in range(walls)]
-    head = json.dumps({"segments": segments, "pose": [0.0, 0.0, 0.0]}, separators=(",", ":"))
-    pose_bytes = len("[1234.5,12.345,23.456,0.123],")
-    n_poses = max(0, (size_bytes - len(head) - 100) // pose_bytes)
-    traj = [[round(0.1 * j, 1), 12.345, 23.456, 0.123] for j in range(n_poses)]
-    rest = json.dumps(
-        {"base_version": None, "stamp_s": 1.0, "segments": segments, "trajectory": traj},
-        separators=(",", ":"),
-    )
-    return b'{"version":', b"," + rest[1:].encode()
+class HeavyBody:
+    """The heavy robot's snapshot of each version, pre-encoded (the client must not spend its own event
+    loop on 4 MB of JSON while it measures the others): ``walls`` walls and trajectory poses up to about
+    ``size_bytes`` at version 1. With ``changing`` > 0, version v moves walls ``[v * changing, (v + 1) *
+    changing)`` (modulo ``walls``; earlier moves stay) and has ``extend * (v - 1)`` poses more than
+    version 1: against the stored map of version v - 1, ``changing`` walls and ``extend`` poses differ.
+    With 0, every version has the same map."""
+
+    def __init__(self, walls: int, size_bytes: int, changing: int = 0, extend: int = 150) -> None:
+        self.walls, self.changing, self.extend = walls, changing, extend
+        self._wall_text = [self._wall(i, 0) for i in range(walls)]
+        self._now, self._at = list(self._wall_text), 0  # the walls as of version _at
+        budget = size_bytes - len(b",".join(self._wall_text)) - 100  # for the poses of version 1
+        text: list[bytes] = []
+        while budget > 0 and (pose := self._pose(len(text))):
+            text.append(pose)
+            budget -= len(pose) + 1
+        self._poses0 = len(text)
+        text += [self._pose(j) for j in range(len(text), len(text) + (extend * 1000 if changing else 0))]
+        self._traj = b",".join(text)
+        self._ends = [0, *np.cumsum([len(t) + 1 for t in text]).tolist()]  # poses[:n] end at _ends[n] - 1
+
+    @staticmethod
+    def _wall(i: int, version: int) -> bytes:
+        y = 1.0 + 0.001 * (version % 1000)
+        return f"[{i}.0,{i * 0.01:.2f},{y:.3f},{i * 0.01 + 0.5:.2f},2.0]".encode()
+
+    @staticmethod
+    def _pose(j: int) -> bytes:
+        return f"[{0.1 * j:.1f},12.345,23.456,0.123]".encode()
+
+    def content(self, version: int) -> bytes:
+        """The body of snapshot ``version`` (>= 1)."""
+        if version < self._at:  # versions only grow, but start again if not
+            self._at, self._now = 0, list(self._wall_text)
+        for v in range(self._at + 1, version + 1):  # the moves of every version up to this one
+            for k in range(v * self.changing, (v + 1) * self.changing):
+                self._now[k % self.walls] = self._wall(k % self.walls, v)
+        self._at = max(self._at, version)
+        walls = self._now
+        n = min(self._poses0 + self.extend * (version - 1), len(self._ends) - 1)
+        traj = self._traj[: max(0, self._ends[n] - 1)]
+        return b'{"version":%d,"base_version":null,"stamp_s":1.0,"segments":[%s],"trajectory":[%s]}' % (
+            version,
+            b",".join(walls),
+            traj,
+        )
+
+    def size(self) -> int:
+        return len(self.content(1))
 
 
 def _heavy_robot(
     base: str,
     robot_id: int,
     token: str,
-    body: tuple[bytes, bytes],
+    body: HeavyBody,
     end: list[float],
     drained: threading.Event,
 ) -> HeavyStats:
@@ -112,7 +160,7 @@ def _heavy_robot(
     headers = {"Authorization": f"Bearer {token}", "Content-Type": "application/json"}
     with httpx.Client(timeout=60.0) as client:
         while (now := time.perf_counter()) < end[0]:
-            content = body[0] + str(version).encode() + body[1]
+            content = body.content(version)
             try:
                 r = client.post(url, content=content, headers=headers)
             except httpx.HTTPError as exc:
@@ -156,9 +204,7 @@ async def _healthz(base: str, end: float, out: list[float], every_s: float = 0.1
             await asyncio.sleep(max(0.0, every_s - (time.perf_counter() - now)))
 
 
-async def _phase(
-    cfg: FairConfig, base: str, load: Load, heavy: tuple[int, str, tuple[bytes, bytes]] | None
-) -> Phase:
+async def _phase(cfg: FairConfig, base: str, load: Load, heavy: tuple[int, str, HeavyBody] | None) -> Phase:
     """One phase: the normal robots' uploaders (server_load's), /healthz probes, and the heavy robot."""
     healthz: list[float] = []
     async with contextlib.AsyncExitStack() as stack:
@@ -201,8 +247,8 @@ def _register(base: str, admin: str, n: int, tag: str) -> list[Robot]:
 def measure(cfg: FairConfig) -> list[Phase]:
     """Start the server, run the rounds, stop it: the phases in order. Raises :class:`SetupError`."""
     phases: list[Phase] = []
-    body = heavy_body(cfg.heavy_walls, cfg.heavy_bytes)
-    log.info("heavy snapshot: %d walls, %.2f MB", cfg.heavy_walls, (len(body[0]) + len(body[1])) / 1e6)
+    body = HeavyBody(cfg.heavy_walls, cfg.heavy_bytes, cfg.heavy_changing, cfg.heavy_extend_poses)
+    log.info("heavy snapshot: %d walls, %.2f MB", cfg.heavy_walls, body.size() / 1e6)
     with tempfile.TemporaryDirectory(prefix="linemap-fair-") as tmp:
         db = cfg.db or f"sqlite:///{Path(tmp) / 'server.db'}"
         server = Server(db, cfg.port, Path(tmp))
@@ -269,7 +315,8 @@ def report(cfg: FairConfig, phases: list[Phase]) -> tuple[dict[str, Any], Table]
     data["p99_ratio_pooled"], data["p99_ratio_median_of_rounds"] = round(ratio, 2), round(ratio_med, 2)
     title = (
         f"upload fairness: {cfg.robots} robots x {cfg.period_s:g} s + 1 heavy robot "
-        f"({cfg.heavy_walls} walls, {cfg.heavy_bytes / 1e6:.1f} MB snapshots), {cfg.rounds} x "
+        f"({cfg.heavy_walls} walls, {cfg.heavy_bytes / 1e6:.1f} MB snapshots, {cfg.heavy_changing} walls "
+        f"moved and {cfg.heavy_extend_poses if cfg.heavy_changing else 0} poses added each), {cfg.rounds} x "
         f"{cfg.phase_s:g} s per phase, {data['config']['db']}"
     )
     table = Table(title=title)
@@ -313,6 +360,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("httpx").setLevel(logging.WARNING)
     if min(a.robots, a.period_s, a.phase_s, a.rounds, a.heavy_bytes) <= 0 or a.heavy_walls < 0:
         p.error("--robots, --period-s, --phase-s, --rounds and --heavy-bytes must be positive")
+    if a.heavy_changing < 0 or a.heavy_extend_poses < 0 or a.heavy_changing > a.heavy_walls:
+        p.error("--heavy-changing must be within 0..--heavy-walls, --heavy-extend-poses at least 0")
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     cfg = FairConfig(**{f.name: getattr(a, f.name) for f in fields(FairConfig)})
     try:

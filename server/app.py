@@ -88,7 +88,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     app.state.linemap = state
     app.state.shutdown = ShutdownSignal()  # set by ``linemap server`` when it begins to stop
     app.state.upload_quota = UploadQuota.from_settings(settings)  # per process (server.quota)
-    app.state.upload_parser = parser = UploadParser()  # big uploads parsed in a worker process
+    app.state.upload_parser = parser = UploadParser(settings.database_url)  # big uploads: a worker process
     app.add_exception_handler(ServerError, _server_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(HTTPException, _http_error)

@@ -9,7 +9,8 @@ refused with 409 and the server's version, and the robot sends a snapshot instea
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, field
 from datetime import datetime
 from itertools import chain
 from typing import Any
@@ -21,6 +22,7 @@ from sqlalchemy.orm import Session
 from server.errors import ConflictError, InvalidRequestError, NotFoundError
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
 from server.schemas import MapOut, MapUpload, MapUploadOut
+from server.snapdiff import SnapshotDiff
 
 __all__ = [
     "AppliedUpload",
@@ -31,6 +33,8 @@ __all__ = [
     "prepare_rows",
     "read_map",
 ]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,10 +97,17 @@ class PreparedRows:
     """An upload's wall and pose rows as statement parameters, flat, one tuple per chunk of at most
     ``_CHUNK_ROWS`` rows: ``(rows in the chunk, parameters)``. Built by :func:`prepare_rows` before the
     write transaction, so a near-limit upload (~120,000 rows, ~0.3 s of Python) does not hold the writer
-    (SQLite's one write lock) while it is built."""
+    (SQLite's one write lock) while it is built.
+
+    For a snapshot written as a diff (:mod:`server.snapdiff`): the rows are the diff's (changed walls,
+    new poses), valid only while the stored map is at ``diff_base``; ``removed`` lists the wall ids to
+    delete and ``replace_trajectory`` says whether the stored poses go first."""
 
     segments: list[tuple[int, tuple[Any, ...]]]
     trajectory: list[tuple[int, tuple[Any, ...]]]
+    diff_base: int | None = None
+    removed: list[int] = field(default_factory=list)
+    replace_trajectory: bool = True
 
 
 def _chunks(rows: list[tuple[Any, ...]]) -> list[tuple[int, tuple[Any, ...]]]:
@@ -107,9 +118,17 @@ def _chunks(rows: list[tuple[Any, ...]]) -> list[tuple[int, tuple[Any, ...]]]:
     ]
 
 
-def prepare_rows(robot_id: int, up: MapUpload) -> PreparedRows:
+def prepare_rows(robot_id: int, up: MapUpload, diff: SnapshotDiff | None = None) -> PreparedRows:
     """The upload's rows for the multi-row inserts of :func:`apply_upload`. A segment id given twice keeps
-    its last row (``ON CONFLICT`` cannot touch one row twice in a statement). O(rows)."""
+    its last row (``ON CONFLICT`` cannot touch one row twice in a statement). ``diff``: a snapshot's diff
+    against the stored map; then only its rows. O(rows)."""
+    if diff is not None and up.base_version is None:
+        segs = [(robot_id, int(r[0]), *r[1:5], up.version) for r in diff.upsert.tolist()]
+        poses = [(robot_id, up.version, *r) for r in diff.trajectory.tolist()]
+        removed = diff.removed.tolist()
+        return PreparedRows(
+            _chunks(segs), _chunks(poses), diff.base_version, removed, diff.replace_trajectory
+        )
     last = {int(r[0]): r for r in up.segments}
     segments = [(robot_id, sid, *r[1:5], up.version) for sid, r in last.items()]
     trajectory = [(robot_id, up.version, *r) for r in up.trajectory]
@@ -146,6 +165,13 @@ def _bulk_segments(
         _upsert(conn, _SEG, ["robot_id", "segment_id"], _COORDS, values)
         return
     _multi_row(conn, _SEGMENT_SQL, 7, prepared.segments)
+
+
+def _delete_walls(conn: Connection, robot_id: int, ids: list[int]) -> None:
+    """Delete the robot's walls ``ids`` (absent ones are no error), ``_CHUNK_ROWS`` ids a statement."""
+    for start in range(0, len(ids), _CHUNK_ROWS):
+        chunk = ids[start : start + _CHUNK_ROWS]
+        conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(chunk)))
 
 
 def _count(conn: Connection, robot_id: int, ids: list[int] | None = None) -> int:
@@ -205,7 +231,9 @@ def apply_upload(
     """Apply one upload in the caller's transaction (SQLAlchemy Core: a robot sends one every few hundred
     milliseconds); ``max_walls``: refuse (422, before writing) a delta after which the map would hold more
     walls (:func:`check_wall_cap`); ``prepared``: its rows from :func:`prepare_rows`, built before the
-    transaction (else here). O(rows in the upload)."""
+    transaction (else here). A snapshot's rows prepared as a diff are applied as such only if the stored
+    map is still at the diff's version; otherwise (another upload of the robot came between) the map is
+    replaced whole, with the same result. O(rows in the upload, or in the diff)."""
     # Serialise the robot's uploads first: concurrent uploads of one robot (a retry racing its original)
     # queue here, so the idempotency check below sees every upload committed before it. PostgreSQL: a
     # per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts seconds, and
@@ -233,8 +261,20 @@ def apply_upload(
             )
         if max_walls is not None:
             check_wall_cap(conn, robot_id, up, max_walls)
-        conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id))
-        conn.execute(delete(_TRAJ).where(_TRAJ.c.robot_id == robot_id))
+        if prepared is not None and prepared.diff_base is not None and prepared.diff_base != current:
+            log.info(
+                "robot %d's map moved (version %d -> %d) since its snapshot's diff: replacing it whole",
+                robot_id,
+                prepared.diff_base,
+                current,
+            )
+            prepared = prepare_rows(robot_id, up)
+        if prepared is not None and prepared.diff_base is not None:  # the diff against the stored map
+            _delete_walls(conn, robot_id, prepared.removed)
+        else:
+            conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id))
+        if prepared is None or prepared.replace_trajectory:
+            conn.execute(delete(_TRAJ).where(_TRAJ.c.robot_id == robot_id))
     else:
         if up.base_version != current:
             raise ConflictError(
@@ -244,8 +284,7 @@ def apply_upload(
             )
         if max_walls is not None:
             check_wall_cap(conn, robot_id, up, max_walls)
-        if up.removed:
-            conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(up.removed)))
+        _delete_walls(conn, robot_id, up.removed)
     v = up.version
     rows = prepared or prepare_rows(robot_id, up)
     _bulk_segments(conn, robot_id, v, up.segments, rows)

@@ -102,20 +102,22 @@ async def upload_map(
     raw = await request.body()
     _charge(request, robot_id, len(raw))
     cap = state.settings.max_walls_per_map
-    heavy = len(raw) > INLINE_BODY_BYTES
-    if heavy:
+    heavy, diff = len(raw) > INLINE_BODY_BYTES, None
+    if heavy:  # a snapshot also gets its diff against the stored map (server.snapdiff)
         parser: UploadParser = request.app.state.upload_parser
-        body = await parser.parse(raw, robot_id, cap, state.settings.world_extent_m)
+        body, diff = await parser.parse(raw, robot_id, cap, state.settings.world_extent_m)
     else:
         body = parse_upload(raw, robot_id, cap, state.settings.world_extent_m)
     key = idempotency_key or f"version-{body.version}"
     seen = state.last_seen(robot_id)
-    rows = await run_in_threadpool(prepare_rows, robot_id, body) if heavy else None  # before the writer
+    rows = await run_in_threadpool(prepare_rows, robot_id, body, diff) if heavy else None  # before the writer
     applied = await state.writer.submit(
         lambda conn: apply_upload(conn, robot_id, body, key, seen, cap, rows), heavy=heavy
     )
     if applied.event is not None:
         state.hub.publish(f"maps:{robot_id}", applied.event)
+        if diff is not None:  # the parser process may diff the robot's next snapshot against this one
+            parser.wrote(robot_id, body.version)
     return applied.out
 
 
