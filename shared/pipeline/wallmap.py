@@ -8,7 +8,8 @@ union of the merged segments' projections on that line.
 
 A new segment merges into a wall when it is collinear (angle within ``angle_tol_deg``, or for a piece
 shorter than ``2 offset_tol_m / sin(angle_tol_deg)`` within the tilt its end band allows,
-``asin(2 offset_tol_m / length)``: a short noisy piece's direction is not known better; both end points
+``asin(2 offset_tol_m / length)``, if the wall is not that short itself: a short noisy piece's direction
+is not known better, and two short pieces do not vouch for each other's; both end points
 within ``offset_tol_m`` of the wall's line) and overlaps it or leaves a gap of at most ``gap_tol_m``.
 A merged wall is then checked against the others again, so chains of pieces fuse into one wall. Walls keep
 stable integer ids; when two walls fuse, the older id survives and the other is reported removed. A wall is
@@ -216,14 +217,20 @@ def _match(
     ax, ay = c[i, 0] + d[i, 0] * lo[i], c[i, 1] + d[i, 1] * lo[i]
     bx, by = c[i, 0] + d[i, 0] * hi[i], c[i, 1] + d[i, 1] * hi[i]
     # a short piece's direction is only known to within its ends' band: both ends within offset_tol of a
-    # line allow a tilt of up to asin(2 offset_tol / length), so that bounds the angle test from below
+    # line allow a tilt of up to asin(2 offset_tol / length), so that bounds the angle test from below. Only
+    # against a wall whose own direction is known to within the angle test (not itself that short): two
+    # short pieces (a person's legs in successive scans) do not vouch for each other's direction.
     length = hi[i] - lo[i]
     cos_i = cos_tol
     if by_band:
         sin_band = min(2.0 * offset_tol / max(length, 1e-12), 1.0)
         cos_i = min(cos_tol, np.sqrt(1.0 - sin_band * sin_band))
+    determined_m = 2.0 * offset_tol / max(np.sqrt(max(1.0 - cos_tol * cos_tol, 0.0)), 1e-12)
     for j in range(n):
-        if j == i or abs(d[j, 0] * d[i, 0] + d[j, 1] * d[i, 1]) < cos_i:
+        if j == i:
+            continue
+        cos_ij = abs(d[j, 0] * d[i, 0] + d[j, 1] * d[i, 1])
+        if cos_ij < cos_i or (cos_ij < cos_tol and hi[j] - lo[j] < determined_m):
             continue
         nx, ny = -d[j, 1], d[j, 0]
         rax, ray, rbx, rby = ax - c[j, 0], ay - c[j, 1], bx - c[j, 0], by - c[j, 1]
