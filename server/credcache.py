@@ -129,6 +129,7 @@ class CredentialCache:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._failing = False  # the last re-check failed (logged once per outage)
 
     def start(self, read: Callable[[], AbstractContextManager[DbSession]]) -> None:
         """Run :meth:`refresh` every ``ttl_s / 2`` in a daemon thread until :meth:`stop` (nothing when the
@@ -139,13 +140,32 @@ class CredentialCache:
 
         def run() -> None:
             while not self._stop.wait(self.ttl_s / 2):
-                try:
-                    self.refresh(read)
-                except Exception:  # the database is away: lookups go per request meanwhile
-                    log.exception("could not re-check the cached credentials")
+                self.recheck(read)
 
         self._thread = threading.Thread(target=run, name="linemap-credentials", daemon=True)
         self._thread.start()
+
+    def recheck(self, read: Callable[[], AbstractContextManager[DbSession]]) -> bool:
+        """One :meth:`refresh` of the re-check thread; whether it worked. A failure (the database is away:
+        lookups then go per request, as without the re-check) is logged once per outage, as a warning
+        naming the error (the traceback at debug level), not every ``ttl_s / 2``; the recovery once."""
+        try:
+            self.refresh(read)
+        except Exception as exc:
+            if not self._failing:
+                self._failing = True
+                log.warning(
+                    "could not re-check the cached credentials (%s: %s); retrying every %.2f s",
+                    type(exc).__name__,
+                    exc,
+                    self.ttl_s / 2,
+                )
+            log.debug("credential re-check failed", exc_info=True)
+            return False
+        if self._failing:
+            self._failing = False
+            log.info("re-checking the cached credentials again")
+        return True
 
     def stop(self) -> None:
         """End the re-check thread (waits for a re-check in progress)."""

@@ -5,6 +5,7 @@ writes nothing back. The clock is a stepped fake (no sleeping)."""
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import timedelta
@@ -194,3 +195,29 @@ def test_a_stream_check_takes_only_a_recent_answer(db: Database) -> None:
     assert cache.get(hash_token(token))[1] is True
     assert cache.refresh(db.read) == 1  # re-checked now: recent again
     assert cache.get(hash_token(token), max_age_s=0.5)[1] is True
+
+
+def test_a_database_outage_is_logged_once_and_the_recovery_once(
+    db: Database, caplog: pytest.LogCaptureFixture
+) -> None:
+    clock = Clock()
+    cache = CredentialCache(TTL_S, clock=clock)
+    _rid, token = _robot(db, "r")
+    assert _lookup(cache, db, token) is not None  # an entry to re-check
+
+    @contextmanager
+    def away() -> Iterator[DbSession]:
+        raise ConnectionError("database unreachable")
+        yield  # pragma: no cover
+
+    with caplog.at_level(logging.DEBUG, logger="server.credcache"):
+        assert [cache.recheck(away) for _ in range(5)] == [False] * 5
+        assert cache.recheck(db.read) is True
+        assert cache.recheck(db.read) is True
+    warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1
+    assert "ConnectionError: database unreachable" in warnings[0].getMessage()
+    assert not any(r.exc_info for r in caplog.records if r.levelno > logging.DEBUG)  # traceback: debug only
+    assert [r.getMessage() for r in caplog.records if r.levelno == logging.INFO] == [
+        "re-checking the cached credentials again"
+    ]
