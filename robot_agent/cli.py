@@ -80,7 +80,8 @@ def agent_cmd(
         str | None, typer.Option(envvar="LINEMAP_ROBOT_TOKEN", help="This robot's token.")
     ] = None,
     source: Annotated[
-        str | None, typer.Option(help="sim | sim:WORLD_FILE | a log file | urg:/dev/ttyACM0")
+        str | None,
+        typer.Option(help="sim | sim:WORLD_FILE | sim:KIND (a suite world) | a log file | urg:/dev/ttyACM0"),
     ] = None,
     encoders: Annotated[
         str | None,

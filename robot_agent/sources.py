@@ -1,10 +1,14 @@
-"""Where the agent's scans come from: ``sim``, ``sim:WORLD_FILE``, a log file, or ``urg:DEVICE``.
+"""Where the agent's scans come from: ``sim``, ``sim:WORLD_FILE``, ``sim:KIND``, a log file, or
+``urg:DEVICE``.
 
 Sources are plain iterators of :class:`shared.types.Scan` (with odometry); pacing is the agent's job. A
 source that cannot be opened raises :class:`SourceError` naming the spec and what was expected.
 
 A simulated robot drives its world's path once, or patrols it ``laps`` times (0: until stopped; see
-:func:`shared.sim.patrol_scans`).
+:func:`shared.sim.patrol_scans`). ``sim:KIND`` is a world of the scenario suite
+(:data:`shared.sim.worlds.KINDS`, e.g. ``sim:corridor-doors``; world files end in .json/.toml, so a kind
+never names one): once, its case as ``linemap bench worlds`` maps it; in laps, patrolled out and back with
+its people, doors and odometry errors (:func:`shared.sim.scene_patrol_scans`).
 
 ``urg:DEVICE`` streams a Hokuyo URG-04LX on the serial device (SCIP 2.0, :mod:`robot_agent.sensors.urg`):
 scans stamped in host seconds, recovering from damaged frames and replugs. Its scans carry no odometry
@@ -93,8 +97,20 @@ def open_scans(
             "their own odometry)"
         )
     if spec == "sim" or spec.startswith("sim:"):
-        from shared.sim import default_world, load_world, patrol_scans, simulate_run
+        from shared.sim import default_world, load_world, patrol_scans, scene_patrol_scans, simulate_run
+        from shared.sim.worlds import KINDS, simulate_case
 
+        if spec[4:] in KINDS:
+            if laps == 1:
+                yield from simulate_case(spec[4:], seed).run.scans
+            else:
+                yield from scene_patrol_scans(spec[4:], seed=seed, laps=laps)
+            return
+        if spec != "sim" and not Path(spec[4:]).suffix:
+            raise SourceError(
+                f"source {spec!r}: {spec[4:]!r} is neither a world file (.json/.toml) nor a world kind of "
+                f"the scenario suite ({', '.join(KINDS)})"
+            )
         try:
             world = default_world() if spec == "sim" else load_world(Path(spec[4:]))
         except LinemapError as exc:

@@ -4,7 +4,7 @@ scenes that change over time and odometry error models for the scenario suite (`
 from shared.sim.errors import WorldFileError
 from shared.sim.odometry_errors import ODOMETRY_MODELS, OdometryErrors, odometry_from_truth
 from shared.sim.path import plan_path
-from shared.sim.patrol import patrol_lap_steps, patrol_scans
+from shared.sim.patrol import patrol_lap_steps, patrol_scans, scene_patrol_scans
 from shared.sim.run import NO_SLIP, SimRun, SlipNoise, simulate_run, wheel_displacements_between
 from shared.sim.runfiles import read_poses, write_run
 from shared.sim.scans import RangeNoise, simulate_scan
@@ -38,6 +38,7 @@ __all__ = [
     "polygon_walls",
     "read_poses",
     "save_world",
+    "scene_patrol_scans",
     "scene_raycast",
     "simulate_run",
     "simulate_scan",

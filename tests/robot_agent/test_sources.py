@@ -128,3 +128,17 @@ def test_a_rosbag2_folder_replays_like_its_scans(tmp_path: Path) -> None:
     got = list(open_scans(str(bag)))
     assert [s.stamp_s for s in got] == pytest.approx([s.stamp_s for s in scans], abs=1e-9)
     assert all(g.odometry is not None for g in got)
+
+
+def test_a_suite_world_is_a_simulated_source() -> None:
+    """``sim:KIND``: once, the suite's case as ``linemap bench worlds`` maps it; in laps, its patrol; the
+    simulated robot's scanner offset; an unknown name lists the kinds."""
+    from shared.sim.worlds import simulate_case
+
+    once = [s.stamp_s for s in open_scans("sim:glass-black", seed=2)]
+    assert once == [s.stamp_s for s in simulate_case("glass-black", 2).run.scans]
+    patrol = list(itertools.islice(open_scans("sim:people-across", laps=0), 30))
+    assert len(patrol) == 30 and all(s.odometry is not None for s in patrol)
+    assert laser_offset("sim:people-across") == laser_offset("sim")
+    with pytest.raises(SourceError, match="corridor-doors"):
+        next(open_scans("sim:corridor-door", laps=0))

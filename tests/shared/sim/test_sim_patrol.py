@@ -43,3 +43,48 @@ def test_a_world_without_a_path_cannot_patrol() -> None:
     pathless = World(base.walls, base.floor_area_m2, "pathless", None)
     with pytest.raises(InvalidInputError, match="pathless"):
         patrol_lap_steps(pathless)
+
+
+def _off_m(scan: Scan, xy: np.ndarray) -> float:
+    """How far the scan's odometry pose is from ``xy`` (m)."""
+    assert scan.odometry is not None
+    return float(np.hypot(scan.odometry.x_m - xy[0], scan.odometry.y_m - xy[1]))
+
+
+def test_a_suite_world_patrol_runs_on_and_comes_back_each_lap() -> None:
+    """Scenario-suite patrol: 10 Hz time that runs on, and with perfect wheels the odometry of the last
+    scan of each lap is back on the path's first knot (out and back), chained across the laps."""
+    from shared.sim import scene_patrol_scans
+    from shared.sim.worlds import build_scene
+
+    start = build_scene("corridor-doors", 1).knots[0]
+    scans = list(scene_patrol_scans("corridor-doors", seed=1, laps=2, odometry="perfect"))
+    assert np.allclose(np.diff([s.stamp_s for s in scans]), 0.1)
+    home = [i for i, s in enumerate(scans) if _off_m(s, start) < 0.01]
+    assert home[0] == 0 and home[-1] == len(scans) - 1  # starts and ends on the first knot
+    assert any(abs(i - len(scans) // 2) < 60 for i in home), "and was there after the first lap"
+    again = itertools.islice(scene_patrol_scans("corridor-doors", seed=1, laps=2, odometry="perfect"), 50)
+    assert all(
+        np.array_equal(a.ranges_m, b.ranges_m, equal_nan=True) for a, b in zip(again, scans[:50], strict=True)
+    )
+
+
+def test_a_closed_suite_path_is_driven_round() -> None:
+    from shared.sim import scene_patrol_scans
+    from shared.sim.worlds import build_scene
+
+    first = build_scene("loop-block", 0).knots[0]
+    lap = list(scene_patrol_scans("loop-block", seed=0, laps=1, odometry="perfect"))
+    assert _off_m(lap[-1], first) < 0.01
+    assert max(_off_m(s, first) for s in lap) > 3.0  # went round the block
+
+
+def test_a_suite_patrol_refuses_unknown_names() -> None:
+    from shared.sim import scene_patrol_scans
+
+    with pytest.raises(InvalidInputError, match="corridor-long"):
+        next(scene_patrol_scans("corridor-lung"))
+    with pytest.raises(InvalidInputError, match="worn"):
+        next(scene_patrol_scans("corridor-long", odometry="bald"))
+    with pytest.raises(InvalidInputError, match="laps"):
+        next(scene_patrol_scans("corridor-long", laps=-1))
