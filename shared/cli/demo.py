@@ -1,8 +1,10 @@
 """``linemap demo``: the whole system on one machine: a server, a simulated robot, the dashboard.
 
 Starts ``linemap server`` on ``HOST:PORT`` with a SQLite database in ``DIR``, registers a robot and a
-signing key, starts ``linemap agent`` patrolling the default simulated world until stopped, prints the
-dashboard URL and the operator token, and waits. Ctrl-C (or SIGTERM) stops the agent, then the server.
+signing key, starts ``linemap agent`` patrolling a simulated world until stopped (``--world``: the paper's
+room by default, or a kind of the scenario suite: :mod:`shared.cli.demo_world`), prints the dashboard URL
+and the operator token, and waits. Ctrl-C (or SIGTERM, or ``--for-s`` seconds) stops the agent, then the
+server; ``--png FILE`` first draws the robot's map as the server holds it then over the true walls.
 ``DIR/demo.json`` records what it made (URL, token, robot id, key files) for scripts and tests.
 
 Each start is fresh: the databases in ``DIR`` are replaced (``--keep`` reuses them). The processes are real
@@ -27,6 +29,7 @@ from typing import Annotated
 import httpx
 import typer
 
+from shared.cli.demo_world import DEFAULT_WORLD, save_map_png, world_source
 from shared.errors import LinemapError
 
 __all__ = ["DemoInfo", "demo_cmd"]
@@ -41,6 +44,7 @@ class DemoInfo:
 
     url: str
     operator_token: str
+    world: str
     robot_id: int
     robot_name: str
     private_key: str
@@ -175,8 +179,26 @@ def demo_cmd(
         bool, typer.Option(help="Reuse the databases of the last demo instead of starting fresh.")
     ] = False,
     laps: Annotated[int, typer.Option(min=0, help="Patrols of the simulated world (0: until stopped).")] = 0,
+    world: Annotated[
+        str,
+        typer.Option(
+            help="The world the robot patrols: room (the paper's Fig. 8 room), a kind of the scenario suite "
+            "(see `linemap bench worlds --list`) or a world file (.json/.toml)."
+        ),
+    ] = DEFAULT_WORLD,
+    for_s: Annotated[
+        float | None,
+        typer.Option("--for-s", min=1.0, help="Stop by itself after this many seconds (default: Ctrl-C)."),
+    ] = None,
+    png: Annotated[
+        Path | None,
+        typer.Option(help="On stopping, draw the robot's map over the world's true walls to this PNG."),
+    ] = None,
 ) -> None:
     """Run a server and a simulated robot, print the dashboard's URL and operator token, wait for Ctrl-C."""
+    source = world_source(world)
+    if png is not None and (png.suffix.lower() != ".png" or not png.resolve().parent.is_dir()):
+        raise LinemapError(f"--png {png}: expected a .png file in an existing folder")
     if not _port_free(host, port):
         raise LinemapError(f"port {port} on {host} is in use: stop what runs there or pass --port")
     directory.mkdir(parents=True, exist_ok=True)
@@ -213,7 +235,7 @@ def demo_cmd(
             "agent",
             [
                 "agent",
-                "--source", "sim",
+                "--source", source,
                 "--laps", str(laps),
                 "--server", base,
                 "--robot-id", str(robot_id),
@@ -224,7 +246,7 @@ def demo_cmd(
             directory / "agent.log",
         )  # fmt: skip
         info = DemoInfo(
-            f"{base}/", op_token, robot_id, ROBOT_NAME, key_file, public_key, example, signature,
+            f"{base}/", op_token, world, robot_id, ROBOT_NAME, key_file, public_key, example, signature,
             server.proc.pid, agent.proc.pid,
         )  # fmt: skip
         _banner(info, directory)
@@ -233,7 +255,11 @@ def demo_cmd(
         partial = directory / "demo.json.partial"
         partial.write_text(json.dumps(asdict(info), indent=2) + "\n", encoding="utf-8")
         partial.replace(directory / "demo.json")
+        deadline = None if for_s is None else time.monotonic() + for_s
         while not stop.wait(0.5):
+            if deadline is not None and time.monotonic() >= deadline:
+                typer.echo(f"linemap demo: {for_s:g} s are up", err=True)
+                stop.set()
             for child in (server, agent):
                 if not child.alive():
                     typer.echo(
@@ -243,6 +269,9 @@ def demo_cmd(
                     )
                     code = 1
                     stop.set()
+        if png is not None and server.alive():
+            summary = save_map_png(base, op_token, robot_id, world, png)
+            typer.echo(f"linemap demo: the robot's map ({summary}) drawn to {png}", err=True)
     finally:
         typer.echo("linemap demo: stopping the robot agent and the server ...", err=True)
         if agent is not None:
@@ -260,7 +289,8 @@ def _banner(info: DemoInfo, directory: Path) -> None:
     lines = [
         f"Dashboard:      [bold cyan]{info.url}[/]",
         f"Operator token: [bold]{info.operator_token}[/]   (paste it at the login)",
-        f"Robot:          {info.robot_name} (id {info.robot_id}), patrolling the simulated world at 10 Hz",
+        f"Robot:          {info.robot_name} (id {info.robot_id}), patrolling the simulated world "
+        f"'{info.world}' at 10 Hz",
         f"Signing key:    {info.private_key}  (trusted by the robot)",
     ]
     if info.example_kernel:
