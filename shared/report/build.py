@@ -2,7 +2,9 @@
 
 :class:`ReportSettings` fixes everything a rerun needs (seeds, step counts, which logs); the report's
 header states them with the versions of linemap and the libraries, so a reader can regenerate it with the
-command it prints. ``quick`` is a small version for tests (one seed, few configurations, short runs).
+command it prints. ``quick`` is a small version for tests (one seed, few configurations, short runs; the
+scenario suite's ``--quick`` subset). Beside ``report.md`` the scenario suite's section is also written as
+``worlds.md`` (the file the README cites); :func:`run_worlds_report` writes only that (a few minutes).
 """
 
 from __future__ import annotations
@@ -19,10 +21,14 @@ from typing import TypeVar
 from shared.bench.table3 import Table3Row
 from shared.report import experiments as ex
 from shared.report.markdown import write_markdown
-from shared.report.plots import plot_area_sweep, plot_maps, plot_timing
+from shared.report.plots import plot_area_sweep, plot_maps, plot_suite_grid, plot_timing
+from shared.report.suite import GRID_PNG, SuiteRun, run_suite, suite_document
 from shared.report.worlds import cluttered_world
 
-__all__ = ["ReportResults", "ReportSettings", "run_report"]
+__all__ = ["ReportResults", "ReportSettings", "run_report", "run_worlds_report"]
+
+#: The scenario suite's section as a file of its own, beside the report.
+WORLDS_MD = "worlds.md"
 
 _T = TypeVar("_T")
 
@@ -71,6 +77,7 @@ class ReportResults:
     versions: dict[str, str]
     started: str
     sections_s: dict[str, float]
+    suite: SuiteRun | None = None
 
 
 def _versions() -> dict[str, str]:
@@ -103,6 +110,7 @@ def run_report(out: Path, settings: ReportSettings, progress: Callable[[str], No
     timing_log = s.data / ex.LOGS[s.timing_log].log if s.data and s.timing_log else None
     timing = timed("Fig. 24", lambda: ex.timing_runs(s.timing_steps, s.seeds[0], timing_log, say))
     accuracy = timed("simulated accuracy", lambda: ex.sim_accuracy(s.seeds, say))
+    suite = timed("scenario suite", lambda: run_suite(s.seeds, quick=s.quick, progress=say))
     data = s.data
     logs = (
         timed("benchmark logs", lambda: ex.log_accuracy(data, s.logs, s.ekf_log_max_scans, say))
@@ -114,6 +122,7 @@ def run_report(out: Path, settings: ReportSettings, progress: Callable[[str], No
     plot_area_sweep(area, out / "fig19_area_vs_clusters.png")
     plot_timing(timing, out / "fig24_time_per_step.png")
     plot_maps(accuracy, cluttered_world().walls, "cluttered", settings.seeds[0], out / "maps_cluttered.png")
+    _write_suite(out, suite, _command(s, worlds_only=False), started)
     results = ReportResults(
         settings,
         area,
@@ -125,7 +134,35 @@ def run_report(out: Path, settings: ReportSettings, progress: Callable[[str], No
         _versions(),
         started,
         sections,
+        suite,
     )
     path = out / "report.md"
     path.write_text(write_markdown(results), encoding="utf-8")
     return path
+
+
+def _command(s: ReportSettings, *, worlds_only: bool) -> str:
+    """The ``linemap report`` command line that reruns ``s``."""
+    args = ["linemap report", *(["--worlds-only"] if worlds_only else [])]
+    args.append("--quick" if s.quick else f"--seeds {','.join(map(str, s.seeds))}")
+    return " ".join(args)
+
+
+def _write_suite(out: Path, suite: SuiteRun, command: str, started: str) -> Path:
+    """The suite's grid of maps and ``worlds.md`` in ``out``; returns the Markdown file's path."""
+    plot_suite_grid(suite, out / GRID_PNG)
+    path = out / WORLDS_MD
+    path.write_text(suite_document(suite, command, started, _versions()), encoding="utf-8")
+    return path
+
+
+def run_worlds_report(
+    out: Path, settings: ReportSettings, progress: Callable[[str], None] | None = None
+) -> Path:
+    """Only the scenario suite's section: ``out/worlds.md`` and its grid of maps (``report.md`` is left
+    alone); returns the Markdown file's path. A few minutes for the whole suite on a 2-core machine."""
+    out.mkdir(parents=True, exist_ok=True)
+    started = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    suite = run_suite(settings.seeds, quick=settings.quick, progress=progress)
+    (progress or (lambda _m: None))("figures")
+    return _write_suite(out, suite, _command(settings, worlds_only=True), started)

@@ -9,9 +9,10 @@ import numpy as np
 
 from shared.bench.table3 import PAPER_TABLE3, Table3Row
 from shared.report.experiments import AccuracyRow, TimingRun
+from shared.report.suite import ERROR_BANDS_M, SuiteRun, segment_errors_m
 from shared.types import FloatArray
 
-__all__ = ["plot_area_sweep", "plot_maps", "plot_timing"]
+__all__ = ["plot_area_sweep", "plot_maps", "plot_suite_grid", "plot_timing"]
 
 COLOURS = {"linemap": "#1f77b4", "ekf-slam": "#d62728", "kmeans": "#1f77b4", "fcm": "#2ca02c"}
 
@@ -125,6 +126,49 @@ def plot_maps(rows: list[AccuracyRow], walls: FloatArray, world: str, seed: int,
         ax.set_aspect("equal")
         ax.grid(alpha=0.2)
     fig.suptitle(f"{world} world, seed {seed}: map (colour) over the true walls (grey), trajectory (orange)")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def plot_suite_grid(run: SuiteRun, path: Path, cols: int = 4) -> Path:
+    """One small map per kind of the scenario suite (its first seed): true walls grey, mapped walls
+    coloured by their mean distance to the truth (blue / orange / red, :data:`ERROR_BANDS_M`), the
+    pipeline's trajectory green; each titled with its mean error, completeness and walls / seen."""
+    plt = _plt()
+    kinds = list(run.maps)
+    figures = {(r.kind, r.seed): r for r in run.results}
+    n_cols = max(1, min(cols, len(kinds)))
+    n_rows = max(1, -(-len(kinds) // n_cols))
+    fig, axes = plt.subplots(n_rows, n_cols, figsize=(4.2 * n_cols, 3.4 * n_rows), dpi=100, squeeze=False)
+    for ax in axes.flat[len(kinds) :]:
+        ax.axis("off")
+    bands = ("#1f77b4", "#ff7f0e", "#d62728")
+    for ax, kind in zip(axes.flat, kinds, strict=False):
+        m = run.maps[kind]
+        for x0, y0, x1, y1 in m.truth:
+            ax.plot([x0, x1], [y0, y1], color="#bbbbbb", lw=3.5, solid_capstyle="butt")
+        errors = segment_errors_m(m.segments, m.truth)
+        band = np.searchsorted(np.asarray(ERROR_BANDS_M), errors)
+        for (x0, y0, x1, y1), b in zip(m.segments, band, strict=True):
+            ax.plot([x0, x1], [y0, y1], color=bands[int(b)], lw=1.1)
+        if len(m.trajectory):
+            ax.plot(m.trajectory[:, 1], m.trajectory[:, 2], color="#2ca02c", lw=0.6, alpha=0.8)
+        r = figures.get((kind, run.seeds[0]))
+        sub = ""
+        if r is not None:
+            complete = f"{r.completeness:.0%}" if np.isfinite(r.completeness) else "n/a"
+            sub = f"{r.mean_error_m * 100:.1f} cm, {complete} complete, {r.walls_mapped}/{r.walls_seen} walls"
+        ax.set_title(f"{kind}\n{sub}", fontsize=8)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=6)
+        ax.grid(alpha=0.2)
+    fig.suptitle(
+        f"Scenario suite, seed {run.seeds[0]}: true walls grey; mapped walls blue (<= 5 cm), orange "
+        "(<= 10 cm), red (spurious); trajectory green",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

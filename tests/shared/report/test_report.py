@@ -53,11 +53,17 @@ def test_quick_report_writes_every_section_and_figure(tmp_path: Path) -> None:
         "## Fig. 19",
         "## Fig. 24",
         "## Accuracy on simulated worlds",
+        "## Scenario suite (issue 19)",
         "## Relation error on the SLAM benchmark logs",
         "## Noise removal kernels",
     ):
         assert heading in text, heading
-    for png in ("fig19_area_vs_clusters.png", "fig24_time_per_step.png", "maps_cluttered.png"):
+    for png in (
+        "fig19_area_vs_clusters.png",
+        "fig24_time_per_step.png",
+        "maps_cluttered.png",
+        "worlds_maps.png",
+    ):
         data = (out / png).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, png
         assert f"]({png})" in text
@@ -67,6 +73,8 @@ def test_quick_report_writes_every_section_and_figure(tmp_path: Path) -> None:
     else:
         assert "Not run: the data folder was not found." in text
     assert "ekf-slam" in text and "cluttered" in text
+    assert "`linemap bench worlds --quick`" in text  # the suite's quick path
+    assert "## Scenario suite (issue 19)" in (out / "worlds.md").read_text()
     assert "nan" not in text.replace("nanoseconds", "")
 
 
