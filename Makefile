@@ -5,10 +5,17 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 NUMBA_STAMP := $(VENV)/.numba-cache-stamp
 
-.PHONY: demo map test install lint typecheck pytest bench report soak clean
+.PHONY: demo demo-map map test install lint typecheck pytest bench report worlds soak clean
 
 demo: install $(NUMBA_STAMP)  ## server + simulated robot + dashboard on http://127.0.0.1:8000 until Ctrl-C
 	$(BIN)/linemap demo
+
+# The demo left running, pictured: after DEMO_S seconds of patrol its map (as the server holds it) over the
+# true walls, then it stops. DEMO_WORLD: room (the paper's room) or a scenario-suite kind.
+DEMO_S ?= 600
+DEMO_WORLD ?= room
+demo-map: install $(NUMBA_STAMP)  ## the demo for DEMO_S s (600), then its map as demo-map.png
+	$(BIN)/linemap demo --dir .demo-map --world $(DEMO_WORLD) --for-s $(DEMO_S) --png demo-map.png
 
 map: install $(NUMBA_STAMP)  ## offline: map the simulated world, draw it, print the accuracy
 	$(BIN)/linemap map sim --out map.geojson --svg map.svg --png map.png --trajectory-out trajectory.csv
@@ -46,9 +53,12 @@ soak: install $(NUMBA_STAMP)  ## the whole reliability suite, long runs included
 report: install $(NUMBA_STAMP)  ## regenerate docs/report/ (the paper's results against EKF-SLAM; ~15 min)
 	$(BIN)/linemap report --out docs/report
 
+worlds: install $(NUMBA_STAMP)  ## regenerate docs/report/worlds.md, the scenario suite the README cites (~4 min)
+	$(BIN)/linemap report --worlds-only --out docs/report
+
 bench: install $(NUMBA_STAMP)  ## kernel benchmark with JSON output
 	$(BIN)/linemap bench kernels --json bench-kernels.json
 
 clean:
-	rm -rf $(VENV) .mypy_cache .ruff_cache .demo test-artifacts bench-kernels.json map.geojson map.svg map.png trajectory.csv
+	rm -rf $(VENV) .mypy_cache .ruff_cache .demo .demo-map demo-map.png test-artifacts bench-kernels.json map.geojson map.svg map.png trajectory.csv
 	find shared -name '*.nbi' -delete -o -name '*.nbc' -delete
