@@ -132,14 +132,15 @@ def suite_section(run: SuiteRun, grid: str | None = GRID_PNG) -> list[str]:
     if n == 0:
         return [*out, "No case ran.", ""]
     ate, odo = float(s["ate_m"]), float(s["odometry_ate_m"])
+    better = sum(r.ate_m <= r.odometry_ate_m for r in run.results)
     out += [
         f"**{s['cases_meeting_targets']} of {n} cases** meet all four map targets. Over the cases: mean wall "
         f"error {_cm(float(s['mean_error_m']))} (worst case {_cm(float(s['worst_mean_error_m']))}), p95 "
         f"{_cm(float(s['p95_error_m']))}; completeness {_pct(float(s['completeness']))} (worst "
         f"{_pct(float(s['worst_completeness']))}); spurious share {_pct(float(s['spurious_share']))} "
         f"(worst {_pct(float(s['worst_spurious_share']))}); {float(s['wall_ratio']):.2f} walls mapped per "
-        f"true wall seen; ATE {ate:.3f} m against odometry's {odo:.3f} m "
-        f"({'better than' if ate < odo else 'NOT better than'} odometry); median "
+        f"true wall seen; ATE {ate:.3f} m against odometry's {odo:.3f} m on average, no worse than "
+        f"odometry's in {better} of {n} cases; median "
         f"{float(s['scans_per_s']):,.0f} scans/s (reading included; {run.seconds / 60:.1f} min in all).",
         "",
         worlds_markdown(run.results).rstrip("\n"),
@@ -164,7 +165,8 @@ def suite_document(run: SuiteRun, command: str, started: str, versions: dict[str
     head = [
         "# The scenario suite: latest generated run",
         "",
-        f"Generated {started} by `{command}` (linemap {v.get('linemap', '?')}, Python "
+        f"Generated {started} by `{command}` at commit {v.get('commit', 'unknown')} (linemap "
+        f"{v.get('linemap', '?')}, Python "
         f"{v.get('python', '?')}, NumPy {v.get('numpy', '?')}, numba {v.get('numba', '?')}; "
         f"{v.get('machine', '?')}). The same cases and figures as `{suite_command(run)}`; throughput "
         "depends on the machine's load (compare it only within one run).",

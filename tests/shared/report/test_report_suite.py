@@ -47,7 +47,7 @@ def test_the_section_states_the_summary_of_its_own_table() -> None:
     assert "## Scenario suite (issue 19)" in text
     assert "**1 of 2 cases** meet all four map targets" in text
     assert "mean wall error 6.50 cm (worst case 12.00 cm)" in text
-    assert "ATE 0.050 m against odometry's 0.080 m (better than odometry)" in text
+    assert "ATE 0.050 m against odometry's 0.080 m on average, no worse than odometry's in 2 of 2" in text
     assert "| corridor-long | 0 | slip | single | 100 | 1.00 |" in text
     assert "| summary (2 cases, 1 on target) |" in text
     assert "`linemap bench worlds --seeds 0`" in text
