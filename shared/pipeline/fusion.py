@@ -33,6 +33,7 @@ from shared.kernels._jit import njit
 from shared.kernels.matching._grid import _MAX_CELLS_PER_AXIS, _grid_build, _grid_nearest
 from shared.kernels.matching._local_lines import _local_lines
 from shared.pipeline.gate import IcpGate
+from shared.pipeline.odonoise import OdometryNoise
 from shared.types import FloatArray, Pose2D
 
 __all__ = ["Fused", "fuse_gated", "fuse_with_odometry", "odometry_information", "wheel_prior"]
@@ -176,7 +177,12 @@ def fuse_with_odometry(
 
 
 def fuse_gated(
-    gate: IcpGate, reference: FloatArray, current: FloatArray, matched: Pose2D, odometry: Pose2D
+    gate: IcpGate,
+    reference: FloatArray,
+    current: FloatArray,
+    matched: Pose2D,
+    odometry: Pose2D,
+    noise: OdometryNoise | None = None,
 ) -> Pose2D:
     """``matched`` (scanner motion from the reference) fused with the ``odometry`` scanner motion under the
     gate's noise figures (``odom_sigma_*``, ``match_sigma_m``); ``matched`` itself when fusion is off or
@@ -190,16 +196,15 @@ def fuse_gated(
     scan constrains counts: a wheel slipping in a turn, a stalled encoder stream), its information is
     scaled down by ``(odom_huber / distance)^2``. A fused pose whose heading is farther from the match's than
     the gate's ``max_correction_rad`` (Gauss-Newton converged elsewhere: a scan fixes the heading well
-    everywhere, corridors included) is not taken."""
+    everywhere, corridors included) is not taken.
+
+    With a ``noise`` estimate (:class:`shared.pipeline.odonoise.OdometryNoise`, the pipeline's learned
+    state) odometry's model is scaled by the factors learned so far, and this match's innovation is added
+    to what it learns from."""
     if not gate.fuse_odometry:
         return matched
-    info = odometry_information(
-        odometry,
-        sigma_m=gate.odom_sigma_m,
-        sigma_ratio=gate.odom_sigma_ratio,
-        sigma_rad=gate.odom_sigma_rad,
-        sigma_rad_per_rad=gate.odom_sigma_rad_per_rad,
-    )
+    model = _model_information(gate, odometry)
+    info = _scaled(model, noise)
     scan = fuse_with_odometry(
         reference, current, matched, odometry, info, iterations=1, scan_only=True, sigma_m=gate.match_sigma_m
     )
@@ -212,10 +217,16 @@ def fuse_gated(
             math.remainder(matched.theta_rad - odometry.theta_rad, math.tau),
         ]
     )
-    both = np.linalg.inv(info) + np.linalg.inv(scan.information + np.eye(3) * 1e-6)
-    m2 = float(e @ np.linalg.solve(both, e))
-    if m2 > gate.odom_huber**2:
-        info = info * (gate.odom_huber**2 / m2)
+    if noise is None:  # the whole innovation under both covariances
+        both = np.linalg.inv(info) + np.linalg.inv(scan.information + np.eye(3) * 1e-6)
+        m2, dof = float(e @ np.linalg.solve(both, e)), 1
+    else:  # only the parts the scan fixes far better than odometry (shared.pipeline.odonoise)
+        r_xy, r_th = noise.ratios(e, scan.information, model)
+        m2, dof = noise.consistency(r_xy, r_th)
+        noise.update(r_xy, r_th)
+    limit = gate.odom_huber**2 * max(dof, 1)
+    if m2 > limit:
+        info = info * (limit / m2)
     fused = fuse_with_odometry(reference, current, odometry, odometry, info, sigma_m=gate.match_sigma_m)
     if fused is None:
         return matched
@@ -224,20 +235,36 @@ def fuse_gated(
     return fused.pose
 
 
-def wheel_prior(gate: IcpGate, scanner: Pose2D, motion: Pose2D) -> tuple[Pose2D | None, FloatArray | None]:
-    """The odometry-predicted ``scanner`` pose and its information for the wall refinement
-    (:func:`shared.pipeline.localize.refine_to_walls`), scaled to its residuals' variance
-    (``match_sigma_m``): odometry's noise over one step's ``motion``, for the translation only (with a
-    heading prior Freiburg 079's relation error was 0.075 m, without 0.054 m).
-    ``(None, None)`` unless ``refine_with_odometry``."""
-    if not gate.refine_with_odometry:
-        return None, None
-    info = odometry_information(
+def _model_information(gate: IcpGate, motion: Pose2D) -> FloatArray:
+    """Odometry's information over ``motion`` under the gate's noise figures (the model, unscaled)."""
+    return odometry_information(
         motion,
         sigma_m=gate.odom_sigma_m,
         sigma_ratio=gate.odom_sigma_ratio,
         sigma_rad=gate.odom_sigma_rad,
         sigma_rad_per_rad=gate.odom_sigma_rad_per_rad,
     )
+
+
+def _scaled(model: FloatArray, noise: OdometryNoise | None) -> FloatArray:
+    """``model`` information divided by the learned variance factors (a copy; ``model`` when none)."""
+    if noise is None:
+        return model
+    k = noise.scale
+    d = 1.0 / np.sqrt([k.translation, k.translation, k.heading])
+    return model * np.outer(d, d)
+
+
+def wheel_prior(
+    gate: IcpGate, scanner: Pose2D, motion: Pose2D, noise: OdometryNoise | None = None
+) -> tuple[Pose2D | None, FloatArray | None]:
+    """The odometry-predicted ``scanner`` pose and its information for the wall refinement
+    (:func:`shared.pipeline.localize.refine_to_walls`), scaled to its residuals' variance
+    (``match_sigma_m``): odometry's noise over one step's ``motion``, for the translation only (with a
+    heading prior Freiburg 079's relation error was 0.075 m, without 0.054 m).
+    ``(None, None)`` unless ``refine_with_odometry``; scaled by the learned ``noise`` factors if given."""
+    if not gate.refine_with_odometry:
+        return None, None
+    info = _scaled(_model_information(gate, motion), noise).copy()
     info[2, 2] = 0.0  # translation only: the walls fix the heading wherever they fix anything
     return scanner, info * gate.match_sigma_m**2

@@ -54,22 +54,23 @@ class IcpGate:
     passes the gate). Two maps restart in turn every ``local_map_steps`` steps or ``local_map_m`` metres of
     odometry travel, whichever comes first, and the older one is matched against.
 
-    With ``fuse_odometry`` a believed match (not a second-chance one: there odometry was found wrong) is
-    fused with the odometry motion since the keyframe by their information
+    With ``fuse_odometry`` (on by default) a believed match (not a second-chance one: there odometry was
+    found wrong) is fused with the odometry motion since the keyframe by their information
     (:mod:`shared.pipeline.fusion`): odometry's standard deviations ``odom_sigma_m + odom_sigma_ratio x
-    distance`` and ``odom_sigma_rad + odom_sigma_rad_per_rad x turn``, the scan's ``match_sigma_m`` per
-    point-to-line residual. With ``refine_with_odometry`` the wall refinement's directions that the walls
-    barely constrain (``refine_degeneracy``) move towards the odometry prediction by its share of the
-    information along them, under the same noise figures (translation only), instead of keeping the scan
-    match's value (:func:`shared.pipeline.localize.refine_to_walls`; not after a second-chance match). In
-    the scan match, odometry farther than ``odom_huber`` of its standard deviations from the match counts less
-    (:func:`shared.pipeline.fusion.fuse_gated`). Both are off by default: they keep a simulated corridor
-    beyond the range from shrinking (0.79 m short over 19 m -> 4 cm) and the demo's patrol at 1-2 cm of pose
-    error, but on the benchmark logs neither holds on all three (issue 19; scan match fused: ACES 0.168,
-    Freiburg 079 0.060, MIT CSAIL 0.131; refinement only (translation prior): 0.171, 0.054,
-    0.069, and 0.129, 0.054, 0.051 with a heading information of 1e-6 instead of 0, so these figures
-    swing by a third on float-level changes; today's 0.165, 0.048, 0.084), so real odometry needs a
-    better noise model first.
+    distance`` and ``odom_sigma_rad + odom_sigma_rad_per_rad x turn``, scaled by factors the pipeline learns
+    from its own matches (:mod:`shared.pipeline.odonoise`: the simulator's wheels come out at 0.05-0.2 of
+    that model's variance, the benchmark logs' at 0.1-1.7), the scan's ``match_sigma_m`` per point-to-line
+    residual. Where the scan fixes a direction far better than odometry and the two disagree by more than
+    ``odom_huber`` learned standard deviations, odometry counts less (Huber). Along a corridor whose ends
+    are out of range the pose then follows the wheels (a simulated 19 m corridor: 0.79 m short without the
+    fusion, 4 cm with it); on the benchmark logs (issue 19, same session) the fixed model gave ACES 0.168,
+    Freiburg 079 0.060, MIT CSAIL 0.131 against 0.165, 0.048, 0.084 unfused, the learned factors 0.161,
+    0.045, 0.086 (these figures swing by a third on float-level changes).
+    With ``refine_with_odometry`` the wall refinement's directions that the walls barely constrain
+    (``refine_degeneracy``) move towards the odometry prediction by its share of the information along
+    them, under the same noise figures (translation only) (:func:`shared.pipeline.localize.refine_to_walls`;
+    not after a second-chance match). It is off: on the suite it added little to the fused scan match and
+    made people worlds worse (4 worlds, ATE 0.067 m against 0.047 m fused alone).
     """
 
     min_inlier_ratio: float = 0.5
@@ -96,7 +97,7 @@ class IcpGate:
     search_rad: float = 0.35
     search_m: float = 0.2
     constant_velocity: bool = True
-    fuse_odometry: bool = False
+    fuse_odometry: bool = True
     refine_with_odometry: bool = False
     odom_sigma_m: float = 0.01
     odom_sigma_ratio: float = 0.05

@@ -30,6 +30,7 @@ from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
 from shared.pipeline.fusion import fuse_gated, wheel_prior
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.localize import refine_to_walls
+from shared.pipeline.odonoise import OdometryNoise
 from shared.pipeline.regroup import regroup
 from shared.pipeline.rematch import rematch
 from shared.pipeline.snapshot import MapSnapshot
@@ -77,6 +78,7 @@ class Pipeline:
         self._kernels: dict[Stage, list[Any]] = dict(self._config.build())
         self._offset = laser_offset or Pose2D()
         self._gate = icp_gate or IcpGate()
+        self.odometry_noise = OdometryNoise()  # learned from the believed matches (shared.pipeline.odonoise)
         self._map = WallMap(merge)
         # Localisation keeps its own local line map, built every step whatever the schedule (offline
         # batches would leave the pose uncorrected for N_smax steps); the configured stages make the map
@@ -196,7 +198,8 @@ class Pipeline:
                 )
             if trusted and odom is not None and self._key_odom is not None:  # odometry where scans are blind
                 motion = self._offset.inverse() @ self._key_odom.between(odom) @ self._offset
-                match = replace(match, pose=fuse_gated(g, key_points, points, match.pose, motion))
+                fused = fuse_gated(g, key_points, points, match.pose, motion, self.odometry_noise)
+                match = replace(match, pose=fused)
             if not trusted and g.rematch:
                 steady = self._last_icp and g.constant_velocity
                 starts = [self._to_laser(key_pose, self._pose @ self._last_motion)] if steady else []
@@ -214,7 +217,11 @@ class Pipeline:
             g = self._gate
             near = points[np.einsum("ij,ij->i", points, points) <= g.refine_range_m**2]
             scanner = predicted @ self._offset
-            prior, info = wheel_prior(g, self._pose @ delta @ self._offset, delta) if plain else (None, None)
+            prior, info = (
+                wheel_prior(g, self._pose @ delta @ self._offset, delta, self.odometry_noise)
+                if plain
+                else (None, None)
+            )
             fit = refine_to_walls(
                 near,
                 scanner,
