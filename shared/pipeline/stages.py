@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from shared.kernels import Lines
+from shared.kernels._jit import njit
 from shared.types import FloatArray, IntArray
 
 __all__ = [
@@ -262,6 +263,28 @@ def extract_lines_grouped(
     return np.asarray(lines.segments), np.asarray(lines.group, dtype=np.intp)
 
 
+@njit
+def _sigmas(segs: FloatArray, pts: FloatArray, lo: IntArray, hi: IntArray, out: FloatArray) -> None:
+    """Fill ``out[i]`` with the robust scatter of ``pts[lo[i]:hi[i]]`` about segment ``i`` (see
+    :func:`line_sigmas`)."""
+    for i in range(segs.shape[0]):
+        ax, ay = segs[i, 0], segs[i, 1]
+        length = np.hypot(segs[i, 2] - ax, segs[i, 3] - ay)
+        if hi[i] - lo[i] < 3 or length <= 0.0:
+            continue
+        dx, dy = (segs[i, 2] - ax) / length, (segs[i, 3] - ay) / length
+        r = np.empty(hi[i] - lo[i])
+        m = 0
+        for p in range(lo[i], hi[i]):
+            rx, ry = pts[p, 0] - ax, pts[p, 1] - ay
+            t = rx * dx + ry * dy
+            if 0.0 <= t <= length:
+                r[m] = abs(rx * dy - ry * dx)
+                m += 1
+        if m >= 3:
+            out[i] = 1.4826 * np.median(r[:m])
+
+
 def line_sigmas(segments: FloatArray, segment_groups: IntArray, chunk: Chunk) -> FloatArray:
     """Per segment ``(L,)``: the scatter (metres) of its group's points about the segment's line.
 
@@ -279,19 +302,8 @@ def line_sigmas(segments: FloatArray, segment_groups: IntArray, chunk: Chunk) ->
         return out
     order = np.argsort(chunk.groups[valid], kind="stable")
     g_sorted = chunk.groups[valid][order]
-    pts = chunk.points[valid][order]
-    lo = np.searchsorted(g_sorted, segment_groups, side="left")
-    hi = np.searchsorted(g_sorted, segment_groups, side="right")
-    for i in range(len(segs)):
-        block = pts[lo[i] : hi[i]]
-        a, b = segs[i, :2], segs[i, 2:]
-        length = float(np.hypot(*(b - a)))
-        if len(block) < 3 or length <= 0.0:
-            continue
-        d = (b - a) / length
-        rel = block - a
-        t = rel @ d
-        r = np.abs(rel[:, 0] * d[1] - rel[:, 1] * d[0])[(t >= 0.0) & (t <= length)]
-        if len(r) >= 3:
-            out[i] = 1.4826 * float(np.median(r))
+    pts = np.ascontiguousarray(chunk.points[valid][order], dtype=np.float64)
+    lo = np.searchsorted(g_sorted, segment_groups, side="left").astype(np.intp)
+    hi = np.searchsorted(g_sorted, segment_groups, side="right").astype(np.intp)
+    _sigmas(np.ascontiguousarray(segs), pts, lo, hi, out)
     return out

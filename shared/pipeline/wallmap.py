@@ -2,15 +2,26 @@
 
 Each wall keeps the length-weighted second moments of every segment merged into it, so merging is O(1)
 and order-independent: a segment from ``a`` to ``b`` of length ``L`` counts as a uniform distribution of
-mass ``L`` along it (mean ``(a + b) / 2``, covariance ``L^2 / 12 d d^T``). A wall's line is the total
-least squares fit of its moments (the principal axis, as SVD in paper eq. 27-32) and its extent is the
-union of the merged segments' projections on that line.
+mass ``L`` along it (mean ``(a + b) / 2``, covariance ``L^2 / 12 d d^T + sigma^2 n n^T``, with ``sigma``
+the scatter of the segment's points about its line, ``n`` its normal). A wall's line is the total
+least squares fit of its moments (the principal axis, as SVD in paper eq. 27-32), its extent is the
+union of the merged segments' projections on that line, and its perpendicular scatter (the moments'
+minor eigenvalue) says how well the line is known: the points' noise plus the spread of the merged pieces.
+
+Segments given with the scanner's viewpoint are stored facing it (the scanner on their left), and then
+merge only with walls facing the same way: the two faces of a thin wall, seen from opposite sides, stay
+two walls however close.
 
 A new segment merges into a wall when it is collinear (angle within ``angle_tol_deg``, or for a piece
 shorter than ``2 offset_tol_m / sin(angle_tol_deg)`` within the tilt its end band allows,
 ``asin(2 offset_tol_m / length)``, if the wall is not that short itself: a short noisy piece's direction
 is not known better, and two short pieces do not vouch for each other's; both end points
-within ``offset_tol_m`` of the wall's line) and overlaps it or leaves a gap of at most ``gap_tol_m``.
+within ``offset_tol_m`` of the wall's line) and overlaps it or leaves a gap of at most ``gap_tol_m``;
+or when it is collinear in that sense, overlaps the wall along its length and both end points lie within
+``merge_sigmas`` standard deviations (of the two's combined perpendicular scatter) of the wall's line. The
+second test is what keeps a face seen from poses a few centimetres apart (pose error) or at 3 m (where
+the URG-04LX scatters about 4 cm) one wall instead of parallel copies and short tilted hatches across it;
+a precise wall is not widened by it, and pieces that only touch end to end still need ``offset_tol_m``.
 A merged wall is then checked against the others again, so chains of pieces fuse into one wall. Walls keep
 stable integer ids; when two walls fuse, the older id survives and the other is reported removed. A wall is
 shown (``segments``/``ids``) once ``min_observations`` segments have merged into it: clutter seen once
