@@ -34,7 +34,7 @@ from shared.pipeline.odonoise import OdometryNoise
 from shared.pipeline.regroup import regroup
 from shared.pipeline.rematch import rematch
 from shared.pipeline.snapshot import MapSnapshot
-from shared.pipeline.stages import Chunk, cluster, concat, extract_lines, remove_noise
+from shared.pipeline.stages import Chunk, cluster, concat, extract_lines_grouped, line_sigmas, remove_noise
 from shared.pipeline.wallmap import MergeTolerances, WallMap
 from shared.types import FloatArray, IntArray, Pose2D, Scan, wrap_angle
 
@@ -85,7 +85,7 @@ class Pipeline:
         # shown. It is local: two maps restart in turn every `local_map_steps` steps or `local_map_m`
         # metres of travel, and the older one is matched against, so old, drifted walls of a loop never
         # pull the pose.
-        self._merge = replace(merge or MergeTolerances(), short_by_band=False)
+        self._merge = replace(merge or MergeTolerances(), short_by_band=False, merge_sigmas=0.0)
         self._loc_maps = [WallMap(self._merge), WallMap(self._merge)]
         self.local_map_restarts = 0
         self._since_steps = 0
@@ -144,7 +144,7 @@ class Pipeline:
                 local.add_segments(segments)
         self._stamp = scan.stamp_s
         self._trajectory.append((scan.stamp_s, self._pose.x_m, self._pose.y_m, self._pose.theta_rad))
-        ran = self._feed(Chunk.of(world, groups), final=False)
+        ran = self._feed(Chunk.of(world, groups, (laser.x_m, laser.y_m)), final=False)
         self._version += 1
         elapsed = (time.perf_counter() - t0) * 1e3
         self._step_ms.append(elapsed)
@@ -319,6 +319,7 @@ class Pipeline:
                         batch.centroids,
                         batch.centroid_groups,
                         batch.steps,
+                        batch.viewpoint,
                     )
                 line_kernel = self._kernels[Stage.STRAIGHT_LINE][0]
                 needs_two = getattr(line_kernel, "consumes", "points") == "centroids"
@@ -326,8 +327,13 @@ class Pipeline:
                 if len(out.centroids):
                     self._centroids.append(out.centroids)
                 return out
-            segments = extract_lines(kernels[0], batch)
-            self._map.add_segments(segments, observations=batch.steps)
+            segments, seg_groups = extract_lines_grouped(kernels[0], batch)
+            self._map.add_segments(
+                segments,
+                observations=batch.steps,
+                viewpoint=batch.viewpoint,
+                sigmas_m=line_sigmas(segments, seg_groups, batch),
+            )
             return None
         except LinemapError:
             raise

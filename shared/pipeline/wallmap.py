@@ -2,15 +2,26 @@
 
 Each wall keeps the length-weighted second moments of every segment merged into it, so merging is O(1)
 and order-independent: a segment from ``a`` to ``b`` of length ``L`` counts as a uniform distribution of
-mass ``L`` along it (mean ``(a + b) / 2``, covariance ``L^2 / 12 d d^T``). A wall's line is the total
-least squares fit of its moments (the principal axis, as SVD in paper eq. 27-32) and its extent is the
-union of the merged segments' projections on that line.
+mass ``L`` along it (mean ``(a + b) / 2``, covariance ``L^2 / 12 d d^T + sigma^2 n n^T``, with ``sigma``
+the scatter of the segment's points about its line, ``n`` its normal). A wall's line is the total
+least squares fit of its moments (the principal axis, as SVD in paper eq. 27-32), its extent is the
+union of the merged segments' projections on that line, and its perpendicular scatter (the moments'
+minor eigenvalue) says how well the line is known: the points' noise plus the spread of the merged pieces.
+
+Segments given with the scanner's viewpoint are stored facing it (the scanner on their left), and then
+merge only with walls facing the same way: the two faces of a thin wall, seen from opposite sides, stay
+two walls however close.
 
 A new segment merges into a wall when it is collinear (angle within ``angle_tol_deg``, or for a piece
 shorter than ``2 offset_tol_m / sin(angle_tol_deg)`` within the tilt its end band allows,
 ``asin(2 offset_tol_m / length)``, if the wall is not that short itself: a short noisy piece's direction
 is not known better, and two short pieces do not vouch for each other's; both end points
-within ``offset_tol_m`` of the wall's line) and overlaps it or leaves a gap of at most ``gap_tol_m``.
+within ``offset_tol_m`` of the wall's line) and overlaps it or leaves a gap of at most ``gap_tol_m``;
+or when it is collinear in that sense, overlaps the wall along its length and both end points lie within
+``merge_sigmas`` standard deviations (of the two's combined perpendicular scatter) of the wall's line. The
+second test is what keeps a face seen from poses a few centimetres apart (pose error) or at 3 m (where
+the URG-04LX scatters about 4 cm) one wall instead of parallel copies and short tilted hatches across it;
+a precise wall is not widened by it, and pieces that only touch end to end still need ``offset_tol_m``.
 A merged wall is then checked against the others again, so chains of pieces fuse into one wall. Walls keep
 stable integer ids; when two walls fuse, the older id survives and the other is reported removed. A wall is
 shown (``segments``/``ids``) once ``min_observations`` segments have merged into it: clutter seen once
@@ -44,6 +55,10 @@ class MergeTolerances:
     #: short pieces may tilt as far as their end band allows (the shown map; the pipeline's localisation
     #: maps keep the plain angle test: merging tilted pieces there moved the benchmark logs' poses)
     short_by_band: bool = True
+    #: overlapping pieces of one face whose lines are within this many standard deviations of their
+    #: combined perpendicular scatter (from the moments) are one wall even beyond ``offset_tol_m``;
+    #: 0 turns the test off (the localisation maps)
+    merge_sigmas: float = 3.0
 
 
 class WallMap:
@@ -87,15 +102,34 @@ class WallMap:
         return np.hstack([a, b])
 
     # ------------------------------------------------------------------ updates
-    def add_segments(self, segments: ArrayLike, observations: int = 1) -> None:
+    def add_segments(
+        self,
+        segments: ArrayLike,
+        observations: int = 1,
+        *,
+        viewpoint: tuple[float, float] | None = None,
+        sigmas_m: ArrayLike | None = None,
+    ) -> None:
         """Merge each segment ``[x0, y0, x1, y1]`` into the map (shorter than ``min_length_m`` ignored).
 
         ``observations`` is the evidence each segment carries: 1 for a segment from one step, the number
-        of steps for a segment extracted from an offline batch.
+        of steps for a segment extracted from an offline batch. ``viewpoint`` (world frame, metres) is
+        where the scanner saw the segments from: each is then stored facing it (the scanner on its left)
+        and merges only with walls seen from the same side, so the two faces of a thin wall stay two. A
+        map should be given a viewpoint always or never. ``sigmas_m`` ``(L,)`` is each segment's point
+        scatter about its line (see :func:`shared.pipeline.stages.line_sigmas`; default 0).
         """
         segs = np.ascontiguousarray(np.asarray(segments, dtype=np.float64).reshape(-1, 4))
         if len(segs) == 0:
             return
+        if sigmas_m is None:
+            sig = np.zeros(len(segs))
+        else:
+            sig = np.ascontiguousarray(np.asarray(sigmas_m, dtype=np.float64).reshape(-1))
+            if sig.shape != (len(segs),):
+                raise ValueError(f"sigmas_m has {sig.shape[0]} values for {len(segs)} segments")
+        oriented = viewpoint is not None
+        vx, vy = (float(viewpoint[0]), float(viewpoint[1])) if viewpoint is not None else (0.0, 0.0)
         while self._n + len(segs) > len(self._w):
             self._grow()
         removed = np.empty(len(segs) + self._n, dtype=np.intp)
@@ -120,6 +154,11 @@ class WallMap:
             max(int(observations), 1),
             removed,
             t.short_by_band,
+            sig,
+            oriented,
+            vx,
+            vy,
+            float(t.merge_sigmas),
         )
         self.removed.extend(int(r) for r in removed[:n_removed])
 
@@ -153,34 +192,49 @@ def _insert_all(
     observations: int,
     removed: IntArray,
     by_band: bool,
+    sigmas: FloatArray,
+    oriented: bool,
+    vx: float,
+    vy: float,
+    k_sigma: float,
 ) -> tuple[int, int, int]:
     """Insert and settle every segment; returns the new wall count, next id and number of removed ids."""
     n_removed = 0
     for k in range(segs.shape[0]):
         x0, y0, x1, y1 = segs[k, 0], segs[k, 1], segs[k, 2], segs[k, 3]
+        sig = sigmas[k]
         if not (np.isfinite(x0) and np.isfinite(y0) and np.isfinite(x1) and np.isfinite(y1)):
             continue
+        if not np.isfinite(sig):
+            sig = 0.0
         length = np.hypot(x1 - x0, y1 - y0)
         if length < min_length:
             continue
         i = n
         mx, my = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
         dx, dy = (x1 - x0) / length, (y1 - y0) / length
+        if oriented and dx * (vy - my) - dy * (vx - mx) < 0.0:  # face the scanner: it is on the left
+            dx, dy = -dx, -dy
+        # a uniform mass along the segment plus its points' scatter across it (covariance
+        # L^2 / 12 d d^T + sigma^2 n n^T, n the normal)
         var = length * length / 12.0
+        var_n = sig * sig
         ids[i] = next_id
         obs[i] = observations
         next_id += 1
         w[i] = length
         s1[i, 0], s1[i, 1] = length * mx, length * my
-        s2[i, 0] = length * (var * dx * dx + mx * mx)
-        s2[i, 1] = length * (var * dx * dy + mx * my)
-        s2[i, 2] = length * (var * dy * dy + my * my)
+        s2[i, 0] = length * (var * dx * dx + var_n * dy * dy + mx * mx)
+        s2[i, 1] = length * ((var - var_n) * dx * dy + mx * my)
+        s2[i, 2] = length * (var * dy * dy + var_n * dx * dx + my * my)
         c[i, 0], c[i, 1] = mx, my
         d[i, 0], d[i, 1] = dx, dy
         lo[i], hi[i] = -0.5 * length, 0.5 * length
         n += 1
         while True:
-            j = _match(i, n, c, d, lo, hi, cos_tol, offset_tol, gap_tol, by_band)
+            j = _match(
+                i, n, w, s1, s2, c, d, lo, hi, cos_tol, offset_tol, gap_tol, by_band, oriented, k_sigma
+            )
             if j < 0:
                 break
             keep, drop = (i, j) if ids[i] < ids[j] else (j, i)
@@ -201,9 +255,24 @@ def _insert_all(
 
 
 @njit
+def _cross_var(k: int, w: FloatArray, s1: FloatArray, s2: FloatArray) -> float:
+    """Wall ``k``'s perpendicular scatter (m^2): the minor eigenvalue of its moments' covariance."""
+    cx, cy = s1[k, 0] / w[k], s1[k, 1] / w[k]
+    sxx = s2[k, 0] / w[k] - cx * cx
+    sxy = s2[k, 1] / w[k] - cx * cy
+    syy = s2[k, 2] / w[k] - cy * cy
+    half = 0.5 * (sxx + syy)
+    minor: float = half - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy * sxy)
+    return max(minor, 0.0)
+
+
+@njit
 def _match(
     i: int,
     n: int,
+    w: FloatArray,
+    s1: FloatArray,
+    s2: FloatArray,
     c: FloatArray,
     d: FloatArray,
     lo: FloatArray,
@@ -212,8 +281,15 @@ def _match(
     offset_tol: float,
     gap_tol: float,
     by_band: bool,
+    oriented: bool,
+    k_sigma: float,
 ) -> int:
-    """The first wall wall ``i`` should merge with (collinear, close, overlapping or a small gap), or -1."""
+    """The first wall wall ``i`` should merge with (collinear, close, overlapping or a small gap), or -1.
+
+    Oriented walls (seen from a known side) merge only with walls facing the same way. With ``k_sigma >
+    0`` a wall whose ends lie farther than ``offset_tol`` from the other's line still merges when they lie
+    within ``k_sigma`` standard deviations of the two walls' combined perpendicular scatter and the two
+    overlap along their length (the same surface drawn twice, e.g. from poses a few cm apart)."""
     ax, ay = c[i, 0] + d[i, 0] * lo[i], c[i, 1] + d[i, 1] * lo[i]
     bx, by = c[i, 0] + d[i, 0] * hi[i], c[i, 1] + d[i, 1] * hi[i]
     # a short piece's direction is only known to within its ends' band: both ends within offset_tol of a
@@ -226,19 +302,29 @@ def _match(
         sin_band = min(2.0 * offset_tol / max(length, 1e-12), 1.0)
         cos_i = min(cos_tol, np.sqrt(1.0 - sin_band * sin_band))
     determined_m = 2.0 * offset_tol / max(np.sqrt(max(1.0 - cos_tol * cos_tol, 0.0)), 1e-12)
+    var_i = _cross_var(i, w, s1, s2) if k_sigma > 0.0 else 0.0
     for j in range(n):
         if j == i:
             continue
-        cos_ij = abs(d[j, 0] * d[i, 0] + d[j, 1] * d[i, 1])
+        cos_ij = d[j, 0] * d[i, 0] + d[j, 1] * d[i, 1]
+        if not oriented:
+            cos_ij = abs(cos_ij)
         if cos_ij < cos_i or (cos_ij < cos_tol and hi[j] - lo[j] < determined_m):
             continue
         nx, ny = -d[j, 1], d[j, 0]
         rax, ray, rbx, rby = ax - c[j, 0], ay - c[j, 1], bx - c[j, 0], by - c[j, 1]
-        if abs(rax * nx + ray * ny) > offset_tol or abs(rbx * nx + rby * ny) > offset_tol:
-            continue
+        off = max(abs(rax * nx + ray * ny), abs(rbx * nx + rby * ny))
         ta, tb = rax * d[j, 0] + ray * d[j, 1], rbx * d[j, 0] + rby * d[j, 1]
         gap = max(min(ta, tb) - hi[j], lo[j] - max(ta, tb))
-        if gap <= gap_tol:
+        if off <= offset_tol:
+            if gap <= gap_tol:
+                return j
+            continue
+        if (
+            k_sigma > 0.0
+            and gap < 0.0
+            and off * off <= k_sigma * k_sigma * (var_i + _cross_var(j, w, s1, s2))
+        ):
             return j
     return -1
 
