@@ -1,35 +1,16 @@
 """Free-space evidence: a wall that later beams pass through loses its support and leaves the map.
 
-A wall in the map (SPEC §4 "map assembly") was built from returns; a person crossing in front of the
-robot, a door leaf before it opened or a chair before it was moved leave such walls too. What tells them
-from real walls is consistency over time and viewpoints: a real wall keeps returning beams, the place of
-a person or of a moved chair is later seen through. Each wall carries evidence in cells of ``cell_m``
-along its length, as log-odds of "occupied" (an inverse sensor model as in occupancy grids): per scan, a
-cell crossed by beams that return *at* the wall (within the range noise and the pose/line uncertainty
-projected on the beam) gains ``hit_logodds``; one crossed by beams whose return lies clearly *beyond* it
-gains ``miss_logodds`` (negative). Each cell counts once per scan (the beams of one scan are not
-independent evidence), log-odds are clamped to ``+-clamp`` so a long-seen chair clears after a few scans
-once it is gone. Cells at or below ``free_logodds`` are free space: the wall keeps only its runs of
-supported cells (a door opened in it cuts it in two; a wall seen through everywhere goes).
-
-What is *not* evidence of free space:
-
-* a beam with no return (NaN, inf, out of the range window: glass, black surfaces, max range): nothing is
-  known along it beyond what any return would have said, so it is skipped;
-* a beam whose return lies *before* the wall (an occlusion): it says nothing about the wall;
-* a grazing beam (incidence below ``min_incidence_deg``): where it crosses the wall is uncertain by
-  ``sigma_perp / tan(incidence)`` along the wall, and the return's excess range is compared with the
-  perpendicular uncertainty divided by ``sin(incidence)``, so a real wall seen nearly edge-on is not
-  erased by its own range noise.
-
-The perpendicular uncertainty of the wall relative to the scanner is
-``sigma_perp^2 = line_sigma_m^2 + (r * heading_sigma_rad)^2`` at crossing range ``r``; along the beam it
-is ``sigma_along^2 = sigma_range(r)^2 + sigma_perp^2 / sin^2(incidence)``. A return beyond the crossing by
-more than ``n_sigma * sigma_along`` is a pass-through; within it, a hit.
-
-:func:`beam_wall_events` is the pure, compiled geometry (O(beams x walls)); :class:`FreeSpace` keeps the
-per-wall cells and applies them to a :class:`~shared.pipeline.wallmap.WallMap` (``WallMap.cut``), whose
-``removed`` list reports the walls that went, as for fused walls.
+A person crossing, a door leaf before it opened or a chair before it was moved leave walls in the map as
+real walls do; what tells them apart is consistency over time and viewpoints. Each wall keeps log-odds of
+"occupied" in cells of ``cell_m`` along it (an inverse sensor model as in occupancy grids). Per scan, a
+cell crossed by beams returning *at* the wall gains ``hit_logodds``, one crossed by beams returning
+clearly *beyond* it ``miss_logodds``, once per scan each, clamped to ``+-clamp``; cells at or below
+``free_logodds`` are free and cut out of the wall (:meth:`WallMap.cut`, ``removed`` reports walls that
+went). "At" and "beyond" compare the return with the crossing range ``s`` against ``n_sigma`` times
+``sigma_along^2 = sigma_range(s)^2 + sigma_perp^2 / sin^2(incidence)``, with the wall's perpendicular
+uncertainty ``sigma_perp^2 = line_sigma_m^2 + (s heading_sigma_rad)^2``. No evidence: beams without a
+return (glass, black, max range), returns before the wall (occlusion), grazing beams (incidence below
+``min_incidence_deg``). See docs/freespace.md.
 """
 
 from __future__ import annotations
@@ -45,7 +26,8 @@ from shared.types import FloatArray, IntArray, Pose2D, Scan
 
 __all__ = ["FreeSpace", "FreeSpaceModel", "beam_wall_events", "supported_runs"]
 
-HIT = 1
+HIT = 1  # a return at the wall within the tolerance without drift: support, and the wall's clock reset
+HIT_DRIFT = 2  # at the wall only within the tolerance widened by the drift since its last support
 PASS = -1
 
 
@@ -72,27 +54,22 @@ class FreeSpaceModel:
     free_logodds: float = -1.0
     #: supported runs shorter than this are dropped with the free cells around them
     min_piece_m: float = 0.1
+    #: drift of the pose relative to a wall since the wall last returned a beam, one sigma: position per
+    #: metre travelled, heading per metre travelled and per radian turned (wheel odometry's order)
+    drift_m_per_m: float = 0.02
+    drift_rad_per_m: float = 0.01
+    drift_rad_per_rad: float = 0.02
 
     def packed(self) -> FloatArray:
-        """The numbers the compiled loops read, in their order. O(1)."""
-        return np.array(
-            [
-                self.range_sigma_near_m,
-                self.range_sigma_ratio,
-                self.range_near_limit_m,
-                self.line_sigma_m,
-                self.heading_sigma_rad,
-                self.n_sigma,
-                0.0,
-                math.sin(math.radians(self.min_incidence_deg)),
-                self.min_range_m,
-                self.cell_m,
-                self.hit_logodds,
-                self.miss_logodds,
-                self.clamp,
-                self.free_logodds,
-            ]
-        )
+        """The numbers the compiled loops read, in the order of :data:`_PACKED`. O(1)."""
+        sin_min = math.sin(math.radians(self.min_incidence_deg))
+        return np.array([sin_min if f == "sin_min" else getattr(self, f, 0.0) for f in _PACKED])
+
+
+#: index 6 is unused ("-": 0), 7 is the sine of ``min_incidence_deg``
+_SIGMAS = ("range_sigma_near_m", "range_sigma_ratio", "range_near_limit_m", "line_sigma_m")
+_PACKED: tuple[str, ...] = (*_SIGMAS, "heading_sigma_rad", "n_sigma", "-", "sin_min", "min_range_m")
+_PACKED += ("cell_m", "hit_logodds", "miss_logodds", "clamp", "free_logodds")
 
 
 @njit
@@ -102,17 +79,15 @@ def _crossing(
     ux: float,
     uy: float,
     r: float,
-    x0: float,
-    y0: float,
-    dx: float,
-    dy: float,
-    length: float,
+    wall: tuple[float, ...],
     p: FloatArray,
 ) -> tuple[int, float]:
-    """Whether the beam from ``(ox, oy)`` along unit ``(ux, uy)`` with return ``r`` hits (+1) or passes through
-    (-1) the wall from ``(x0, y0)`` along unit ``(dx, dy)`` over ``length``, and where (metres from its first
-    end point); 0 when it is no evidence (no crossing, grazing, too near, occluded or no return).
-    ``p`` holds the model's numbers in the order of :meth:`FreeSpaceModel.packed`. O(1)."""
+    """Whether the beam from ``(ox, oy)`` along unit ``(ux, uy)`` with return ``r`` hits (:data:`HIT`,
+    :data:`HIT_DRIFT`) or passes through (:data:`PASS`) the wall ``(x0, y0, dx, dy, length, drift_xy2,
+    drift_th2)`` (first end point, unit direction, metres; variances of its drift in position, m^2, and
+    heading, rad^2), and where (metres from that end point); 0 when it is no evidence (no crossing,
+    grazing, too near, occluded, no return). ``p``: :meth:`FreeSpaceModel.packed`. O(1)."""
+    x0, y0, dx, dy, length, drift_xy2, drift_th2 = wall
     if not r > 0.0:  # NaN: no return
         return 0, 0.0
     den = ux * dy - uy * dx  # cross(u, d): sine of the incidence, signed
@@ -126,10 +101,13 @@ def _crossing(
         return 0, 0.0
     sig_r = p[0] if s < p[2] else p[1] * s
     sig_perp2 = p[3] * p[3] + (s * p[4]) ** 2
-    tol = p[5] * math.sqrt(sig_r * sig_r + sig_perp2 / (den * den))
+    tol0 = p[5] * math.sqrt(sig_r * sig_r + sig_perp2 / (den * den))
+    tol = p[5] * math.sqrt(sig_r * sig_r + (sig_perp2 + drift_xy2 + s * s * drift_th2) / (den * den))
     if r < s - tol:
         return 0, 0.0  # occluded: the beam stopped before the wall
-    return (HIT if r <= s + tol else PASS), t
+    if abs(r - s) <= tol0:
+        return HIT, t
+    return (HIT_DRIFT if r <= s + tol else PASS), t
 
 
 @njit
@@ -147,11 +125,11 @@ def _windows(
     if hw > 0.5 * math.pi - 1e-6:
         return 0, nb, 0, 0
     rel = (f0 + 0.5 * span - a_first) % (2.0 * math.pi)
-    k0 = max(int(math.floor((rel - hw) / inc)) - 1, 0)
-    k1 = min(int(math.ceil((rel + hw) / inc)) + 2, nb)
+    k0 = max(math.floor((rel - hw) / inc) - 1, 0)
+    k1 = min(math.ceil((rel + hw) / inc) + 2, nb)
     rel2 = rel - 2.0 * math.pi
-    k2 = max(int(math.floor((rel2 - hw) / inc)) - 1, 0)
-    k3 = min(int(math.ceil((rel2 + hw) / inc)) + 2, nb)
+    k2 = max(math.floor((rel2 - hw) / inc) - 1, 0)
+    k3 = min(math.ceil((rel2 + hw) / inc) + 2, nb)
     return k0, max(k1, k0), k2, max(k3, k2)
 
 
@@ -163,19 +141,17 @@ def beam_wall_events(
     inc: float,
     ranges_m: FloatArray,
     segs: FloatArray,
+    drift: FloatArray,
     p: FloatArray,
-) -> tuple[IntArray, FloatArray, IntArray]:
+) -> FloatArray:
     """Every piece of evidence one scan gives about walls ``segs`` ``(W, 4)``: beam ``k`` leaves the scanner
     at ``(ox, oy)`` at world angle ``a_first + k inc`` with return ``ranges_m[k]`` (NaN: none). Returns
-    ``(wall, t_m, kind)``: wall index, distance of the crossing from the wall's first end point (metres),
-    +1 hit / -1 pass-through. ``p``: :meth:`FreeSpaceModel.packed`. O(beams x walls), beams restricted to
-    each wall's angular span."""
+    ``(E, 3)`` rows ``[wall, t_m, kind]``: wall index, distance of the crossing from the wall's first end
+    point (metres), :data:`HIT` / :data:`HIT_DRIFT` / :data:`PASS`, wall by wall. ``drift``: ``(W, 2)``
+    drift variances per wall (see :func:`_crossing`); ``p``: :meth:`FreeSpaceModel.packed`.
+    O(beams x walls), beams restricted to each wall's angular span."""
     nb, nw = ranges_m.shape[0], segs.shape[0]
-    m_max = 16
-    wall = np.empty(m_max, dtype=np.intp)
-    tpos = np.empty(m_max)
-    kind = np.empty(m_max, dtype=np.intp)
-    m = 0
+    ev, m = np.empty((64, 3)), 0
     for w in range(nw):
         x0, y0, x1, y1 = segs[w, 0], segs[w, 1], segs[w, 2], segs[w, 3]
         length = math.hypot(x1 - x0, y1 - y0)
@@ -186,81 +162,58 @@ def beam_wall_events(
         for win in range(2):
             for k in range(k0, k1) if win == 0 else range(k2, k3):
                 a = a_first + k * inc
-                c, t = _crossing(ox, oy, math.cos(a), math.sin(a), ranges_m[k], x0, y0, dx, dy, length, p)
+                wl = (x0, y0, dx, dy, length, drift[w, 0], drift[w, 1])
+                c, t = _crossing(ox, oy, math.cos(a), math.sin(a), ranges_m[k], wl, p)
                 if c == 0:
                     continue
-                if m == m_max:
-                    m_max *= 2
-                    wall2, tpos2, kind2 = np.empty(m_max, np.intp), np.empty(m_max), np.empty(m_max, np.intp)
-                    wall2[:m], tpos2[:m], kind2[:m] = wall[:m], tpos[:m], kind[:m]
-                    wall, tpos, kind = wall2, tpos2, kind2
-                wall[m], tpos[m], kind[m] = w, t, c
+                if m == ev.shape[0]:
+                    grown = np.empty((2 * m, 3))
+                    grown[:m] = ev
+                    ev = grown
+                ev[m, 0], ev[m, 1], ev[m, 2] = w, t, c
                 m += 1
-    return wall[:m], tpos[:m], kind[:m]
+    return ev[:m]
 
 
 @njit
 def _update_cells(
-    ox: float,
-    oy: float,
-    a_first: float,
-    inc: float,
-    ranges_m: FloatArray,
-    segs: FloatArray,
+    ev: FloatArray,
     off: FloatArray,
+    first: IntArray,
+    last: IntArray,
     base: IntArray,
     i0: IntArray,
     pool: FloatArray,
     p: FloatArray,
     scratch: IntArray,
 ) -> IntArray:
-    """One scan's evidence added to the walls' cells in ``pool`` (wall ``w``'s cell ``i`` at
-    ``pool[base[w] + i - i0[w]]``, cell ``i`` covering ``[i cell, (i + 1) cell)`` from the wall's anchor,
-    the wall's first end point at ``off[w]`` from it). Each cell counts once per scan: a hit if its beams
-    returned at the wall at least as often as beyond it, else a pass-through. Returns, per wall, 1 if any
-    of its cells is now free. O(beams x walls) with the beam windows of :func:`_windows`."""
-    nb, nw = ranges_m.shape[0], segs.shape[0]
+    """One scan's events (:func:`beam_wall_events`, wall by wall) added to the walls' cells in ``pool``: wall
+    ``w``'s cell ``i`` (covering ``[i cell, (i + 1) cell)`` from the wall's anchor, its first end point at
+    ``off[w]`` from it, cells ``first[w]..last[w]`` on it) is ``pool[base[w] + i - i0[w]]``. Each cell
+    counts once per scan: a hit if its beams returned at the wall at least as often as beyond it, else a
+    pass-through. Returns per wall bit 1 if one of its cells is now free, bit 2 if a beam returned at it
+    within the tolerance without drift (:data:`HIT`). O(events + cells of walls seen)."""
     cell, hit_l, miss_l, clamp, free_l = p[9], p[10], p[11], p[12], p[13]
-    cosb = np.empty(nb)
-    sinb = np.empty(nb)
-    for k in range(nb):
-        cosb[k] = math.cos(a_first + k * inc)
-        sinb[k] = math.sin(a_first + k * inc)
-    flags = np.zeros(nw, dtype=np.intp)
-    for w in range(nw):
-        x0, y0, x1, y1 = segs[w, 0], segs[w, 1], segs[w, 2], segs[w, 3]
-        length = math.hypot(x1 - x0, y1 - y0)
-        if length <= 0.0:
-            continue
-        dx, dy = (x1 - x0) / length, (y1 - y0) / length
-        c_first = int(math.floor(off[w] / cell))
-        c_last = max(int(math.floor((off[w] + length) / cell - 1e-9)), c_first)
-        n = c_last - c_first + 1
+    flags = np.zeros(off.shape[0], dtype=np.intp)
+    m, e = ev.shape[0], 0
+    while e < m:
+        w = int(ev[e, 0])
+        n = last[w] - first[w] + 1
         scratch[: 2 * n] = 0
-        any_ev = False
-        k0, k1, k2, k3 = _windows(ox, oy, x0, y0, x1, y1, a_first, inc, nb)
-        for win in range(2):
-            lo_k, hi_k = (k0, k1) if win == 0 else (k2, k3)
-            for k in range(lo_k, hi_k):
-                c, t = _crossing(ox, oy, cosb[k], sinb[k], ranges_m[k], x0, y0, dx, dy, length, p)
-                if c == 0:
-                    continue
-                i = min(max(int(math.floor((off[w] + t) / cell)) - c_first, 0), n - 1)
-                scratch[2 * i + (0 if c == HIT else 1)] += 1
-                any_ev = True
-        if not any_ev:
-            continue
-        shift = base[w] + c_first - i0[w]
+        while e < m and ev[e, 0] == w:
+            i = min(max(math.floor((off[w] + ev[e, 1]) / cell) - first[w], 0), n - 1)
+            scratch[2 * i + (0 if ev[e, 2] > 0 else 1)] += 1
+            if ev[e, 2] == HIT:
+                flags[w] |= 2
+            e += 1
+        shift = base[w] + first[w] - i0[w]
         for i in range(n):
             h, q = scratch[2 * i], scratch[2 * i + 1]
-            if h + q == 0:
-                continue
-            v = pool[shift + i] + (hit_l if h >= q else miss_l)
-            pool[shift + i] = min(max(v, -clamp), clamp)
-        for i in range(n):
+            if h + q > 0:
+                v = pool[shift + i] + (hit_l if h >= q else miss_l)
+                pool[shift + i] = min(max(v, -clamp), clamp)
             if pool[shift + i] <= free_l:
-                flags[w] = 1
-                break
+                flags[w] |= 1
     return flags
 
 
@@ -268,8 +221,8 @@ def _update_cells(
 def _extents(
     segs: FloatArray, slots: IntArray, anchor: FloatArray, cell: float
 ) -> tuple[FloatArray, FloatArray, IntArray, IntArray]:
-    """Per wall: its first end point's distance from its slot's anchor along it, its length, and its first and
-    last cell index (metres, cells of ``cell``). O(walls)."""
+    """Per wall: its first end point's distance along it from its slot's anchor, its length, and its first
+    and last cell index (metres, cells of ``cell``). O(walls)."""
     nw = segs.shape[0]
     off, length = np.empty(nw), np.empty(nw)
     first, last = np.empty(nw, dtype=np.intp), np.empty(nw, dtype=np.intp)
@@ -279,13 +232,13 @@ def _extents(
         inv = 1.0 / max(length[w], 1e-12)
         s = slots[w]
         off[w] = ((segs[w, 0] - anchor[s, 0]) * ex + (segs[w, 1] - anchor[s, 1]) * ey) * inv
-        first[w] = int(math.floor(off[w] / cell))
-        last[w] = max(int(math.floor((off[w] + length[w]) / cell - 1e-9)), first[w])
+        first[w] = math.floor(off[w] / cell)
+        last[w] = max(math.floor((off[w] + length[w]) / cell - 1e-9), first[w])
     return off, length, first, last
 
 
 def supported_runs(free: np.ndarray, cell_m: float, min_piece_m: float) -> list[tuple[int, int]]:
-    """Maximal runs ``[i0, i1)`` of cells not ``free`` (a boolean array), at least ``min_piece_m`` long. O(cells)."""
+    """Maximal runs ``[i0, i1)`` of cells not ``free`` (boolean), at least ``min_piece_m`` long. O(cells)."""
     keep = np.concatenate(([False], ~np.asarray(free, dtype=bool), [False]))
     edges = np.flatnonzero(np.diff(keep.astype(np.int8)))
     runs = [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
@@ -313,6 +266,9 @@ class FreeSpace:
         self._i0 = np.zeros(cap, dtype=np.intp)
         self._n = np.zeros(cap, dtype=np.intp)
         self._base = np.zeros(cap, dtype=np.intp)
+        self._since = np.zeros((cap, 2))  # travel (m, rad) when the wall last returned a beam (HIT)
+        self._travel = np.zeros(2)  # the scanner's path length (m) and turning (rad) so far
+        self._last: Pose2D | None = None
         self._pool = np.zeros(4096)
         self._used = 0
         self._scratch = np.zeros(64, dtype=np.intp)
@@ -321,6 +277,10 @@ class FreeSpace:
     def observe(self, walls: WallMap, laser: Pose2D, scan: Scan) -> list[int]:
         """Apply one scan taken from the scanner pose ``laser`` (world frame) to ``walls``; returns the ids of
         the walls it removed (also appended to ``walls.removed``)."""
+        if self._last is not None:
+            step = self._last.between(laser)
+            self._travel += (math.hypot(step.x_m, step.y_m), abs(step.theta_rad))
+        self._last = laser
         ids, segs = walls.all_walls()
         if len(ids) == 0:
             return []
@@ -333,26 +293,26 @@ class FreeSpace:
         need = 2 * int((last - first).max() + 1)
         if len(self._scratch) < need:
             self._scratch = np.zeros(2 * need, dtype=np.intp)
-        flags = _update_cells(
-            laser.x_m,
-            laser.y_m,
-            scan.angle_min_rad + laser.theta_rad,
-            scan.angle_increment_rad,
-            ranges,
-            np.ascontiguousarray(segs),
-            off,
-            self._base[slots],
-            self._i0[slots],
-            self._pool,
-            self._p,
-            self._scratch,
+        a_first = scan.angle_min_rad + laser.theta_rad
+        md = self.model
+        since = self._travel - self._since[slots]  # metres and radians since each wall's last support
+        drift = np.column_stack(
+            [
+                (md.drift_m_per_m * since[:, 0]) ** 2,
+                (md.drift_rad_per_m * since[:, 0] + md.drift_rad_per_rad * since[:, 1]) ** 2,
+            ]
         )
-        removed: list[int] = []
-        for w in np.flatnonzero(flags):
-            wid = int(ids[w])
-            if self._cut(walls, wid, int(slots[w]), float(off[w]), float(length[w]), int(first[w]), int(last[w])):
-                removed.append(wid)
-        return removed
+        events = beam_wall_events(
+            laser.x_m, laser.y_m, a_first, scan.angle_increment_rad, ranges, segs, drift, self._p
+        )
+        if len(events) == 0:
+            return []
+        flags = _update_cells(
+            events, off, first, last, self._base[slots], self._i0[slots], self._pool, self._p, self._scratch
+        )
+        self._since[slots[(flags & 2) > 0]] = self._travel
+        hit = [int(w) for w in np.flatnonzero(flags & 1)]
+        return [int(ids[w]) for w in hit if self._cut(walls, w, ids, slots, off, length, first, last)]
 
     # ------------------------------------------------------------------ cells
     def _slots_for(self, ids: IntArray, segs: FloatArray) -> IntArray:
@@ -374,13 +334,13 @@ class FreeSpace:
         else:
             s = len(self._slot)
             if s == len(self._i0):
-                for name in ("_anchor", "_i0", "_n", "_base"):
+                for name in ("_anchor", "_i0", "_n", "_base", "_since"):
                     old = getattr(self, name)
                     new = np.zeros((2 * len(old), *old.shape[1:]), dtype=old.dtype)
                     new[: len(old)] = old
                     setattr(self, name, new)
         self._slot[wid] = s
-        self._anchor[s] = anchor
+        self._anchor[s], self._since[s] = anchor, self._travel
         self._i0[s], self._n[s], self._base[s] = 0, 0, 0
         return s
 
@@ -394,11 +354,8 @@ class FreeSpace:
         """Move slot ``s``'s block to the pool's end, grown (zero log-odds: no evidence) to hold cells
         ``first..last`` with some headroom. Amortised O(cells)."""
         n_old, i0_old = int(self._n[s]), int(self._i0[s])
-        if n_old == 0:
-            lo_i, hi_i = first - self._MARGIN, last + self._MARGIN
-        else:
-            lo_i = min(first - self._MARGIN, i0_old) if first < i0_old else i0_old
-            hi_i = max(last + self._MARGIN, i0_old + n_old - 1) if last > i0_old + n_old - 1 else i0_old + n_old - 1
+        lo_i = first - self._MARGIN if n_old == 0 or first < i0_old else i0_old
+        hi_i = last + self._MARGIN if n_old == 0 or last >= i0_old + n_old else i0_old + n_old - 1
         n_new = hi_i - lo_i + 1
         if self._used + n_new > len(self._pool):
             self._compact(n_new)
@@ -423,19 +380,24 @@ class FreeSpace:
             b += n
         self._pool, self._used = pool, b
 
-    def _cut(self, walls: WallMap, wid: int, s: int, off: float, length: float, first: int, last: int) -> bool:
-        """Cut wall ``wid``'s free cells out of the map (:meth:`WallMap.cut`); True if nothing of it is left."""
+    def _cut(self, walls: WallMap, w: int, *per_wall: np.ndarray) -> bool:
+        """Cut wall ``w``'s free cells out of the map (:meth:`WallMap.cut`); True if none of it is left.
+        ``per_wall``: the walls' ids, slots, offsets, lengths, first and last cells."""
+        wid, s, first, last = (int(per_wall[k][w]) for k in (0, 1, 4, 5))
+        off, length = float(per_wall[2][w]), float(per_wall[3][w])
         md = self.model
         b = int(self._base[s]) + first - int(self._i0[s])
         free = self._pool[b : b + last - first + 1] <= md.free_logodds
         runs = supported_runs(free, md.cell_m, md.min_piece_m)
         keep = [
-            (max((first + r0) * md.cell_m - off, 0.0), min((first + r1) * md.cell_m - off, length)) for r0, r1 in runs
+            (max((first + r0) * md.cell_m - off, 0.0), min((first + r1) * md.cell_m - off, length))
+            for r0, r1 in runs
         ]
         self.cut_walls += 1
         new_ids = walls.cut(wid, keep)
         for nid in new_ids:  # the other pieces share the cut wall's evidence
             t = self._new_slot(nid, self._anchor[s].copy())
+            self._since[t] = self._since[s]
             self._i0[t], self._n[t] = self._i0[s], 0
             self._cover(t, int(self._i0[s]), int(self._i0[s] + self._n[s] - 1))
             n = int(self._n[s])

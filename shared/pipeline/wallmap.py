@@ -94,11 +94,11 @@ class WallMap:
 
     # ------------------------------------------------------------------ updates
     def cut(self, wall_id: int, keep: list[tuple[float, float]]) -> list[int]:
-        """Keep only the pieces ``keep`` of wall ``wall_id``, each ``(t0, t1)`` metres from its first end point
-        along it (free space observed elsewhere, :mod:`shared.pipeline.freespace`). The first piece keeps
-        the id, the others get new ids (returned) and the wall's observation count; no piece left removes
-        the wall (its id is appended to ``removed``). Each piece's moments are those of a uniform segment
-        with the wall's mass per metre, so later merges refit it consistently. O(walls)."""
+        """Keep only the pieces ``keep`` of wall ``wall_id``, each ``(t0, t1)`` metres from its first end
+        point along it (free space observed elsewhere, :mod:`shared.pipeline.freespace`). The first piece
+        keeps the id, the others get new ids (returned) and the wall's observation count; no piece left
+        removes the wall (its id is appended to ``removed``). Each piece's moments are those of a uniform
+        segment with the wall's mass per metre, so later merges refit it consistently. O(walls)."""
         hit = np.flatnonzero(self._ids[: self._n] == wall_id)
         if len(hit) == 0:
             return []
@@ -128,9 +128,10 @@ class WallMap:
             w = per_m * (t1 - t0)
             var = (t1 - t0) ** 2 / 12.0
             self._w[j], self._s1[j] = w, w * mid
-            self._s2[j] = w * (var * np.array([d[0] * d[0], d[0] * d[1], d[1] * d[1]]) + np.array(
-                [mid[0] * mid[0], mid[0] * mid[1], mid[1] * mid[1]]
-            ))
+            self._s2[j] = w * (
+                var * np.array([d[0] * d[0], d[0] * d[1], d[1] * d[1]])
+                + np.array([mid[0] * mid[0], mid[0] * mid[1], mid[1] * mid[1]])
+            )
             self._c[j], self._d[j], self._lo[j], self._hi[j] = mid, d, -half, half
         return new_ids
 
