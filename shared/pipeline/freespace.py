@@ -261,16 +261,12 @@ class FreeSpace:
         self._p = self.model.packed()
         self._slot: dict[int, int] = {}
         self._free_slots: list[int] = []
-        cap = 64
-        self._anchor = np.zeros((cap, 2))
-        self._i0 = np.zeros(cap, dtype=np.intp)
-        self._n = np.zeros(cap, dtype=np.intp)
-        self._base = np.zeros(cap, dtype=np.intp)
-        self._since = np.zeros((cap, 2))  # travel (m, rad) when the wall last returned a beam (HIT)
+        # per slot: cell anchor, travel (m, rad) when the wall last returned a beam (HIT), cell block
+        self._anchor, self._since = np.zeros((64, 2)), np.zeros((64, 2))
+        self._i0, self._n, self._base = (np.zeros(64, dtype=np.intp) for _ in range(3))
         self._travel = np.zeros(2)  # the scanner's path length (m) and turning (rad) so far
         self._last: Pose2D | None = None
-        self._pool = np.zeros(4096)
-        self._used = 0
+        self._pool, self._used = np.zeros(4096), 0
         self._scratch = np.zeros(64, dtype=np.intp)
         self.cut_walls = 0
 
@@ -285,9 +281,8 @@ class FreeSpace:
         if len(ids) == 0:
             return []
         ranges = np.where(scan.valid_mask(), scan.ranges_m, np.nan)
-        cell = self.model.cell_m
         slots = self._slots_for(ids, segs)
-        off, length, first, last = _extents(segs, slots, self._anchor, cell)
+        off, length, first, last = _extents(segs, slots, self._anchor, self.model.cell_m)
         for w in np.flatnonzero((first < self._i0[slots]) | (last >= self._i0[slots] + self._n[slots])):
             self._cover(int(slots[w]), int(first[w]), int(last[w]))
         need = 2 * int((last - first).max() + 1)
@@ -295,13 +290,10 @@ class FreeSpace:
             self._scratch = np.zeros(2 * need, dtype=np.intp)
         a_first = scan.angle_min_rad + laser.theta_rad
         md = self.model
-        since = self._travel - self._since[slots]  # metres and radians since each wall's last support
-        drift = np.column_stack(
-            [
-                (md.drift_m_per_m * since[:, 0]) ** 2,
-                (md.drift_rad_per_m * since[:, 0] + md.drift_rad_per_rad * since[:, 1]) ** 2,
-            ]
-        )
+        dist, turn = (self._travel - self._since[slots]).T  # since each wall's last support
+        xy2 = (md.drift_m_per_m * dist) ** 2
+        th2 = (md.drift_rad_per_m * dist + md.drift_rad_per_rad * turn) ** 2
+        drift = np.ascontiguousarray(np.column_stack([xy2, th2]))
         events = beam_wall_events(
             laser.x_m, laser.y_m, a_first, scan.angle_increment_rad, ranges, segs, drift, self._p
         )
@@ -398,10 +390,8 @@ class FreeSpace:
         for nid in new_ids:  # the other pieces share the cut wall's evidence
             t = self._new_slot(nid, self._anchor[s].copy())
             self._since[t] = self._since[s]
-            self._i0[t], self._n[t] = self._i0[s], 0
             self._cover(t, int(self._i0[s]), int(self._i0[s] + self._n[s] - 1))
-            n = int(self._n[s])
-            src = int(self._base[s])
+            n, src = int(self._n[s]), int(self._base[s])
             self._pool[self._base[t] + self._i0[s] - self._i0[t] :][:n] = self._pool[src : src + n]
         if not keep:
             self._release(wid)
