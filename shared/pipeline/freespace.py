@@ -10,7 +10,8 @@ went). "At" and "beyond" compare the return with the crossing range ``s`` agains
 ``sigma_along^2 = sigma_range(s)^2 + sigma_perp^2 / sin^2(incidence)``, with the wall's perpendicular
 uncertainty ``sigma_perp^2 = line_sigma_m^2 + (s heading_sigma_rad)^2``. No evidence: beams without a
 return (glass, black, max range), returns before the wall (occlusion), grazing beams (incidence below
-``min_incidence_deg``). See docs/freespace.md.
+``min_incidence_deg``). The compiled geometry is :mod:`shared.pipeline.freespace_kernels`; see
+docs/freespace.md.
 """
 
 from __future__ import annotations
@@ -20,15 +21,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shared.kernels._jit import njit
+from shared.pipeline.freespace_kernels import (
+    HIT,
+    HIT_DRIFT,
+    PASS,
+    _extents,
+    _near,
+    _update_cells,
+    beam_wall_events,
+)
 from shared.pipeline.wallmap import WallMap
 from shared.types import FloatArray, IntArray, Pose2D, Scan
 
-__all__ = ["FreeSpace", "FreeSpaceModel", "beam_wall_events", "supported_runs"]
-
-HIT = 1  # a return at the wall within the tolerance without drift: support, and the wall's clock reset
-HIT_DRIFT = 2  # at the wall only within the tolerance widened by the drift since its last support
-PASS = -1
+__all__ = ["HIT", "HIT_DRIFT", "PASS", "FreeSpace", "FreeSpaceModel", "beam_wall_events", "supported_runs"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,8 +51,10 @@ class FreeSpaceModel:
     heading_sigma_rad: float = 0.01
     n_sigma: float = 3.0
     min_incidence_deg: float = 15.0
-    #: crossings closer than this to the scanner are not evidence (the scanner's own body, range_min)
+    #: crossings closer than this to the scanner are not evidence (the scanner's own body, range_min), nor
+    #: those farther than ``max_range_m`` (weak there: heading uncertainty; and it bounds the cost)
     min_range_m: float = 0.1
+    max_range_m: float = 8.0
     hit_logodds: float = 0.85
     miss_logodds: float = -0.4
     clamp: float = 2.5
@@ -66,175 +73,10 @@ class FreeSpaceModel:
         return np.array([sin_min if f == "sin_min" else getattr(self, f, 0.0) for f in _PACKED])
 
 
-#: index 6 is unused ("-": 0), 7 is the sine of ``min_incidence_deg``
+#: index 7 is the sine of ``min_incidence_deg``
 _SIGMAS = ("range_sigma_near_m", "range_sigma_ratio", "range_near_limit_m", "line_sigma_m")
-_PACKED: tuple[str, ...] = (*_SIGMAS, "heading_sigma_rad", "n_sigma", "-", "sin_min", "min_range_m")
+_PACKED: tuple[str, ...] = (*_SIGMAS, "heading_sigma_rad", "n_sigma", "max_range_m", "sin_min", "min_range_m")
 _PACKED += ("cell_m", "hit_logodds", "miss_logodds", "clamp", "free_logodds")
-
-
-@njit
-def _crossing(
-    ox: float,
-    oy: float,
-    ux: float,
-    uy: float,
-    r: float,
-    wall: tuple[float, ...],
-    p: FloatArray,
-) -> tuple[int, float]:
-    """Whether the beam from ``(ox, oy)`` along unit ``(ux, uy)`` with return ``r`` hits (:data:`HIT`,
-    :data:`HIT_DRIFT`) or passes through (:data:`PASS`) the wall ``(x0, y0, dx, dy, length, drift_xy2,
-    drift_th2)`` (first end point, unit direction, metres; variances of its drift in position, m^2, and
-    heading, rad^2), and where (metres from that end point); 0 when it is no evidence (no crossing,
-    grazing, too near, occluded, no return). ``p``: :meth:`FreeSpaceModel.packed`. O(1)."""
-    x0, y0, dx, dy, length, drift_xy2, drift_th2 = wall
-    if not r > 0.0:  # NaN: no return
-        return 0, 0.0
-    den = ux * dy - uy * dx  # cross(u, d): sine of the incidence, signed
-    if abs(den) < p[7]:
-        return 0, 0.0
-    # o + s u = p0 + t d  ->  s = cross(p0 - o, d) / cross(u, d), t = cross(p0 - o, u) / cross(u, d)
-    qx, qy = x0 - ox, y0 - oy
-    s = (qx * dy - qy * dx) / den
-    t = (qx * uy - qy * ux) / den
-    if s < p[8] or t < 0.0 or t > length:
-        return 0, 0.0
-    sig_r = p[0] if s < p[2] else p[1] * s
-    sig_perp2 = p[3] * p[3] + (s * p[4]) ** 2
-    tol0 = p[5] * math.sqrt(sig_r * sig_r + sig_perp2 / (den * den))
-    tol = p[5] * math.sqrt(sig_r * sig_r + (sig_perp2 + drift_xy2 + s * s * drift_th2) / (den * den))
-    if r < s - tol:
-        return 0, 0.0  # occluded: the beam stopped before the wall
-    if abs(r - s) <= tol0:
-        return HIT, t
-    return (HIT_DRIFT if r <= s + tol else PASS), t
-
-
-@njit
-def _windows(
-    ox: float, oy: float, x0: float, y0: float, x1: float, y1: float, a_first: float, inc: float, nb: int
-) -> tuple[int, int, int, int]:
-    """The beam index windows ``[k0, k1)`` and ``[k2, k3)`` that can cross the segment (its angular span from
-    the origin, one beam of margin each side); every beam when the span is unknown. O(1)."""
-    if inc <= 0.0:
-        return 0, nb, 0, 0
-    f0 = math.atan2(y0 - oy, x0 - ox)
-    f1 = math.atan2(y1 - oy, x1 - ox)
-    span = (f1 - f0 + math.pi) % (2.0 * math.pi) - math.pi
-    hw = 0.5 * abs(span)
-    if hw > 0.5 * math.pi - 1e-6:
-        return 0, nb, 0, 0
-    rel = (f0 + 0.5 * span - a_first) % (2.0 * math.pi)
-    k0 = max(math.floor((rel - hw) / inc) - 1, 0)
-    k1 = min(math.ceil((rel + hw) / inc) + 2, nb)
-    rel2 = rel - 2.0 * math.pi
-    k2 = max(math.floor((rel2 - hw) / inc) - 1, 0)
-    k3 = min(math.ceil((rel2 + hw) / inc) + 2, nb)
-    return k0, max(k1, k0), k2, max(k3, k2)
-
-
-@njit
-def beam_wall_events(
-    ox: float,
-    oy: float,
-    a_first: float,
-    inc: float,
-    ranges_m: FloatArray,
-    segs: FloatArray,
-    drift: FloatArray,
-    p: FloatArray,
-) -> FloatArray:
-    """Every piece of evidence one scan gives about walls ``segs`` ``(W, 4)``: beam ``k`` leaves the scanner
-    at ``(ox, oy)`` at world angle ``a_first + k inc`` with return ``ranges_m[k]`` (NaN: none). Returns
-    ``(E, 3)`` rows ``[wall, t_m, kind]``: wall index, distance of the crossing from the wall's first end
-    point (metres), :data:`HIT` / :data:`HIT_DRIFT` / :data:`PASS`, wall by wall. ``drift``: ``(W, 2)``
-    drift variances per wall (see :func:`_crossing`); ``p``: :meth:`FreeSpaceModel.packed`.
-    O(beams x walls), beams restricted to each wall's angular span."""
-    nb, nw = ranges_m.shape[0], segs.shape[0]
-    ev, m = np.empty((64, 3)), 0
-    for w in range(nw):
-        x0, y0, x1, y1 = segs[w, 0], segs[w, 1], segs[w, 2], segs[w, 3]
-        length = math.hypot(x1 - x0, y1 - y0)
-        if length <= 0.0:
-            continue
-        dx, dy = (x1 - x0) / length, (y1 - y0) / length
-        k0, k1, k2, k3 = _windows(ox, oy, x0, y0, x1, y1, a_first, inc, nb)
-        for win in range(2):
-            for k in range(k0, k1) if win == 0 else range(k2, k3):
-                a = a_first + k * inc
-                wl = (x0, y0, dx, dy, length, drift[w, 0], drift[w, 1])
-                c, t = _crossing(ox, oy, math.cos(a), math.sin(a), ranges_m[k], wl, p)
-                if c == 0:
-                    continue
-                if m == ev.shape[0]:
-                    grown = np.empty((2 * m, 3))
-                    grown[:m] = ev
-                    ev = grown
-                ev[m, 0], ev[m, 1], ev[m, 2] = w, t, c
-                m += 1
-    return ev[:m]
-
-
-@njit
-def _update_cells(
-    ev: FloatArray,
-    off: FloatArray,
-    first: IntArray,
-    last: IntArray,
-    base: IntArray,
-    i0: IntArray,
-    pool: FloatArray,
-    p: FloatArray,
-    scratch: IntArray,
-) -> IntArray:
-    """One scan's events (:func:`beam_wall_events`, wall by wall) added to the walls' cells in ``pool``: wall
-    ``w``'s cell ``i`` (covering ``[i cell, (i + 1) cell)`` from the wall's anchor, its first end point at
-    ``off[w]`` from it, cells ``first[w]..last[w]`` on it) is ``pool[base[w] + i - i0[w]]``. Each cell
-    counts once per scan: a hit if its beams returned at the wall at least as often as beyond it, else a
-    pass-through. Returns per wall bit 1 if one of its cells is now free, bit 2 if a beam returned at it
-    within the tolerance without drift (:data:`HIT`). O(events + cells of walls seen)."""
-    cell, hit_l, miss_l, clamp, free_l = p[9], p[10], p[11], p[12], p[13]
-    flags = np.zeros(off.shape[0], dtype=np.intp)
-    m, e = ev.shape[0], 0
-    while e < m:
-        w = int(ev[e, 0])
-        n = last[w] - first[w] + 1
-        scratch[: 2 * n] = 0
-        while e < m and ev[e, 0] == w:
-            i = min(max(math.floor((off[w] + ev[e, 1]) / cell) - first[w], 0), n - 1)
-            scratch[2 * i + (0 if ev[e, 2] > 0 else 1)] += 1
-            if ev[e, 2] == HIT:
-                flags[w] |= 2
-            e += 1
-        shift = base[w] + first[w] - i0[w]
-        for i in range(n):
-            h, q = scratch[2 * i], scratch[2 * i + 1]
-            if h + q > 0:
-                v = pool[shift + i] + (hit_l if h >= q else miss_l)
-                pool[shift + i] = min(max(v, -clamp), clamp)
-            if pool[shift + i] <= free_l:
-                flags[w] |= 1
-    return flags
-
-
-@njit
-def _extents(
-    segs: FloatArray, slots: IntArray, anchor: FloatArray, cell: float
-) -> tuple[FloatArray, FloatArray, IntArray, IntArray]:
-    """Per wall: its first end point's distance along it from its slot's anchor, its length, and its first
-    and last cell index (metres, cells of ``cell``). O(walls)."""
-    nw = segs.shape[0]
-    off, length = np.empty(nw), np.empty(nw)
-    first, last = np.empty(nw, dtype=np.intp), np.empty(nw, dtype=np.intp)
-    for w in range(nw):
-        ex, ey = segs[w, 2] - segs[w, 0], segs[w, 3] - segs[w, 1]
-        length[w] = math.hypot(ex, ey)
-        inv = 1.0 / max(length[w], 1e-12)
-        s = slots[w]
-        off[w] = ((segs[w, 0] - anchor[s, 0]) * ex + (segs[w, 1] - anchor[s, 1]) * ey) * inv
-        first[w] = math.floor(off[w] / cell)
-        last[w] = max(math.floor((off[w] + length[w]) / cell - 1e-9), first[w])
-    return off, length, first, last
 
 
 def supported_runs(free: np.ndarray, cell_m: float, min_piece_m: float) -> list[tuple[int, int]]:
@@ -266,6 +108,7 @@ class FreeSpace:
         self._i0, self._n, self._base = (np.zeros(64, dtype=np.intp) for _ in range(3))
         self._travel = np.zeros(2)  # the scanner's path length (m) and turning (rad) so far
         self._last: Pose2D | None = None
+        self._keys, self._vals, self._stale = np.zeros(0, np.int64), np.zeros(0, np.intp), False
         self._pool, self._used = np.zeros(4096), 0
         self._scratch = np.zeros(64, dtype=np.intp)
         self.cut_walls = 0
@@ -277,10 +120,17 @@ class FreeSpace:
             step = self._last.between(laser)
             self._travel += (math.hypot(step.x_m, step.y_m), abs(step.theta_rad))
         self._last = laser
-        ids, segs = walls.all_walls()
-        if len(ids) == 0:
+        all_ids, all_segs = walls.all_walls()
+        valid = scan.valid_mask()
+        if len(all_ids) == 0 or not valid.any():
             return []
-        ranges = np.where(scan.valid_mask(), scan.ranges_m, np.nan)
+        self._forget(all_ids)
+        ranges = np.where(valid, scan.ranges_m, np.nan)
+        reach = min(float(scan.ranges_m[valid].max()), self.model.max_range_m)
+        near = _near(all_segs, laser.x_m, laser.y_m, reach)
+        if len(near) == 0:
+            return []
+        ids, segs = all_ids[near], np.ascontiguousarray(all_segs[near])
         slots = self._slots_for(ids, segs)
         off, length, first, last = _extents(segs, slots, self._anchor, self.model.cell_m)
         for w in np.flatnonzero((first < self._i0[slots]) | (last >= self._i0[slots] + self._n[slots])):
@@ -300,7 +150,16 @@ class FreeSpace:
         if len(events) == 0:
             return []
         flags = _update_cells(
-            events, off, first, last, self._base[slots], self._i0[slots], self._pool, self._p, self._scratch
+            events,
+            off,
+            length,
+            first,
+            last,
+            self._base[slots],
+            self._i0[slots],
+            self._pool,
+            self._p,
+            self._scratch,
         )
         self._since[slots[(flags & 2) > 0]] = self._travel
         hit = [int(w) for w in np.flatnonzero(flags & 1)]
@@ -308,17 +167,32 @@ class FreeSpace:
 
     # ------------------------------------------------------------------ cells
     def _slots_for(self, ids: IntArray, segs: FloatArray) -> IntArray:
-        """The slot of every wall id (new ids get one, anchored at their first end point); slots of ids no
-        longer in the map are freed. O(walls)."""
-        get = self._slot.get
-        slots = np.fromiter((get(i, -1) for i in ids.tolist()), dtype=np.intp, count=len(ids))
-        for w in np.flatnonzero(slots < 0):
-            slots[w] = self._new_slot(int(ids[w]), segs[w, :2])
+        """The slot of every wall id (new ids get one, anchored at their first end point). O(walls)."""
+        if self._stale:  # slots were freed: rebuild the sorted id -> slot arrays
+            keys = np.fromiter(self._slot.keys(), np.int64, len(self._slot))
+            vals = np.fromiter(self._slot.values(), np.intp, len(self._slot))
+            order = np.argsort(keys)
+            self._keys, self._vals, self._stale = keys[order], vals[order], False
+        pos = np.minimum(np.searchsorted(self._keys, ids), max(len(self._keys) - 1, 0))
+        slots = (
+            np.where(self._keys[pos] == ids, self._vals[pos], -1) if len(self._keys) else -np.ones_like(ids)
+        )
+        new = np.flatnonzero(slots < 0)
+        for w in new:  # new walls, or pieces of a cut wall (given a slot by the cut)
+            wid = int(ids[w])
+            slots[w] = self._slot[wid] if wid in self._slot else self._new_slot(wid, segs[w, :2])
+        if len(new):
+            keys, vals = np.concatenate([self._keys, ids[new]]), np.concatenate([self._vals, slots[new]])
+            order = np.argsort(keys, kind="stable")
+            self._keys, self._vals = keys[order], vals[order]
+        return np.asarray(slots, dtype=np.intp)
+
+    def _forget(self, ids: IntArray) -> None:
+        """Free the slots of walls no longer in the map (fused into others), now and then. O(walls)."""
         if len(self._slot) > len(ids) + 32:
             live = set(ids.tolist())
             for wid in [k for k in self._slot if k not in live]:
                 self._release(wid)
-        return slots
 
     def _new_slot(self, wid: int, anchor: FloatArray) -> int:
         if self._free_slots:
@@ -339,7 +213,7 @@ class FreeSpace:
     def _release(self, wid: int) -> None:
         s = self._slot.pop(wid, None)
         if s is not None:
-            self._n[s] = 0
+            self._n[s], self._stale = 0, True
             self._free_slots.append(s)
 
     def _cover(self, s: int, first: int, last: int) -> None:
@@ -385,6 +259,7 @@ class FreeSpace:
             (max((first + r0) * md.cell_m - off, 0.0), min((first + r1) * md.cell_m - off, length))
             for r0, r1 in runs
         ]
+        keep = [(t0, t1) for t0, t1 in keep if t1 - t0 >= md.min_piece_m]
         self.cut_walls += 1
         new_ids = walls.cut(wid, keep)
         for nid in new_ids:  # the other pieces share the cut wall's evidence
