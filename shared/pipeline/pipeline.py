@@ -27,6 +27,7 @@ import numpy as np
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Stage
 from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
+from shared.pipeline.freespace import FreeSpace
 from shared.pipeline.fusion import fuse_gated, wheel_prior
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.localize import refine_to_walls
@@ -80,6 +81,7 @@ class Pipeline:
         self._gate = icp_gate or IcpGate()
         self.odometry_noise = OdometryNoise()  # learned from the believed matches (shared.pipeline.odonoise)
         self._map = WallMap(merge)
+        self._freespace = FreeSpace()  # walls later seen through leave the map
         # Localisation keeps its own local line map, built every step whatever the schedule (offline
         # batches would leave the pose uncorrected for N_smax steps); the configured stages make the map
         # shown. It is local: two maps restart in turn every `local_map_steps` steps or `local_map_m`
@@ -142,6 +144,7 @@ class Pipeline:
             segments = self._loc_lines.apply(world, groups).segments
             for local in self._loc_maps:
                 local.add_segments(segments)
+        self._freespace.observe(self._map, laser, scan)
         self._stamp = scan.stamp_s
         self._trajectory.append((scan.stamp_s, self._pose.x_m, self._pose.y_m, self._pose.theta_rad))
         ran = self._feed(Chunk.of(world, groups, (laser.x_m, laser.y_m)), final=False)

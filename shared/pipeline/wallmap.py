@@ -101,7 +101,63 @@ class WallMap:
         b = c + d * self._hi[k, None]
         return np.hstack([a, b])
 
+    def all_walls(self) -> tuple[IntArray, FloatArray]:
+        """Ids and ``(W, 4)`` end points of every wall, shown or not yet confirmed, in storage order."""
+        n = self._n
+        c, d = self._c[:n], self._d[:n]
+        return self._ids[:n].copy(), np.hstack([c + d * self._lo[:n, None], c + d * self._hi[:n, None]])
+
     # ------------------------------------------------------------------ updates
+    def cut(self, wall_id: int, keep: list[tuple[float, float]]) -> list[int]:
+        """Keep only the pieces ``keep`` of wall ``wall_id``, each ``(t0, t1)`` metres from its first end
+        point along it (free space observed elsewhere, :mod:`shared.pipeline.freespace`). The first piece
+        keeps the id, the others get new ids (returned) and the wall's observation count; no piece left
+        removes the wall (its id is appended to ``removed``). Each piece's moments are those of a uniform
+        segment with the wall's mass per metre and its scatter across (the merge's ``merge_sigmas`` test reads
+        it), so later merges refit it consistently. O(walls)."""
+        hit = np.flatnonzero(self._ids[: self._n] == wall_id)
+        if len(hit) == 0:
+            return []
+        i = int(hit[0])
+        pieces = [(t0, t1) for t0, t1 in keep if t1 > t0]
+        if not pieces:
+            for name in ("_ids", "_obs", "_w", "_s1", "_s2", "_c", "_d", "_lo", "_hi"):
+                arr = getattr(self, name)
+                arr[i : self._n - 1] = arr[i + 1 : self._n]
+            self._n -= 1
+            self.removed.append(int(wall_id))
+            return []
+        a = self._c[i] + self._d[i] * self._lo[i]
+        d = self._d[i].copy()
+        per_m = self._w[i] / max(self._hi[i] - self._lo[i], 1e-12)
+        n = np.array([-d[1], d[0]])
+        w_i = max(self._w[i], 1e-12)
+        xx, xy, yy = self._s2[i] / w_i
+        cx, cy = self._s1[i] / w_i
+        cov = np.array([[xx - cx * cx, xy - cx * cy], [xy - cx * cy, yy - cy * cy]])
+        across = max(float(n @ cov @ n), 0.0)  # the pieces' scatter about the line, m^2
+        new_ids: list[int] = []
+        for k, (t0, t1) in enumerate(pieces):
+            j = i
+            if k > 0:
+                if self._n == len(self._w):
+                    self._grow()
+                j, self._n = self._n, self._n + 1
+                self._ids[j], self._obs[j] = self._next_id, self._obs[i]
+                new_ids.append(self._next_id)
+                self._next_id += 1
+            mid, half = a + d * (0.5 * (t0 + t1)), 0.5 * (t1 - t0)
+            w = per_m * (t1 - t0)
+            var = (t1 - t0) ** 2 / 12.0
+            self._w[j], self._s1[j] = w, w * mid
+            self._s2[j] = w * (
+                var * np.array([d[0] * d[0], d[0] * d[1], d[1] * d[1]])
+                + across * np.array([n[0] * n[0], n[0] * n[1], n[1] * n[1]])
+                + np.array([mid[0] * mid[0], mid[0] * mid[1], mid[1] * mid[1]])
+            )
+            self._c[j], self._d[j], self._lo[j], self._hi[j] = mid, d, -half, half
+        return new_ids
+
     def add_segments(
         self,
         segments: ArrayLike,
