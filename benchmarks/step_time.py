@@ -1,0 +1,107 @@
+"""Online step time on the default simulated world and whole-log replay throughput, against a baseline tree.
+
+Issue 19's speed targets: the online step median <= 3 ms on the default world, and a whole-log replay
+(reading included) >= 300 scans/s. Each measurement runs in its own process (numba caches warm, the first
+step not counted); with ``--baseline DIR`` (an exported older tree, e.g. ``git archive <commit> | tar -x
+-C DIR``) the baseline and this tree alternate ``--repeats`` times in the same session, and the medians
+and their ratio are printed, since the shared machine drifts by 20-40 % between runs.
+
+    .venv/bin/python benchmarks/step_time.py [--baseline DIR] [--repeats 3] [--log mit-csail/mit-csail.clf.gz]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["main", "measure"]
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT / ".." / "shared" / "data"
+
+
+def measure(log: Path) -> dict[str, float]:
+    """Step median (ms) over the default world's scans and replay scans/s of ``log``, in this process."""
+    from shared.io import open_log
+    from shared.pipeline import Pipeline
+    from shared.sim import default_world, simulate_run
+
+    run = simulate_run(default_world(), seed=0)
+    pipe = Pipeline(laser_offset=run.drive.laser_offset)
+    for scan in run.scans:
+        pipe.step(scan)
+    step_ms, _ = pipe.timing_ms()
+    count = 0
+    with open_log(log) as reader:
+        pipe = Pipeline(laser_offset=reader.info.laser_offset)
+        start = time.perf_counter()
+        for scan in reader:
+            pipe.step(scan)
+            count += 1
+            if count == 1:  # the first step compiles: not throughput
+                start = time.perf_counter()
+        pipe.flush()
+    seconds = time.perf_counter() - start
+    return {"step_median_ms": step_ms, "replay_scans_per_s": (count - 1) / seconds if seconds > 0 else 0.0}
+
+
+def _child(tree: Path | None, log: Path) -> dict[str, float]:
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
+    out = subprocess.run(
+        [sys.executable, __file__, "--child", "--log", str(log)],
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=tree or ROOT,
+    )
+    return dict(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line (module docstring)."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--baseline", type=Path, help="an exported older tree to compare against")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--log", default="mit-csail/mit-csail.clf.gz", help="under ../shared/data")
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    log = Path(args.log) if Path(args.log).is_absolute() else DATA / args.log
+    if not log.exists():
+        parser.error(f"log {log} not found: expected a file under ../shared/data or an absolute path")
+    if args.child:
+        print(json.dumps(measure(log)))
+        return 0
+    if args.baseline is not None and not (args.baseline / "shared").is_dir():
+        parser.error(f"--baseline {args.baseline} holds no shared/ package: expected an exported tree")
+    trees: list[tuple[str, Path | None]] = [("this tree", None)]
+    if args.baseline is not None:
+        trees.insert(0, ("baseline", args.baseline.resolve()))
+    runs: dict[str, list[dict[str, float]]] = {name: [] for name, _ in trees}
+    for i in range(args.repeats):
+        for name, tree in trees:
+            runs[name].append(_child(tree, log))
+            print(f"run {i + 1}/{args.repeats} {name}: {runs[name][-1]}", file=sys.stderr)
+    med = {name: {key: statistics.median(r[key] for r in rs) for key in rs[0]} for name, rs in runs.items()}
+    print(f"{'tree':12s} {'step median ms':>15s} {'replay scans/s':>15s}   ({args.repeats} runs, {log.name})")
+    for name, m in med.items():
+        print(f"{name:12s} {m['step_median_ms']:15.2f} {m['replay_scans_per_s']:15.0f}")
+    if args.baseline is not None:
+        b, t = med["baseline"], med["this tree"]
+        print(
+            f"{'ratio':12s} {t['step_median_ms'] / b['step_median_ms']:15.2f}x "
+            f"{t['replay_scans_per_s'] / b['replay_scans_per_s']:14.2f}x"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
