@@ -29,7 +29,10 @@ __all__ = ["WallFit", "refine_to_walls"]
 
 @dataclass(frozen=True, slots=True)
 class WallFit:
-    """The refined scanner pose, how many points matched a wall and their RMS distance (m)."""
+    """The refined scanner pose, how many points matched a wall and their RMS distance (m), both as the
+    last Gauss-Newton step was solved on: after the iterations ran out that is the pose before that step
+    (measuring the returned pose again would cost one more association per step for a figure the
+    pipeline does not read)."""
 
     pose: Pose2D
     matched: int
