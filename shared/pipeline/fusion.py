@@ -34,9 +34,17 @@ from shared.kernels.matching._grid import _MAX_CELLS_PER_AXIS, _grid_build, _gri
 from shared.kernels.matching._local_lines import _local_lines
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.odonoise import OdometryNoise
-from shared.types import FloatArray, Pose2D
+from shared.types import BoolArray, FloatArray, IntArray, Pose2D
 
-__all__ = ["Fused", "fuse_gated", "fuse_with_odometry", "odometry_information", "wheel_prior"]
+__all__ = [
+    "Fused",
+    "Reference",
+    "fuse_gated",
+    "fuse_with_odometry",
+    "odometry_information",
+    "prepare_reference",
+    "wheel_prior",
+]
 
 #: local reference lines as point-to-line ICP fits them (radius m, most neighbours a side, ABD angle rad,
 #: range noise m, straightness ratio)
@@ -54,8 +62,13 @@ class Fused:
 
     pose: Pose2D
     pairs: int
-    weakest_sigma_m: float
     information: FloatArray  # (3, 3) posterior information of (x, y, theta)
+
+    @property
+    def weakest_sigma_m(self) -> float:
+        """Posterior standard deviation along the least constrained direction of translation (m). O(1)."""
+        cov = np.linalg.inv(self.information)
+        return float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)))
 
 
 def odometry_information(
@@ -70,9 +83,52 @@ def odometry_information(
     return np.diag([1.0 / s_xy**2, 1.0 / s_xy**2, 1.0 / s_th**2])
 
 
+@dataclass(frozen=True, slots=True)
+class Reference:
+    """A reference scan made ready for :func:`fuse_with_odometry`: its local lines and nearest-point grid
+    (for pairs up to ``max_distance_m``). Build it once per keyframe (:func:`prepare_reference`): the
+    pipeline fuses several scans against one keyframe."""
+
+    max_distance_m: float
+    normals: FloatArray
+    offsets: FloatArray
+    valid: BoolArray
+    sorted_xy: FloatArray
+    order: IntArray
+    start: IntArray
+    x0: float
+    y0: float
+    h: float
+    nx: int
+    ny: int
+
+
+def prepare_reference(points: FloatArray, max_distance_m: float = 0.25) -> Reference | None:
+    """The lines and grid of ``points`` ``(M, 2)`` (scanner frame, m, beam order; non-finite rows dropped);
+    ``None`` with fewer than 3 finite points. O(M)."""
+    ref = np.ascontiguousarray(points[np.isfinite(points).all(axis=1)], dtype=np.float64)
+    if len(ref) < 3:
+        return None
+    normals, offsets, valid = _local_lines(
+        ref, _LINE_RADIUS_M, _LINE_MAX_SIDE, _LINE_LAMBDA_RAD, _LINE_SIGMA_M, _LINE_MAX_RATIO
+    )
+    grid = _grid_build(ref, 0.25 * max_distance_m, _MAX_CELLS_PER_AXIS)
+    return Reference(max_distance_m, normals, offsets, valid, *grid)
+
+
 @njit
 def _fuse(
-    ref: FloatArray,
+    normals: FloatArray,
+    offsets: FloatArray,
+    valid: BoolArray,
+    sorted_xy: FloatArray,
+    order: IntArray,
+    start: IntArray,
+    x0: float,
+    y0: float,
+    h: float,
+    nx: int,
+    ny: int,
     cur: FloatArray,
     x: float,
     y: float,
@@ -84,12 +140,9 @@ def _fuse(
     trim: float,
     iterations: int,
 ) -> tuple[float, float, float, int, FloatArray]:
-    """Gauss-Newton of the module docstring's objective from ``(x, y, th)``; returns the pose, the pairs of
-    the last iteration and the last normal matrix (the posterior information)."""
-    normals, offsets, valid = _local_lines(
-        ref, _LINE_RADIUS_M, _LINE_MAX_SIDE, _LINE_LAMBDA_RAD, _LINE_SIGMA_M, _LINE_MAX_RATIO
-    )
-    sorted_xy, order, start, x0, y0, h, nx, ny = _grid_build(ref, 0.25 * max_d, _MAX_CELLS_PER_AXIS)
+    """Gauss-Newton of the module docstring's objective from ``(x, y, th)`` against a prepared reference
+    (its lines and grid); returns the pose, the pairs of the last iteration and the last normal matrix
+    (the posterior information)."""
     w = 1.0 / (sigma * sigma)
     hm = info.copy()
     pairs = 0
@@ -128,7 +181,7 @@ def _fuse(
 
 
 def fuse_with_odometry(
-    reference: FloatArray,
+    reference: FloatArray | Reference,
     current: FloatArray,
     matched: Pose2D,
     odometry: Pose2D,
@@ -146,18 +199,29 @@ def fuse_with_odometry(
     that best agrees with both the scan and the ``odometry`` motion of ``information`` (module docstring),
     solved from the matcher's ``matched`` pose. ``None`` when fewer than ``min_pairs`` points find a line
     (keep the match as it is). At most ``max_points`` current points are used. ``scan_only``: without the
-    odometry term (``information`` is ignored), for the scan's own information at the pose."""
-    ref = np.ascontiguousarray(reference[np.isfinite(reference).all(axis=1)], dtype=np.float64)
+    odometry term (``information`` is ignored), for the scan's own information at the pose.
+    ``reference`` may be prepared already (:func:`prepare_reference`, for pairs up to ``max_distance_m``)."""
+    ref = reference if isinstance(reference, Reference) else prepare_reference(reference, max_distance_m)
     cur = np.ascontiguousarray(current[np.isfinite(current).all(axis=1)], dtype=np.float64)
     if len(cur) > max_points:  # an even stride keeps the scan's angular coverage (as the matchers do)
         cur = np.ascontiguousarray(cur[(np.arange(max_points) * len(cur)) // max_points])
-    if len(ref) < 3 or len(cur) < 3:
+    if ref is None or len(cur) < 3:
         return None
     if scan_only:
         information = np.eye(3) * 1e-9
     prior = np.array([odometry.x_m, odometry.y_m, odometry.theta_rad])
     x, y, th, pairs, hm = _fuse(
-        ref,
+        ref.normals,
+        ref.offsets,
+        ref.valid,
+        ref.sorted_xy,
+        ref.order,
+        ref.start,
+        ref.x0,
+        ref.y0,
+        ref.h,
+        ref.nx,
+        ref.ny,
         cur,
         matched.x_m,
         matched.y_m,
@@ -165,20 +229,18 @@ def fuse_with_odometry(
         prior,
         np.ascontiguousarray(information, dtype=np.float64),
         sigma_m,
-        max_distance_m,
+        ref.max_distance_m,
         trim_m,
         iterations,
     )
     if pairs < min_pairs or not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
         return None
-    cov = np.linalg.inv(hm)
-    weakest = float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)))
-    return Fused(Pose2D(x, y, th), pairs, weakest, hm)
+    return Fused(Pose2D(x, y, th), pairs, hm)
 
 
 def fuse_gated(
     gate: IcpGate,
-    reference: FloatArray,
+    reference: FloatArray | Reference,
     current: FloatArray,
     matched: Pose2D,
     odometry: Pose2D,
@@ -203,6 +265,11 @@ def fuse_gated(
     to what it learns from."""
     if not gate.fuse_odometry:
         return matched
+    if not isinstance(reference, Reference):
+        prepared = prepare_reference(reference)
+        if prepared is None:
+            return matched
+        reference = prepared
     model = _model_information(gate, odometry)
     info = _scaled(model, noise)
     scan = fuse_with_odometry(

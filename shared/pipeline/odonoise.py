@@ -17,11 +17,13 @@ Under a right model each ``r`` is ``chi^2(1)``-distributed, whose median is 0.45
 the median of the last ``window`` ratios over 0.455 (a median, so the few stalls and slip bursts that the
 fusion's robust (Huber) term handles do not inflate the noise of the rest), the prior model (factor 1)
 until ``min_samples`` ratios are in, and clamped to ``[floor, ceiling]``. The learned state is separate
-from the settings (:class:`OdometryNoise` is owned by one pipeline); O(window) per update for the median.
+from the settings (:class:`OdometryNoise` is owned by one pipeline); O(log window) to find a ratio's rank
+in the sorted window per update, O(1) for the median.
 """
 
 from __future__ import annotations
 
+from bisect import bisect_left, insort
 from collections import deque
 from dataclasses import dataclass
 
@@ -54,8 +56,9 @@ class OdometryNoise:
         floor: float = 0.05,
         ceiling: float = 1e4,
     ) -> None:
-        self._xy: deque[float] = deque(maxlen=window)
-        self._th: deque[float] = deque(maxlen=window)
+        self._window = window
+        self._xy: tuple[deque[float], list[float]] = (deque(), [])  # arrival order, sorted
+        self._th: tuple[deque[float], list[float]] = (deque(), [])
         self._min = min_samples
         self._share = scan_share
         self._floor = floor
@@ -70,7 +73,7 @@ class OdometryNoise:
     @property
     def samples(self) -> tuple[int, int]:
         """How many translation and heading ratios the factors rest on (at most ``window`` each)."""
-        return len(self._xy), len(self._th)
+        return len(self._xy[0]), len(self._th[0])
 
     def ratios(
         self, innovation: FloatArray, scan_information: FloatArray, odometry_information: FloatArray
@@ -99,14 +102,25 @@ class OdometryNoise:
 
     def update(self, r_xy: float | None, r_th: float | None) -> None:
         """Add one believed match's ratios (:meth:`ratios`). O(window)."""
+        if r_th is None and r_xy is None:
+            return
         if r_th is not None:
-            self._th.append(r_th)
+            self._push(self._th, r_th)
         if r_xy is not None:
-            self._xy.append(r_xy)
-        self._scale = NoiseScale(self._factor(self._xy), self._factor(self._th))
+            self._push(self._xy, r_xy)
+        self._scale = NoiseScale(self._factor(self._xy[1]), self._factor(self._th[1]))
 
-    def _factor(self, ratios: deque[float]) -> float:
-        if len(ratios) < self._min:
+    def _push(self, ratios: tuple[deque[float], list[float]], value: float) -> None:
+        """Add ``value`` to the window, dropping the oldest beyond ``window``; O(window) memmove at worst."""
+        order, ranked = ratios
+        order.append(value)
+        insort(ranked, value)
+        if len(order) > self._window:
+            del ranked[bisect_left(ranked, order.popleft())]
+
+    def _factor(self, ranked: list[float]) -> float:
+        n = len(ranked)
+        if n < self._min:
             return 1.0
-        median = float(np.median(np.fromiter(ratios, float)))
+        median = ranked[n // 2] if n % 2 else 0.5 * (ranked[n // 2 - 1] + ranked[n // 2])
         return min(max(median / _CHI2_1_MEDIAN, self._floor), self._ceiling)

@@ -28,7 +28,7 @@ from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Stage
 from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
 from shared.pipeline.freespace import FreeSpace
-from shared.pipeline.fusion import fuse_gated, wheel_prior
+from shared.pipeline.fusion import Reference, fuse_gated, prepare_reference, wheel_prior
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.odonoise import OdometryNoise
@@ -102,6 +102,7 @@ class Pipeline:
         self._key_pose: Pose2D | None = None  # robot pose of the keyframe
         self._key_points: FloatArray | None = None  # keyframe scan points, scanner frame
         self._key_odom: Pose2D | None = None  # odometry at the keyframe
+        self._key_ref: Reference | None = None  # its lines and grid for the fusion, built when first needed
         self._next_group = 0
         self._version = 0
         self._stamp = 0.0
@@ -168,6 +169,7 @@ class Pipeline:
             self._pose = odom or Pose2D()
             self._prev_odom = odom
             self._key_pose, self._key_points, self._key_odom = self._pose, points, odom
+            self._key_ref = None
             return False
         delta = Pose2D()
         if odom is not None and self._prev_odom is not None:
@@ -201,7 +203,10 @@ class Pipeline:
                 )
             if trusted and odom is not None and self._key_odom is not None:  # odometry where scans are blind
                 motion = self._offset.inverse() @ self._key_odom.between(odom) @ self._offset
-                fused = fuse_gated(g, key_points, points, match.pose, motion, self.odometry_noise)
+                if self._key_ref is None and g.fuse_odometry:
+                    self._key_ref = prepare_reference(key_points)
+                ref = self._key_ref if self._key_ref is not None else key_points
+                fused = fuse_gated(g, ref, points, match.pose, motion, self.odometry_noise)
                 match = replace(match, pose=fused)
             if not trusted and g.rematch:
                 steady = self._last_icp and g.constant_velocity
@@ -248,6 +253,7 @@ class Pipeline:
             or abs(moved.theta_rad) > self._gate.keyframe_rad
         ):
             self._key_pose, self._key_points, self._key_odom = predicted, points, odom
+            self._key_ref = None
         return icp_used
 
     def _local_map(self, travel_m: float) -> WallMap:

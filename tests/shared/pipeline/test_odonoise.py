@@ -74,3 +74,15 @@ def test_factors_stay_within_bounds(a: float, b: float) -> None:
     feed(noise, (0.02 * a**0.5, 0.02 * a**0.5, 0.01 * b**0.5), 5)
     k = noise.scale
     assert 0.05 <= k.translation <= 1e4 and 0.05 <= k.heading <= 1e4
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(0.0, 100.0), min_size=1, max_size=60), st.integers(1, 20))
+def test_the_factor_is_the_median_of_the_last_window_ratios(values: list[float], window: int) -> None:
+    noise = OdometryNoise(min_samples=1, window=window, floor=0.0, ceiling=1e9)
+    for v in values:
+        noise.update(v, v)
+    expected = float(np.median(values[-window:])) / 0.454936
+    assert noise.scale.translation == pytest.approx(expected)
+    assert noise.scale.heading == pytest.approx(expected)
+    assert noise.samples == (min(len(values), window),) * 2
