@@ -35,7 +35,14 @@ from shared.pipeline.odonoise import OdometryNoise
 from shared.pipeline.regroup import regroup
 from shared.pipeline.rematch import rematch
 from shared.pipeline.snapshot import MapSnapshot
-from shared.pipeline.stages import Chunk, cluster, concat, extract_lines_grouped, line_sigmas, remove_noise
+from shared.pipeline.stages import (
+    Chunk,
+    cluster,
+    concat,
+    extract_lines_grouped,
+    line_uncertainty,
+    remove_noise,
+)
 from shared.pipeline.wallmap import MergeTolerances, WallMap
 from shared.types import FloatArray, IntArray, Pose2D, Scan, wrap_angle
 
@@ -337,11 +344,13 @@ class Pipeline:
                     self._centroids.append(out.centroids)
                 return out
             segments, seg_groups = extract_lines_grouped(kernels[0], batch)
+            sigmas, direction_sds = line_uncertainty(segments, seg_groups, batch)
             self._map.add_segments(
                 segments,
                 observations=batch.steps,
                 viewpoint=batch.viewpoint,
-                sigmas_m=line_sigmas(segments, seg_groups, batch),
+                sigmas_m=sigmas,
+                direction_sds_rad=direction_sds,
             )
             return None
         except LinemapError:

@@ -24,6 +24,7 @@ __all__ = [
     "extract_lines",
     "extract_lines_grouped",
     "line_sigmas",
+    "line_uncertainty",
     "remove_noise",
 ]
 
@@ -264,9 +265,11 @@ def extract_lines_grouped(
 
 
 @njit
-def _sigmas(segs: FloatArray, pts: FloatArray, lo: IntArray, hi: IntArray, out: FloatArray) -> None:
-    """Fill ``out[i]`` with the robust scatter of ``pts[lo[i]:hi[i]]`` about segment ``i`` (see
-    :func:`line_sigmas`)."""
+def _sigmas(
+    segs: FloatArray, pts: FloatArray, lo: IntArray, hi: IntArray, out: FloatArray, out_dir: FloatArray
+) -> None:
+    """Fill ``out[i]`` with the robust scatter of ``pts[lo[i]:hi[i]]`` about segment ``i`` and ``out_dir[i]``
+    with its direction's standard deviation (see :func:`line_uncertainty`)."""
     for i in range(segs.shape[0]):
         ax, ay = segs[i, 0], segs[i, 1]
         length = np.hypot(segs[i, 2] - ax, segs[i, 3] - ay)
@@ -274,36 +277,53 @@ def _sigmas(segs: FloatArray, pts: FloatArray, lo: IntArray, hi: IntArray, out: 
             continue
         dx, dy = (segs[i, 2] - ax) / length, (segs[i, 3] - ay) / length
         r = np.empty(hi[i] - lo[i])
+        ts = np.empty(hi[i] - lo[i])
         m = 0
         for p in range(lo[i], hi[i]):
             rx, ry = pts[p, 0] - ax, pts[p, 1] - ay
             t = rx * dx + ry * dy
             if 0.0 <= t <= length:
                 r[m] = abs(rx * dy - ry * dx)
+                ts[m] = t
                 m += 1
         if m >= 3:
             out[i] = 1.4826 * np.median(r[:m])
+            spread = np.sum((ts[:m] - np.mean(ts[:m])) ** 2)
+            if spread > 0.0:
+                out_dir[i] = out[i] / np.sqrt(spread)
 
 
-def line_sigmas(segments: FloatArray, segment_groups: IntArray, chunk: Chunk) -> FloatArray:
-    """Per segment ``(L,)``: the scatter (metres) of its group's points about the segment's line.
+def line_uncertainty(
+    segments: FloatArray, segment_groups: IntArray, chunk: Chunk
+) -> tuple[FloatArray, FloatArray]:
+    """Per segment ``(L,)``: the scatter (metres) of its group's points about the segment's line, and the
+    standard deviation (radians) of its direction.
 
-    The scatter is the robust standard deviation ``1.4826 median |r|`` of the perpendicular distances
-    ``r`` of the group's points that project onto the segment (range noise grows with range: a wall at
-    3 m scatters about 4 cm with the URG-04LX, one at 1 m about 1 cm); 0 for a segment with fewer than
-    3 such points. It is the noise of the segment's points, so the wall map can tell a noisy short piece
-    (whose direction is as uncertain as its scatter over its length) from a precise one. O(N log N + N_L)
-    for N points, N_L of them in the segments' groups.
+    The scatter is the robust standard deviation ``sigma = 1.4826 median |r|`` of the perpendicular
+    distances ``r`` of the group's points that project onto the segment (range noise grows with range: a
+    wall at 3 m scatters about 4 cm with the URG-04LX, one at 1 m about 1 cm). The direction's standard
+    deviation is that of a least-squares line through those points, ``sigma / sqrt(sum (t - mean t)^2)``
+    for their positions ``t`` along it (about ``sigma sqrt(12 / n) / length`` for ``n`` evenly spread
+    points), so the wall map can tell a noisy short piece, whose direction is barely known, from a precise
+    one. Both are 0 (unknown) for a segment with fewer than 3 such points. O(N log N + N_L) for N points,
+    N_L of them in the segments' groups.
     """
     segs = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
     out = np.zeros(len(segs))
+    out_dir = np.zeros(len(segs))
     valid = chunk.groups >= 0
     if len(segs) == 0 or not valid.any():
-        return out
+        return out, out_dir
     order = np.argsort(chunk.groups[valid], kind="stable")
     g_sorted = chunk.groups[valid][order]
     pts = np.ascontiguousarray(chunk.points[valid][order], dtype=np.float64)
     lo = np.searchsorted(g_sorted, segment_groups, side="left").astype(np.intp)
     hi = np.searchsorted(g_sorted, segment_groups, side="right").astype(np.intp)
-    _sigmas(np.ascontiguousarray(segs), pts, lo, hi, out)
-    return out
+    _sigmas(np.ascontiguousarray(segs), pts, lo, hi, out, out_dir)
+    return out, out_dir
+
+
+def line_sigmas(segments: FloatArray, segment_groups: IntArray, chunk: Chunk) -> FloatArray:
+    """Per segment ``(L,)``: the scatter (metres) of its group's points about the segment's line (the first
+    half of :func:`line_uncertainty`)."""
+    return line_uncertainty(segments, segment_groups, chunk)[0]

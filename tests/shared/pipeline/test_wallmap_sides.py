@@ -7,12 +7,15 @@ seen from its side joins it instead of standing as a hatch.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.stats import linregress
 
 from shared.pipeline import MergeTolerances, WallMap
-from shared.pipeline.stages import Chunk, line_sigmas
+from shared.pipeline.stages import Chunk, line_sigmas, line_uncertainty
 
 ALL = MergeTolerances(min_observations=1)
 ABOVE = (2.0, 3.0)  # a scanner 3 m above the walls along y = 0
@@ -122,3 +125,51 @@ def test_two_copies_merge_whichever_comes_first(offset: float, shift: float, fli
             m.add_segments([seg], viewpoint=ABOVE, sigmas_m=[0.04])
         counts.append(len(m))
     assert counts[0] == counts[1] == 1
+
+
+def test_line_directions_are_as_uncertain_as_a_least_squares_fit_says() -> None:
+    rng = np.random.default_rng(5)
+    for length, sigma, n in ((0.5, 0.03, 15), (2.0, 0.01, 200), (0.2, 0.005, 8)):
+        x = np.sort(rng.uniform(0.0, length, n))
+        y = rng.normal(0.0, sigma, n)
+        chunk = Chunk.of(np.column_stack([x, y]), np.zeros(n, dtype=np.int64))
+        want = linregress(x, y).stderr  # the reference: scipy's slope standard error
+        _, dir_sd = line_uncertainty(np.array([[0.0, 0.0, length, 0.0]]), np.array([0]), chunk)
+        assert 0.5 * want < dir_sd[0] < 2.0 * want
+    few = Chunk.of(np.array([[0.0, 0.0], [1.0, 0.0]]), np.zeros(2, dtype=np.int64))
+    assert line_uncertainty(np.array([[0.0, 0.0, 1.0, 0.0]]), np.array([0]), few)[1][0] == 0.0
+
+
+def _short_wall_seen(times: int, dir_sd: float, known_sigmas: float = 3.0) -> WallMap:
+    """A 1 m wall along x = 0 (shorter than the angle test can bound), seen ``times`` times."""
+    m = WallMap(MergeTolerances(min_observations=1, known_direction_sigmas=known_sigmas))
+    for _ in range(times):
+        m.add_segments(
+            [[0.0, 3.0, 0.0, 4.0]], viewpoint=(-3.0, 3.5), sigmas_m=[0.01], direction_sds_rad=[dir_sd]
+        )
+    return m
+
+
+def _tilted_piece(m: WallMap, dir_sd: float) -> None:
+    """A 0.7 m piece 5.5 degrees off that wall, both ends within its band (a noisy fit at 5 m range)."""
+    m.add_segments(
+        [[-0.045, 3.3, 0.022, 4.0]], viewpoint=(-3.0, 3.5), sigmas_m=[0.03], direction_sds_rad=[dir_sd]
+    )
+
+
+def test_a_short_wall_seen_many_times_takes_a_tilted_piece_within_its_band() -> None:
+    m = _short_wall_seen(40, math.radians(2.0))  # 40 x 2 degrees: known to 0.3 degrees
+    _tilted_piece(m, math.radians(3.0))
+    assert len(m) == 1
+    (seg,) = m.segments()
+    assert abs(seg[0]) < 0.01 and abs(seg[2]) < 0.01  # still along x = 0
+
+
+def test_a_short_wall_whose_direction_is_not_known_keeps_the_angle_test() -> None:
+    once = _short_wall_seen(1, math.radians(2.0))  # seen once: known to 2 degrees, not enough
+    _tilted_piece(once, math.radians(3.0))
+    off = _short_wall_seen(40, math.radians(2.0), known_sigmas=0.0)  # the rule turned off
+    _tilted_piece(off, math.radians(3.0))
+    unknown = _short_wall_seen(40, 0.0)  # no direction information given
+    _tilted_piece(unknown, 0.0)
+    assert len(once) == len(off) == len(unknown) == 2
