@@ -34,6 +34,7 @@ from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.odonoise import OdometryNoise
 from shared.pipeline.regroup import regroup
 from shared.pipeline.rematch import rematch
+from shared.pipeline.seenfree import SeenFree
 from shared.pipeline.snapshot import MapSnapshot
 from shared.pipeline.stages import (
     Chunk,
@@ -89,6 +90,7 @@ class Pipeline:
         self.odometry_noise = OdometryNoise()  # learned from the believed matches (shared.pipeline.odonoise)
         self._map = WallMap(merge)
         self._freespace = FreeSpace()  # walls later seen through leave the map
+        self._seen_free = SeenFree()  # points where earlier beams passed through stay out of the maps
         # Localisation keeps its own local line map, built every step whatever the schedule (offline
         # batches would leave the pose uncorrected for N_smax steps); the configured stages make the map
         # shown. It is local: two maps restart in turn every `local_map_steps` steps or `local_map_m`
@@ -148,6 +150,10 @@ class Pipeline:
         labels = np.asarray(seg.labels)
         groups = np.where(labels >= 0, labels + self._next_group, -1).astype(np.intp)
         self._next_group += seg.n_segments
+        moved = self._seen_free.moved(world)  # in space seen free before: not walls (yet)
+        if moved.any():
+            world, groups = world[~moved], groups[~moved]
+        self._seen_free.observe(laser, scan)
         if self._gate.refine_to_map and len(world):
             segments = self._loc_lines.apply(world, groups).segments
             for local in self._loc_maps:
