@@ -13,7 +13,8 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
-from shared.metrics import MapLeakError, area_error_pct, line_accuracy
+from shared.metrics import MapLeakError, line_accuracy
+from shared.metrics.area import map_area_m2
 from shared.pipeline import KernelChoice, Mode, Pipeline, PipelineConfig
 from shared.sim import SimRun, default_world, simulate_run
 
@@ -44,7 +45,8 @@ PAPER_TABLE3: dict[tuple[str, str, int], float] = {
 
 @dataclass(frozen=True, slots=True)
 class Table3Row:
-    """One configuration: area error (None when the map does not close), line accuracy, the paper's value."""
+    """One configuration: area error (None when the map does not close), line accuracy, the paper's value,
+    and the area the map encloses (m^2; None when it does not close)."""
 
     clustering: str
     lines: str
@@ -53,6 +55,7 @@ class Table3Row:
     mean_error_m: float
     completeness: float
     paper_pct: float
+    map_area_m2: float | None = None
 
 
 def run_table3(
@@ -111,10 +114,13 @@ def offline_areas(
         pipe.flush()
         snap = pipe.snapshot()
         try:
-            area: float | None = area_error_pct(snap.segments, world.floor_area_m2, snap.trajectory[:, 1:3])
+            enclosed: float | None = map_area_m2(snap.segments, snap.trajectory[:, 1:3])
         except MapLeakError:
-            area = None
+            enclosed = None
+        area = None if enclosed is None else 100.0 * abs(enclosed - world.floor_area_m2) / world.floor_area_m2
         acc = line_accuracy(snap.segments, world.walls)
         paper = PAPER_TABLE3.get((clustering, lines, k), math.nan)
-        rows.append(Table3Row(clustering, lines, k, area, acc.mean_distance_m, acc.completeness, paper))
+        rows.append(
+            Table3Row(clustering, lines, k, area, acc.mean_distance_m, acc.completeness, paper, enclosed)
+        )
     return rows

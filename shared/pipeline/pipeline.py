@@ -150,14 +150,14 @@ class Pipeline:
         labels = np.asarray(seg.labels)
         groups = np.where(labels >= 0, labels + self._next_group, -1).astype(np.intp)
         self._next_group += seg.n_segments
-        moved = self._seen_free.moved(world)  # in space seen free before: not walls (yet)
-        if moved.any():
-            world, groups = world[~moved], groups[~moved]
-        self._seen_free.observe(laser, scan)
         if self._gate.refine_to_map and len(world):
             segments = self._loc_lines.apply(world, groups).segments
             for local in self._loc_maps:
                 local.add_segments(segments)
+        moved = self._seen_free.moved(world)  # in space seen free before: not walls (yet)
+        if moved.any():
+            world, groups = world[~moved], groups[~moved]
+        self._seen_free.observe(laser, scan)
         self._freespace.observe(self._map, laser, scan)
         self._stamp = scan.stamp_s
         self._trajectory.append((scan.stamp_s, self._pose.x_m, self._pose.y_m, self._pose.theta_rad))
