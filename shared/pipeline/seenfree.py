@@ -185,6 +185,7 @@ def _trace(
     n = ranges.shape[0]
     ex = np.empty(n)
     ey = np.empty(n)
+    block = np.empty((4, 2))
     for b in range(n):
         r = ranges[b]
         a = a_first + b * a_step
@@ -210,24 +211,32 @@ def _trace(
                 sin_inc = max(abs(dx * ty - dy * tx) / tn, sin_min)
         sigma = max(sig_near, sig_ratio * r)
         free = r - n_sigma * sigma - margin / sin_inc
+        # nor does it clear the cells of a surface it passes within the margin of (the neighbouring beams'
+        # returns: the edge of a box or a door jamb it passes beside): the stretches of the ray within
+        # ``margin`` of each, [t - h, t + h] with t the return's distance along the ray
+        m = 0
+        for q in range(max(b - 2, 0), min(b + 3, n)):
+            rq = ranges[q]
+            if q == b or not np.isfinite(rq):
+                continue
+            off = rq * abs(np.sin((q - b) * a_step))
+            if off < margin:
+                half = np.sqrt(margin * margin - off * off)
+                t = rq * np.cos((q - b) * a_step)
+                block[m, 0], block[m, 1] = t - half, t + half
+                m += 1
         s = 0.5 * cell
         while s < free:
-            px, py = lx + s * dx, ly + s * dy
-            i = int(np.floor((px - ox) / cell))
-            j = int(np.floor((py - oy) / cell))
-            # nor does it clear the cell of a surface it passes within the margin of (the neighbouring
-            # beams' returns: the edge of a box or a door jamb it passes beside)
             beside = False
-            for q in range(max(b - 2, 0), min(b + 3, n)):
-                if (
-                    q != b
-                    and np.isfinite(ranges[q])
-                    and (ex[q] - px) ** 2 + (ey[q] - py) ** 2 < margin * margin
-                ):
+            for k in range(m):
+                if block[k, 0] <= s <= block[k, 1]:
                     beside = True
-            if not beside and 0 <= i < nx and 0 <= j < ny and seen[i, j] != scan_no:
-                seen[i, j] = scan_no
-                logodds[i, j] = max(logodds[i, j] + miss, -clamp)
+            if not beside:
+                i = int(np.floor((lx + s * dx - ox) / cell))
+                j = int(np.floor((ly + s * dy - oy) / cell))
+                if 0 <= i < nx and 0 <= j < ny and seen[i, j] != scan_no:
+                    seen[i, j] = scan_no
+                    logodds[i, j] = max(logodds[i, j] + miss, -clamp)
             s += 0.5 * cell
     for b in range(n):
         r = ranges[b]
