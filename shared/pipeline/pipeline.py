@@ -90,7 +90,7 @@ class Pipeline:
         self.odometry_noise = OdometryNoise()  # learned from the believed matches (shared.pipeline.odonoise)
         self._map = WallMap(merge)
         self._freespace = FreeSpace()  # walls later seen through leave the map
-        self._seen_free = SeenFree()  # points where earlier beams passed through stay out of the maps
+        self._seen_free = SeenFree()  # points where earlier beams passed through stay out of the shown map
         # Localisation keeps its own local line map, built every step whatever the schedule (offline
         # batches would leave the pose uncorrected for N_smax steps); the configured stages make the map
         # shown. It is local: two maps restart in turn every `local_map_steps` steps or `local_map_m`

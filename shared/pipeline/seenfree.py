@@ -7,7 +7,7 @@ over everything the scanner has seen. Per scan each cell a beam crossed clearly 
 gains ``miss_logodds`` and the cell of each return ``hit_logodds``, once per scan each, clamped to
 ``+-clamp``. A new point in a cell at or below ``moved_logodds`` (seen through in several more scans than
 it returned a beam) is of something that moved in: a person, a door leaf swinging, a chair pushed in;
-:meth:`SeenFree.moved` flags it and the pipeline keeps it out of the wall maps. A thing that stays
+:meth:`SeenFree.moved` flags it and the pipeline keeps it out of the shown map. A thing that stays
 returns beams, its cells climb above ``moved_logodds`` within ``(clamp + moved_logodds) / hit_logodds``
 scans and it is mapped from then on: a door that closed, a box put down.
 
