@@ -36,14 +36,19 @@ from shared.types import FloatArray, IntArray, Pose2D, Scan
 __all__ = ["HIT", "HIT_DRIFT", "PASS", "FreeSpace", "FreeSpaceModel", "beam_wall_events", "supported_runs"]
 
 
+#: the URG-04LX's range noise, one sigma: its +-25 mm below 1 m and +-2.5 % beyond, read as two sigma
+URG_RANGE_SIGMA_NEAR_M = 0.0125
+URG_RANGE_SIGMA_RATIO = 0.0125
+
+
 @dataclass(frozen=True, slots=True)
 class FreeSpaceModel:
     """The inverse sensor model of free-space evidence (metres, radians, log-odds)."""
 
     cell_m: float = 0.10
     #: range noise, one sigma: the URG-04LX's +-25 mm below 1 m and +-2.5 % beyond, read as two sigma
-    range_sigma_near_m: float = 0.0125
-    range_sigma_ratio: float = 0.0125
+    range_sigma_near_m: float = URG_RANGE_SIGMA_NEAR_M
+    range_sigma_ratio: float = URG_RANGE_SIGMA_RATIO
     range_near_limit_m: float = 1.0
     #: the wall's line relative to the scanner, one sigma (the map's merge band is +-8 cm)
     line_sigma_m: float = 0.04

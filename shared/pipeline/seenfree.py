@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from shared.kernels._jit import njit
+from shared.pipeline.freespace import URG_RANGE_SIGMA_NEAR_M, URG_RANGE_SIGMA_RATIO
 from shared.types import BoolArray, FloatArray, Pose2D, Scan
 
 __all__ = ["SeenFree", "SeenFreeModel"]
@@ -49,8 +50,8 @@ class SeenFreeModel:
     #: scanner's beam width): 15 cm
     margin_m: float = 0.15
     #: the range noise, one sigma, as :class:`shared.pipeline.freespace.FreeSpaceModel` reads the URG-04LX
-    range_sigma_near_m: float = 0.0125
-    range_sigma_ratio: float = 0.0125
+    range_sigma_near_m: float = URG_RANGE_SIGMA_NEAR_M
+    range_sigma_ratio: float = URG_RANGE_SIGMA_RATIO
     n_sigma: float = 3.0
     #: incidences below this count as this (a grazing beam's free part ends 1.7 m before its return)
     min_incidence_deg: float = 5.0
