@@ -30,15 +30,11 @@ from shared.pipeline.freespace_kernels import (
     _update_cells,
     beam_wall_events,
 )
+from shared.pipeline.rangenoise import URG_RANGE_SIGMA_NEAR_M, URG_RANGE_SIGMA_RATIO
 from shared.pipeline.wallmap import WallMap
 from shared.types import FloatArray, IntArray, Pose2D, Scan
 
 __all__ = ["HIT", "HIT_DRIFT", "PASS", "FreeSpace", "FreeSpaceModel", "beam_wall_events", "supported_runs"]
-
-
-#: the URG-04LX's range noise, one sigma: its +-25 mm below 1 m and +-2.5 % beyond, read as two sigma
-URG_RANGE_SIGMA_NEAR_M = 0.0125
-URG_RANGE_SIGMA_RATIO = 0.0125
 
 
 @dataclass(frozen=True, slots=True)

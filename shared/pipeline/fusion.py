@@ -7,14 +7,16 @@ pairs with the reference return of the same beam), so the pose was pulled back a
 after scan although odometry was right. :func:`fuse_with_odometry` re-solves the match as a maximum a
 posteriori estimate: from the matcher's pose, Gauss-Newton on
 
-    sum_i (n_i . (R p_i + t) - c_i)^2 / sigma_m^2  +  (x - x_odo)^T  Lambda_odo  (x - x_odo)
+    sum_i (n_i . (R p_i + t) - c_i)^2 / sigma_i^2  +  (x - x_odo)^T  Lambda_odo  (x - x_odo)
 
 over the pose ``x = (t_x, t_y, theta)`` of the current scan in the reference scan's frame: the first term is
 the point-to-line residual of each current point ``p_i`` to the local line ``(n_i, c_i)`` of its nearest
 reference point (:mod:`shared.kernels.matching._local_lines`, as point-to-line ICP), its information
-``J^T J / sigma_m^2`` is large across walls and near zero along a featureless corridor; the second is the
-odometry motion since the reference with its information ``Lambda_odo`` (:func:`odometry_information`:
-standard deviations growing with the distance and the turn travelled). The solution follows the scan in
+``J^T J / sigma_i^2`` (``sigma_i^2 = sigma_m^2 + sigma_r(|p_i|)^2``, the scanner's range noise at the
+return's range, :mod:`shared.pipeline.rangenoise`) is large across walls and near zero along a
+featureless corridor; the second is the odometry motion since the reference with its information
+``Lambda_odo`` (:func:`odometry_information`: standard deviations growing with the distance and the turn
+travelled). The solution follows the scan in
 every direction the scan constrains and odometry in the others, with no threshold on what "constrains"
 means; a small feature (a door recess, a cabinet corner) adds its share of information where it is seen.
 Pairs farther than ``trim_m`` from their line take no part (outliers, things seen from one scan only).
@@ -34,6 +36,7 @@ from shared.kernels.matching._grid import _MAX_CELLS_PER_AXIS, _grid_build, _gri
 from shared.kernels.matching._local_lines import _local_lines
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.odonoise import OdometryNoise
+from shared.pipeline.rangenoise import NO_RANGE_NOISE, RangeNoise
 from shared.types import BoolArray, FloatArray, IntArray, Pose2D
 
 __all__ = [
@@ -136,6 +139,8 @@ def _fuse(
     prior: FloatArray,
     info: FloatArray,
     sigma: float,
+    sigma_near: float,
+    sigma_ratio: float,
     max_d: float,
     trim: float,
     iterations: int,
@@ -143,7 +148,13 @@ def _fuse(
     """Gauss-Newton of the module docstring's objective from ``(x, y, th)`` against a prepared reference
     (its lines and grid); returns the pose, the pairs of the last iteration and the last normal matrix
     (the posterior information)."""
-    w = 1.0 / (sigma * sigma)
+    # each pair's weight: the match noise plus the current return's own range noise (URG-04LX: the
+    # larger of sigma_near and sigma_ratio x range), so far returns count for what they are worth
+    n_cur = cur.shape[0]
+    wts = np.empty(n_cur)
+    for i in range(n_cur):
+        sr = max(sigma_near, sigma_ratio * math.hypot(cur[i, 0], cur[i, 1]))
+        wts[i] = 1.0 / (sigma * sigma + sr * sr)
     hm = info.copy()
     pairs = 0
     for _ in range(iterations):
@@ -166,6 +177,7 @@ def _fuse(
                 continue
             j2 = -n0 * ry + n1 * rx
             jac = (n0, n1, j2)
+            w = wts[i]
             for a in range(3):
                 g[a] += w * jac[a] * r
                 for b in range(3):
@@ -194,12 +206,15 @@ def fuse_with_odometry(
     min_pairs: int = 10,
     max_points: int = 300,
     scan_only: bool = False,
+    range_noise: RangeNoise = NO_RANGE_NOISE,
 ) -> Fused | None:
     """The pose of ``current`` in ``reference``'s frame (scanner frames, m, ``reference`` in beam order)
     that best agrees with both the scan and the ``odometry`` motion of ``information`` (module docstring),
     solved from the matcher's ``matched`` pose. ``None`` when fewer than ``min_pairs`` points find a line
     (keep the match as it is). At most ``max_points`` current points are used. ``scan_only``: without the
-    odometry term (``information`` is ignored), for the scan's own information at the pose.
+    odometry term (``information`` is ignored), for the scan's own information at the pose. Each pair's
+    variance is ``sigma_m^2`` plus the current return's ``range_noise`` at its range
+    (:mod:`shared.pipeline.rangenoise`).
     ``reference`` may be prepared already (:func:`prepare_reference`, for pairs up to ``max_distance_m``)."""
     ref = reference if isinstance(reference, Reference) else prepare_reference(reference, max_distance_m)
     cur = np.ascontiguousarray(current[np.isfinite(current).all(axis=1)], dtype=np.float64)
@@ -229,6 +244,8 @@ def fuse_with_odometry(
         prior,
         np.ascontiguousarray(information, dtype=np.float64),
         sigma_m,
+        range_noise.near_m,
+        range_noise.ratio,
         ref.max_distance_m,
         trim_m,
         iterations,
@@ -245,6 +262,7 @@ def fuse_gated(
     matched: Pose2D,
     odometry: Pose2D,
     noise: OdometryNoise | None = None,
+    range_noise: RangeNoise = NO_RANGE_NOISE,
 ) -> Pose2D:
     """``matched`` (scanner motion from the reference) fused with the ``odometry`` scanner motion under the
     gate's noise figures (``odom_sigma_*``, ``match_sigma_m``); ``matched`` itself when fusion is off or
@@ -273,7 +291,15 @@ def fuse_gated(
     model = _model_information(gate, odometry)
     info = _scaled(model, noise)
     scan = fuse_with_odometry(
-        reference, current, matched, odometry, info, iterations=1, scan_only=True, sigma_m=gate.match_sigma_m
+        reference,
+        current,
+        matched,
+        odometry,
+        info,
+        iterations=1,
+        scan_only=True,
+        sigma_m=gate.match_sigma_m,
+        range_noise=range_noise,
     )
     if scan is None:
         return matched
@@ -294,7 +320,9 @@ def fuse_gated(
     limit = gate.odom_huber**2 * max(dof, 1)
     if m2 > limit:
         info = info * (limit / m2)
-    fused = fuse_with_odometry(reference, current, odometry, odometry, info, sigma_m=gate.match_sigma_m)
+    fused = fuse_with_odometry(
+        reference, current, odometry, odometry, info, sigma_m=gate.match_sigma_m, range_noise=range_noise
+    )
     if fused is None:
         return matched
     if abs(math.remainder(fused.pose.theta_rad - matched.theta_rad, math.tau)) > gate.max_correction_rad:

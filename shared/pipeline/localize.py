@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from shared.kernels._jit import njit
-from shared.types import FloatArray, IntArray, Pose2D
+from shared.pipeline.rangenoise import NO_RANGE_NOISE, RangeNoise
+from shared.types import FloatArray, Pose2D
 
 __all__ = ["WallFit", "refine_to_walls"]
 
@@ -40,67 +41,108 @@ class WallFit:
 
 
 @njit
-def _nearest_segment(points: FloatArray, walls: FloatArray) -> tuple[FloatArray, IntArray]:
-    """Distance from each point to the nearest wall segment and that wall's index. O(N W)."""
+def _normal_equations(
+    points: FloatArray,
+    x_m: float,
+    y_m: float,
+    theta_rad: float,
+    walls: FloatArray,
+    max_distance_m: float,
+    trim_m: float,
+    weights: FloatArray,
+) -> tuple[int, FloatArray, FloatArray, float, float]:
+    """One Gauss-Newton linearisation at the scanner pose ``(x_m, y_m, theta_rad)``: each point (scanner
+    frame) is paired with its nearest wall segment within ``max_distance_m`` whose line it is within
+    ``trim_m`` of; with the rows ``a = (n_x, n_y, n . J lever)`` (``J`` the 90 deg rotation, ``lever`` the
+    point less the scanner position) and residuals ``r = n . p - n . a`` returns the pair count,
+    ``sum w a a^T`` (3x3), ``sum w a r`` (3), ``sum r^2`` and ``sum |lever|^2``, ``w`` the point's
+    ``weights`` entry (its inverse variance relative to the nominal residual's). O(N W)."""
+    c, s = math.cos(theta_rad), math.sin(theta_rad)
     n, w = points.shape[0], walls.shape[0]
-    best = np.full(n, np.inf)
-    which = np.zeros(n, dtype=np.intp)
+    nx = np.empty(w)
+    ny = np.empty(w)
+    off = np.empty(w)
     for j in range(w):
-        ax, ay = walls[j, 0], walls[j, 1]
-        ex, ey = walls[j, 2] - ax, walls[j, 3] - ay
-        len2 = max(ex * ex + ey * ey, 1e-12)
-        for i in range(n):
-            px, py = points[i, 0] - ax, points[i, 1] - ay
+        ex, ey = walls[j, 2] - walls[j, 0], walls[j, 3] - walls[j, 1]
+        length = max(math.hypot(ex, ey), 1e-12)
+        nx[j], ny[j] = -ey / length, ex / length
+        off[j] = nx[j] * walls[j, 0] + ny[j] * walls[j, 1]
+    h = np.zeros((3, 3))
+    g = np.zeros(3)
+    r2 = 0.0
+    lever2 = 0.0
+    count = 0
+    max2 = max_distance_m * max_distance_m
+    trim = max(trim_m, 1e-6)
+    for i in range(n):
+        lx = c * points[i, 0] - s * points[i, 1]
+        ly = s * points[i, 0] + c * points[i, 1]
+        wx, wy = lx + x_m, ly + y_m
+        best, which = np.inf, -1
+        for j in range(w):
+            ax, ay = walls[j, 0], walls[j, 1]
+            ex, ey = walls[j, 2] - ax, walls[j, 3] - ay
+            len2 = max(ex * ex + ey * ey, 1e-12)
+            px, py = wx - ax, wy - ay
             t = min(max((px * ex + py * ey) / len2, 0.0), 1.0)
             dx, dy = px - t * ex, py - t * ey
             d2 = dx * dx + dy * dy
-            if d2 < best[i]:
-                best[i] = d2
-                which[i] = j
-    return np.sqrt(best), which
-
-
-def _nearest_wall(points: FloatArray, walls: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Distance to the nearest wall segment, that wall's unit normal and its offset (n . a)."""
-    dist, j = _nearest_segment(np.ascontiguousarray(points), np.ascontiguousarray(walls))
-    ab = walls[:, 2:] - walls[:, :2]
-    length = np.maximum(np.hypot(ab[:, 0], ab[:, 1]), 1e-12)
-    normal = np.column_stack([-ab[:, 1], ab[:, 0]]) / length[:, None]
-    offset = (normal * walls[:, :2]).sum(axis=1)
-    return dist, normal[j], offset[j]
+            if d2 < best:
+                best, which = d2, j
+        if which < 0 or best > max2:
+            continue
+        r = nx[which] * wx + ny[which] * wy - off[which]
+        if abs(r) > trim:
+            continue
+        a0, a1 = nx[which], ny[which]
+        a2 = -a0 * ly + a1 * lx
+        wt = weights[i]
+        h[0, 0] += wt * a0 * a0
+        h[0, 1] += wt * a0 * a1
+        h[0, 2] += wt * a0 * a2
+        h[1, 1] += wt * a1 * a1
+        h[1, 2] += wt * a1 * a2
+        h[2, 2] += wt * a2 * a2
+        g[0] += wt * a0 * r
+        g[1] += wt * a1 * r
+        g[2] += wt * a2 * r
+        r2 += r * r
+        lever2 += lx * lx + ly * ly
+        count += 1
+    h[1, 0], h[2, 0], h[2, 1] = h[0, 1], h[0, 2], h[1, 2]
+    return count, h, g, r2, lever2
 
 
 def _step(
-    n: FloatArray,
-    jt: FloatArray,
-    r: FloatArray,
-    lever: FloatArray,
+    h0: FloatArray,
+    g0: FloatArray,
+    mean_lever2: float,
     damping: float,
     ratio: float,
     prior: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[float, float, float]:
-    """The damped Gauss-Newton step ``(dx, dy, dtheta)`` for the residuals ``r`` with normals ``n`` and
-    rotation derivatives ``jt``; with ``ratio > 0`` only along the eigen-directions of the normal matrix
-    (in ``(dx, dy, s dtheta)``, ``s`` the RMS ``lever``) whose eigenvalue exceeds ``ratio`` times the
-    largest: directions the walls barely constrain get no update, or with a ``prior`` ``(e, P)`` (the pose
-    minus the prior pose as ``(dx, dy, dtheta)`` and its information, in units of the residuals' variance)
-    move towards the prior by its share of the information along them. O(N)."""
+    """The damped Gauss-Newton step ``(dx, dy, dtheta)`` from the normal equations ``h0 = sum a a^T``,
+    ``g0 = sum a r`` (rows ``a = (n_x, n_y, d r / d theta)``); with ``ratio > 0`` only along the
+    eigen-directions of the normal matrix (in ``(dx, dy, s dtheta)``, ``s`` the RMS lever, from
+    ``mean_lever2``) whose eigenvalue exceeds ``ratio`` times the largest: directions the walls barely
+    constrain get no update, or with a ``prior`` ``(e, P)`` (the pose minus the prior pose as ``(dx, dy,
+    dtheta)`` and its information, in units of the residuals' variance) move towards the prior by its
+    share of the information along them. O(1)."""
     if ratio <= 0.0:  # the plain damped step
-        a = np.column_stack([n, jt])
-        h = a.T @ a + damping * np.diag([1.0, 1.0, 4.0])
-        dx, dy, dth = (float(v) for v in np.linalg.solve(h, -(a.T @ r)))
+        h = h0 + damping * np.diag([1.0, 1.0, 4.0])
+        dx, dy, dth = (float(v) for v in np.linalg.solve(h, -g0))
         return dx, dy, dth
-    scale = max(float(np.sqrt(np.mean(np.einsum("ij,ij->i", lever, lever)))), 1e-3)
-    a = np.column_stack([n, jt / scale])  # unknowns (dx, dy, scale dtheta): all lengths
-    h = a.T @ a + damping * np.diag([1.0, 1.0, 4.0 / scale**2])  # the same damping as above
+    scale = max(math.sqrt(mean_lever2), 1e-3)
+    unscale = np.array([1.0, 1.0, 1.0 / scale])
+    # unknowns (dx, dy, scale dtheta): all lengths; the same damping as above
+    h = h0 * np.outer(unscale, unscale) + damping * np.diag([1.0, 1.0, 4.0 / scale**2])
     w, v = np.linalg.eigh(h)
     strong = w > ratio * w[-1]
     keep = v[:, strong]
     lam = w[strong]
-    step = keep @ ((keep.T @ -(a.T @ r)) / lam)
+    step = keep @ ((keep.T @ -(g0 * unscale)) / lam)
     if prior is not None:
         e, info = prior
-        unscale = np.array([1.0, 1.0, 1.0 / scale])
         e_s = e * np.array([1.0, 1.0, scale])
         info_s = info * np.outer(unscale, unscale)
         for k in np.flatnonzero(~strong):
@@ -124,13 +166,17 @@ def refine_to_walls(
     degeneracy_ratio: float = 0.0,
     prior: Pose2D | None = None,
     prior_information: FloatArray | None = None,
+    range_noise: RangeNoise = NO_RANGE_NOISE,
+    sigma_m: float = 0.02,
 ) -> WallFit | None:
     """Refine ``scanner_pose`` so the scan ``points`` (scanner frame) lie on ``walls`` (world frame).
 
     ``degeneracy_ratio`` (0: off, the plain damped step) leaves out poorly constrained directions (module
     docstring); with a ``prior`` scanner pose (odometry's) and its ``prior_information`` (3x3, per m^2
     and rad^2, already scaled to the residuals' variance) those directions follow the prior by information
-    instead of keeping ``scanner_pose``'s value (issue 19: a corridor's axis follows the wheels).
+    instead of keeping ``scanner_pose``'s value (a corridor's axis follows the wheels). Each point's
+    residual counts by ``sigma_m^2 / (sigma_m^2 + sigma_r^2)``, ``sigma_r`` the scanner's ``range_noise``
+    at its range (:mod:`shared.pipeline.rangenoise`; 1 for every point without one).
     Returns ``None`` when fewer than ``min_matches`` points find a wall (then keep the unrefined pose).
     """
     if len(points) < min_matches or len(walls) == 0:
@@ -144,19 +190,16 @@ def refine_to_walls(
         return None
     pose = scanner_pose
     matched, rmse = 0, math.inf
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    walls = np.ascontiguousarray(walls, dtype=np.float64)
+    sr = np.maximum(range_noise.near_m, range_noise.ratio * np.hypot(points[:, 0], points[:, 1]))
+    weights = sigma_m**2 / (sigma_m**2 + sr * sr)
     for _ in range(iterations):
-        world = pose.transform_points(points)
-        dist, normal, offset = _nearest_wall(world, walls)
-        use = dist <= max_distance_m
-        resid = (normal * world).sum(axis=1) - offset
-        use &= np.abs(resid) <= max(trim_m, 1e-6)
-        matched = int(use.sum())
+        matched, h0, g0, r2, lever2 = _normal_equations(
+            points, pose.x_m, pose.y_m, pose.theta_rad, walls, max_distance_m, trim_m, weights
+        )
         if matched < min_matches:
             return None
-        n, r = normal[use], resid[use]
-        lever = world[use] - np.array([pose.x_m, pose.y_m])
-        # d(residual) / d(theta) for a rotation about the scanner: n . (J lever), J = rot90
-        jt = -n[:, 0] * lever[:, 1] + n[:, 1] * lever[:, 0]
         pr = None
         if prior is not None and prior_information is not None:
             e = np.array(
@@ -167,10 +210,10 @@ def refine_to_walls(
                 ]
             )
             pr = (e, prior_information)
-        dx, dy, dth = _step(n, jt, r, lever, damping, degeneracy_ratio, pr)
+        dx, dy, dth = _step(h0, g0, lever2 / matched, damping, degeneracy_ratio, pr)
         # a rotation about the scanner position, then a translation
         pose = Pose2D(pose.x_m + dx, pose.y_m + dy, pose.theta_rad + dth)
-        rmse = float(np.sqrt(np.mean(r * r)))
+        rmse = math.sqrt(r2 / matched)
         if math.hypot(dx, dy) < 1e-4 and abs(dth) < 1e-4:
             break
     return WallFit(pose, matched, rmse)

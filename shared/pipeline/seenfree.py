@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from shared.kernels._jit import njit
-from shared.pipeline.freespace import URG_RANGE_SIGMA_NEAR_M, URG_RANGE_SIGMA_RATIO
+from shared.pipeline.rangenoise import URG_RANGE_SIGMA_NEAR_M, URG_RANGE_SIGMA_RATIO
 from shared.types import BoolArray, FloatArray, Pose2D, Scan
 
 __all__ = ["SeenFree", "SeenFreeModel"]

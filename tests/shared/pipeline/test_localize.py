@@ -91,3 +91,49 @@ def test_nearly_parallel_walls_do_not_slide_the_pose_along_the_corridor(
     assert abs(free.pose.x_m) > 0.1, "without the degeneracy test the across-wall residual slides the pose"
     assert abs(kept.pose.x_m) < 0.01
     assert abs(kept.pose.y_m) <= shift_m and abs(kept.pose.theta_rad) < math.radians(0.2)
+
+
+def _reference_normal_equations(
+    points: np.ndarray, pose: Pose2D, walls: np.ndarray, max_d: float, trim: float
+) -> tuple[int, np.ndarray, np.ndarray, float, float]:
+    """The same linearisation in plain numpy, point by wall, as the compiled loop's check."""
+    world = pose.transform_points(points)
+    a, ab = walls[:, :2], walls[:, 2:] - walls[:, :2]
+    t = np.clip(np.einsum("pwk,wk->pw", world[:, None, :] - a, ab) / np.einsum("wk,wk->w", ab, ab), 0.0, 1.0)
+    d = np.linalg.norm(world[:, None, :] - (a + t[..., None] * ab), axis=2)
+    j = d.argmin(axis=1)
+    normal = np.column_stack([-ab[:, 1], ab[:, 0]]) / np.hypot(ab[:, 0], ab[:, 1])[:, None]
+    offset = (normal * a).sum(axis=1)
+    r = (normal[j] * world).sum(axis=1) - offset[j]
+    use = (d[np.arange(len(j)), j] <= max_d) & (np.abs(r) <= trim)
+    n, r = normal[j][use], r[use]
+    lever = world[use] - np.array([pose.x_m, pose.y_m])
+    rows = np.column_stack([n, -n[:, 0] * lever[:, 1] + n[:, 1] * lever[:, 0]])
+    return int(use.sum()), rows.T @ rows, rows.T @ r, float(r @ r), float((lever**2).sum())
+
+
+def _tied(world: np.ndarray, walls: np.ndarray) -> np.ndarray:
+    """Points as near (to 1e-9 m) to a second wall as to their nearest, e.g. at the corner two walls share:
+    which one a point pairs with there is a matter of rounding."""
+    a, ab = walls[:, :2], walls[:, 2:] - walls[:, :2]
+    t = np.clip(np.einsum("pwk,wk->pw", world[:, None, :] - a, ab) / np.einsum("wk,wk->w", ab, ab), 0.0, 1.0)
+    d = np.sort(np.linalg.norm(world[:, None, :] - (a + t[..., None] * ab), axis=2), axis=1)
+    return np.asarray(d[:, 1] - d[:, 0] <= 1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(-0.1, 0.1), st.floats(-0.1, 0.1), st.floats(-0.1, 0.1), st.integers(0, 5))
+def test_the_compiled_linearisation_matches_a_numpy_reference(
+    dx: float, dy: float, dth: float, seed: int
+) -> None:
+    from shared.pipeline.localize import _normal_equations
+
+    pose = Pose2D(TRUE.x_m + dx, TRUE.y_m + dy, TRUE.theta_rad + dth)
+    walls = np.ascontiguousarray(WORLD.walls, dtype=np.float64)
+    pts = scan_points(seed)
+    pts = np.ascontiguousarray(pts[~_tied(pose.transform_points(pts), walls)])
+    got = _normal_equations(pts, pose.x_m, pose.y_m, pose.theta_rad, walls, 0.15, 0.08, np.ones(len(pts)))
+    want = _reference_normal_equations(pts, pose, walls, 0.15, 0.08)
+    assert got[0] == want[0] and want[0] > 30
+    for g, w in zip(got[1:], want[1:], strict=True):
+        np.testing.assert_allclose(np.asarray(g, dtype=np.float64), np.asarray(w), rtol=1e-9, atol=1e-9)
