@@ -26,9 +26,16 @@ import numpy as np
 
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Stage
+from shared.pipeline.censoring import censored_returns
 from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
 from shared.pipeline.freespace import FreeSpace
-from shared.pipeline.fusion import Reference, fuse_gated, prepare_reference, wheel_prior
+from shared.pipeline.fusion import (
+    Reference,
+    fuse_gated,
+    hold_unseen_directions,
+    prepare_reference,
+    wheel_prior,
+)
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.odonoise import OdometryNoise
@@ -148,11 +155,16 @@ class Pipeline:
         odom = odometry if odometry is not None else scan.odometry
         seg = self._kernels[Stage.SEGMENTATION][0].apply(scan)
         noise = self._range_noise if self._range_noise is not None else range_noise_for(scan)
-        icp_used = self._estimate_pose(odom, seg.points, noise)
+        points, labels = seg.points, np.asarray(seg.labels)
+        # returns near the range limit are biased short (shared.pipeline.censoring): neither the pose nor
+        # the map takes them; the robot sees the surface properly a few centimetres later
+        censored = censored_returns(scan, seg.beam_index, noise)
+        if censored.any():
+            points, labels = points[~censored], labels[~censored]
+        icp_used = self._estimate_pose(odom, points, noise)
         assert self._pose is not None
         laser = self._pose @ self._offset
-        world = laser.transform_points(seg.points) if len(seg.points) else np.zeros((0, 2))
-        labels = np.asarray(seg.labels)
+        world = laser.transform_points(points) if len(points) else np.zeros((0, 2))
         groups = np.where(labels >= 0, labels + self._next_group, -1).astype(np.intp)
         self._next_group += seg.n_segments
         if self._gate.refine_to_map and len(world):
@@ -219,13 +231,7 @@ class Pipeline:
                     and math.hypot(corr.x_m, corr.y_m) <= g.strong_max_m
                     and abs(corr.theta_rad) <= g.strong_max_rad
                 )
-            if trusted and odom is not None and self._key_odom is not None:  # odometry where scans are blind
-                motion = self._offset.inverse() @ self._key_odom.between(odom) @ self._offset
-                if self._key_ref is None and g.fuse_odometry:
-                    self._key_ref = prepare_reference(key_points)
-                ref = self._key_ref if self._key_ref is not None else key_points
-                fused = fuse_gated(g, ref, points, match.pose, motion, self.odometry_noise, range_noise)
-                match = replace(match, pose=fused)
+            second = None
             if not trusted and g.rematch:
                 steady = self._last_icp and g.constant_velocity
                 starts = [self._to_laser(key_pose, self._pose @ self._last_motion)] if steady else []
@@ -233,6 +239,21 @@ class Pipeline:
                 if second is not None:
                     match, trusted, plain = second, True, False
                     self.rematches += 1
+            if trusted and odom is not None and self._key_odom is not None:  # odometry where scans are blind
+                # a second-chance match too: odometry was found wrong where the scan fixes the motion,
+                # but along a corridor's axis the search's best pose is one of many equally good ones
+                # and odometry still knows better (shared.pipeline.fusion.hold_unseen_directions)
+                motion = self._offset.inverse() @ self._key_odom.between(odom) @ self._offset
+                if self._key_ref is None and g.fuse_odometry:
+                    self._key_ref = prepare_reference(key_points, range_noise=range_noise)
+                ref = self._key_ref if self._key_ref is not None else key_points
+                if second is None:
+                    fused = fuse_gated(g, ref, points, match.pose, motion, self.odometry_noise, range_noise)
+                else:
+                    fused = hold_unseen_directions(
+                        g, ref, points, match.pose, motion, self.odometry_noise, range_noise
+                    )
+                match = replace(match, pose=fused)
             if trusted:
                 predicted = key_pose @ self._offset @ match.pose @ self._offset.inverse()
                 icp_used = True

@@ -62,9 +62,10 @@ def _connected(ref: FloatArray, lambda_rad: float, sigma_m: float) -> BoolArray:
 
 
 @njit
-def _fit(cum: FloatArray, lo: int, hi: int) -> tuple[float, float, float, float]:
+def _fit(cum: FloatArray, lo: int, hi: int) -> tuple[float, float, float, float, float]:
     """PCA line of points ``lo..hi`` (inclusive) from the prefix sums ``cum`` of ``(x, y, xx, yy, xy)``
-    (coordinates relative to ``cum``'s origin): ``(nx, ny, c, ratio)``; ratio inf when degenerate."""
+    (coordinates relative to ``cum``'s origin): ``(nx, ny, c, ratio, lambda_max)``; ratio inf when
+    degenerate."""
     n = hi - lo + 1
     sx = cum[hi + 1, 0] - cum[lo, 0]
     sy = cum[hi + 1, 1] - cum[lo, 1]
@@ -78,7 +79,7 @@ def _fit(cum: FloatArray, lo: int, hi: int) -> tuple[float, float, float, float]
     lmax = half + root
     lmin = max(half - root, 0.0)
     if not lmax > 0.0:
-        return 0.0, 0.0, 0.0, math.inf
+        return 0.0, 0.0, 0.0, math.inf, 0.0
     # eigenvector of lmin: the better conditioned of the two rows of (S - lmin I)
     if sxx >= syy:
         nx = sxy
@@ -88,18 +89,31 @@ def _fit(cum: FloatArray, lo: int, hi: int) -> tuple[float, float, float, float]
         ny = sxy
     norm = math.sqrt(nx * nx + ny * ny)
     if norm == 0.0:  # isotropic scatter: no line
-        return 0.0, 0.0, 0.0, math.inf
+        return 0.0, 0.0, 0.0, math.inf, 0.0
     nx /= norm
     ny /= norm
-    return nx, ny, nx * mx + ny * my, math.sqrt(lmin / lmax)
+    return nx, ny, nx * mx + ny * my, math.sqrt(lmin / lmax), lmax
 
 
 @njit
 def _local_lines(
-    ref: FloatArray, radius_m: float, max_side: int, lambda_rad: float, sigma_m: float, max_ratio: float
+    ref: FloatArray,
+    radius_m: float,
+    max_side: int,
+    lambda_rad: float,
+    sigma_m: float,
+    max_ratio: float,
+    max_direction_sd_rad: float = math.inf,
+    noise_floor_m: float = 0.0,
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Line of every point of ``ref`` ``(M, 2)`` (finite, beam order): ``(normals (M, 2), offsets (M,),
-    valid (M,))``; the line of point ``j`` is ``normals[j] . p = offsets[j]``."""
+    valid (M,))``; the line of point ``j`` is ``normals[j] . p = offsets[j]``.
+
+    With a finite ``max_direction_sd_rad`` a fit must also know its direction: its standard deviation
+    ``sqrt(s^2 / lambda_max)``, ``s^2`` the residual variance ``lambda_min / (n - 2)`` but at least
+    ``noise_floor_m^2`` (a few points can line up by chance), at most that. A short window of dense
+    returns whose noise exceeds their spacing (a wall beside the scanner, cut short by clutter returns)
+    otherwise gets a line at any angle, and a match reads information along the wall from it."""
     m = ref.shape[0]
     normals = np.zeros((m, 2), dtype=np.float64)
     offsets = np.zeros(m, dtype=np.float64)
@@ -142,16 +156,24 @@ def _local_lines(
         bnx = 0.0
         bny = 0.0
         bc = 0.0
+        blmax = 0.0
+        bn = 0
         if hi - lo >= 2:
-            bnx, bny, bc, best = _fit(cum, lo, hi)
+            bnx, bny, bc, best, blmax = _fit(cum, lo, hi)
+            bn = hi - lo + 1
         # the one-sided fits win only where they are straighter (a corner); on a straight noisy wall the
         # symmetric fit spreads twice as far for the same residual, so its ratio is about half theirs
         if best > 0.0:
             for a, b in ((lo, i), (i, hi)):
                 if b - a >= 2:
-                    nx, ny, c, ratio = _fit(cum, a, b)
+                    nx, ny, c, ratio, lmax = _fit(cum, a, b)
                     if ratio < best:
-                        bnx, bny, bc, best = nx, ny, c, ratio
+                        bnx, bny, bc, best, blmax, bn = nx, ny, c, ratio, lmax, b - a + 1
+        if best <= max_ratio and max_direction_sd_rad < math.inf:
+            # residual variance lambda_min / (n - 2), lambda_min = ratio^2 lambda_max, floored
+            resid = max(best * best * blmax / max(bn - 2, 1), noise_floor_m * noise_floor_m)
+            if not blmax > 0.0 or resid > max_direction_sd_rad * max_direction_sd_rad * blmax:
+                best = math.inf
         if best <= max_ratio:
             normals[i, 0] = bnx
             normals[i, 1] = bny

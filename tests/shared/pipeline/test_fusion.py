@@ -12,7 +12,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared.pipeline import IcpGate, Pipeline
-from shared.pipeline.fusion import fuse_gated, fuse_with_odometry, odometry_information
+from shared.pipeline.fusion import (
+    fuse_gated,
+    fuse_with_odometry,
+    hold_unseen_directions,
+    odometry_information,
+)
+from shared.pipeline.rangenoise import NO_RANGE_NOISE, URG04LX_RANGE_NOISE
 from shared.sim import NO_SLIP, RangeNoise, SlipNoise, World, plan_path, simulate_run, simulate_scan
 from shared.sim.world import polygon_walls
 from shared.types import Pose2D
@@ -138,3 +144,54 @@ def test_by_default_a_corridor_beyond_the_range_is_no_worse_than_slipping_wheels
     wheels = np.hypot(*(odometry[:, :2] - odometry[0, :2] - (truth[:, :2] - truth[0, :2])).T)
     assert pipe.odometry_noise.samples[0] > 20  # it learned from the matches
     assert np.sqrt(np.mean(ours**2)) <= np.sqrt(np.mean(wheels**2)) + 0.02
+
+
+def test_a_second_chance_match_keeps_odometry_along_a_corridor_and_the_scan_across() -> None:
+    world = corridor(40.0)
+    ref = points(world, Pose2D(20.0, 0.0, 0.0), 0)
+    cur = points(world, Pose2D(20.3, 0.1, 0.02), 1)
+    odo = Pose2D(0.3, 0.06, 0.0)  # right along the corridor, 4 cm and 0.02 rad off across it
+    searched = Pose2D(0.5, 0.1, 0.02)  # the search's pick: right across, 20 cm off along the axis
+    pose = hold_unseen_directions(IcpGate(), ref, cur, searched, odo, range_noise=URG04LX_RANGE_NOISE)
+    assert pose.x_m == pytest.approx(odo.x_m, abs=0.01)
+    assert pose.y_m == pytest.approx(searched.y_m, abs=0.005)
+    assert pose.theta_rad == pytest.approx(searched.theta_rad, abs=0.005)
+
+
+def test_a_second_chance_match_the_scan_fixes_everywhere_stands() -> None:
+    world = corridor(4.0)  # both end walls in range
+    ref = points(world, Pose2D(1.5, 0.0, 0.0), 0)
+    cur = points(world, Pose2D(1.8, 0.05, 0.1), 1)
+    searched = Pose2D(0.3, 0.05, 0.1)
+    pose = hold_unseen_directions(
+        IcpGate(), ref, cur, searched, Pose2D(0.2, 0.0, 0.0), range_noise=URG04LX_RANGE_NOISE
+    )
+    assert (pose.x_m, pose.y_m, pose.theta_rad) == (searched.x_m, searched.y_m, searched.theta_rad)
+    off = hold_unseen_directions(IcpGate(fuse_odometry=False), ref, cur, searched, Pose2D())
+    assert off == searched
+
+
+def test_clutter_returns_beside_a_wall_give_no_information_along_it() -> None:
+    world = corridor(40.0, width_m=1.83)
+    infos = {}
+    for name, model in (("none", NO_RANGE_NOISE), ("urg", URG04LX_RANGE_NOISE)):
+        along = []
+        for k in range(4):
+            ref = points(world, Pose2D(20.0, 0.0, 0.0), 2 * k)  # 5 % clutter returns (the simulator's)
+            cur = points(world, Pose2D(20.15, 0.0, 0.0), 2 * k + 1)
+            fit = fuse_with_odometry(
+                ref,
+                cur,
+                Pose2D(0.15, 0, 0),
+                Pose2D(0.15, 0, 0),
+                STRONG_ODOMETRY,
+                scan_only=True,
+                range_noise=model,
+            )
+            assert fit is not None
+            along.append(fit.information[0, 0])
+        infos[name] = float(np.median(along))
+    # without the direction test the short windows between clutter returns beside the scanner get lines at
+    # any angle (about 12,000-23,000 m^-2 along the corridor); with it about what the walls alone give
+    assert infos["none"] > 5000.0
+    assert infos["urg"] < 2000.0
