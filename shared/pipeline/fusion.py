@@ -307,26 +307,12 @@ def fuse_gated(
     to what it learns from."""
     if not gate.fuse_odometry:
         return matched
-    if not isinstance(reference, Reference):
-        prepared = prepare_reference(reference, range_noise=range_noise)
-        if prepared is None:
-            return matched
-        reference = prepared
     model = _model_information(gate, odometry)
     info = _scaled(model, noise)
-    scan = fuse_with_odometry(
-        reference,
-        current,
-        matched,
-        odometry,
-        info,
-        iterations=1,
-        scan_only=True,
-        sigma_m=gate.match_sigma_m,
-        range_noise=range_noise,
-    )
-    if scan is None:
+    at = _scan_at(gate, reference, current, matched, range_noise)
+    if at is None:
         return matched
+    reference, scan = at
     e = np.array(
         [
             matched.x_m - odometry.x_m,
@@ -352,6 +338,34 @@ def fuse_gated(
     if abs(math.remainder(fused.pose.theta_rad - matched.theta_rad, math.tau)) > gate.max_correction_rad:
         return matched  # Gauss-Newton fell into another basin: scans fix the heading, it must agree
     return fused.pose
+
+
+def _scan_at(
+    gate: IcpGate,
+    reference: FloatArray | Reference,
+    current: FloatArray,
+    pose: Pose2D,
+    range_noise: RangeNoise,
+) -> tuple[Reference, Fused] | None:
+    """The prepared reference and the scan's own information at ``pose`` (one scan-only Gauss-Newton
+    step); ``None`` when the reference or the pairs are too few."""
+    if not isinstance(reference, Reference):
+        prepared = prepare_reference(reference, range_noise=range_noise)
+        if prepared is None:
+            return None
+        reference = prepared
+    scan = fuse_with_odometry(
+        reference,
+        current,
+        pose,
+        pose,
+        np.eye(3),
+        iterations=1,
+        scan_only=True,
+        sigma_m=gate.match_sigma_m,
+        range_noise=range_noise,
+    )
+    return None if scan is None else (reference, scan)
 
 
 def _model_information(gate: IcpGate, motion: Pose2D) -> FloatArray:
@@ -412,24 +426,10 @@ def hold_unseen_directions(
     O(N) for N points."""
     if not gate.fuse_odometry:
         return matched
-    if not isinstance(reference, Reference):
-        prepared = prepare_reference(reference, range_noise=range_noise)
-        if prepared is None:
-            return matched
-        reference = prepared
-    scan = fuse_with_odometry(
-        reference,
-        current,
-        matched,
-        odometry,
-        np.eye(3),
-        iterations=1,
-        scan_only=True,
-        sigma_m=gate.match_sigma_m,
-        range_noise=range_noise,
-    )
-    if scan is None:
+    at = _scan_at(gate, reference, current, matched, range_noise)
+    if at is None:
         return matched
+    _, scan = at
     h = scan.information
     h_tt = max(float(h[2, 2]), 1e-12)
     marginal = h[:2, :2] - np.outer(h[:2, 2], h[2, :2]) / h_tt
