@@ -120,8 +120,9 @@ class WallMap:
     def cut(self, wall_id: int, keep: list[tuple[float, float]]) -> list[int]:
         """Keep only the pieces ``keep`` of wall ``wall_id``, each ``(t0, t1)`` metres from its first end
         point along it (free space observed elsewhere, :mod:`shared.pipeline.freespace`). The first piece
-        keeps the id, the others get new ids (returned) and the wall's observation count; no piece left
-        removes the wall (its id is appended to ``removed``). Each piece's moments are those of a uniform
+        keeps the id, the others get new ids (returned) and the wall's observation count (counts saturate
+        at :data:`~shared.pipeline.wallmerge.OBSERVATIONS_CAP`: pieces fused back would double it); no piece
+        left removes the wall (its id is appended to ``removed``). Each piece's moments are those of a uniform
         segment with the wall's mass per metre and its scatter across (the merge's ``merge_sigmas`` test reads
         it), so later merges refit it consistently; its direction information is the wall's times the cube of
         its share of the length (that of evenly spread points). O(walls)."""

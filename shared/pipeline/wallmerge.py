@@ -12,7 +12,11 @@ import numpy as np
 from shared.kernels._jit import njit
 from shared.types import FloatArray, IntArray
 
-__all__ = ["insert_all"]
+__all__ = ["OBSERVATIONS_CAP", "insert_all"]
+
+#: observation counts saturate here: a wall cut by free space and fused back with its own piece would
+#: otherwise double its count each time and wrap around int64 (it then left the shown map)
+OBSERVATIONS_CAP = 1 << 40
 
 
 @njit
@@ -71,7 +75,7 @@ def insert_all(
         var = length * length / 12.0
         var_n = sig * sig
         ids[i] = next_id
-        obs[i] = observations
+        obs[i] = min(observations, OBSERVATIONS_CAP)
         next_id += 1
         w[i] = length
         s1[i, 0], s1[i, 1] = length * mx, length * my
@@ -222,7 +226,7 @@ def _fuse(
     for r, k in enumerate((keep, drop)):
         ends[2 * r, 0], ends[2 * r, 1] = c[k, 0] + d[k, 0] * lo[k], c[k, 1] + d[k, 1] * lo[k]
         ends[2 * r + 1, 0], ends[2 * r + 1, 1] = c[k, 0] + d[k, 0] * hi[k], c[k, 1] + d[k, 1] * hi[k]
-    obs[keep] += obs[drop]
+    obs[keep] = min(obs[keep] + obs[drop], OBSERVATIONS_CAP)
     w[keep] += w[drop]
     s1[keep, 0] += s1[drop, 0]
     s1[keep, 1] += s1[drop, 1]

@@ -113,3 +113,19 @@ def test_pieces_of_one_wall_fuse_in_any_order(x: float, y: float, angle: float, 
     assert len(m) == 1
     seg = m.segments()[0]
     assert abs(math.hypot(seg[2] - seg[0], seg[3] - seg[1]) - 6.0) < 1e-6
+
+
+def test_a_wall_cut_and_fused_back_many_times_stays_shown() -> None:
+    # a doorway seen open from the corridor: free space cuts the wall there every scan, and the next
+    # scan's segment across the gap fuses the two pieces again (each carrying the wall's count); the
+    # count doubled each time and, after 63 rounds, wrapped round int64 and hid the wall
+    m = WallMap(MergeTolerances(min_observations=3))
+    for _ in range(3):
+        m.add_segments([[0.0, 0.0, 6.0, 0.0]])
+    (wid,) = m.ids
+    for _ in range(100):
+        pieces = m.cut(int(wid), [(0.0, 2.9), (3.1, 6.0)])
+        assert len(pieces) == 1 and len(m.segments()) == 2
+        m.add_segments([[2.5, 0.0, 3.5, 0.0]])  # bridges the 0.2 m gap: one wall again
+        assert list(m.ids) == [wid]
+    assert np.allclose(m.segments(), [[0.0, 0.0, 6.0, 0.0]], atol=1e-6)
