@@ -98,6 +98,23 @@ class SeenFree:
         out[inside] = free
         return out
 
+    def free_share(self, segments: FloatArray, step_m: float = 0.05) -> FloatArray:
+        """Per segment ``[x0, y0, x1, y1]`` (``(W, 4)``, world frame, m), the share of points sampled every
+        ``step_m`` along it (ends included) that lie in cells seen free (:meth:`moved`): near 1 for the
+        track a person left in a map built from every scan, near 0 for a wall. O(total length / step_m)."""
+        segs = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+        if len(segs) == 0:
+            return np.zeros(0)
+        length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
+        counts = np.maximum(np.ceil(length / step_m).astype(np.intp), 1) + 1
+        owner = np.repeat(np.arange(len(segs)), counts)
+        first = np.concatenate(([0], np.cumsum(counts)[:-1]))
+        t = (np.arange(int(counts.sum())) - first[owner]) / (counts[owner] - 1)
+        pts = segs[owner, :2] + t[:, None] * (segs[owner, 2:] - segs[owner, :2])
+        free = self.moved(pts).astype(np.float64)
+        share: FloatArray = np.bincount(owner, weights=free, minlength=len(segs)) / counts
+        return share
+
     def observe(self, laser: Pose2D, scan: Scan) -> None:
         """Add one scan taken from the scanner pose ``laser`` (world frame)."""
         md = self.model

@@ -429,17 +429,23 @@ def farthest_from(segments: FloatArray, walls: FloatArray) -> float:
     return float(np.sqrt(((p - a - t[..., None] * d) ** 2).sum(2)).min(1).max())
 
 
-def total_length(segments: FloatArray) -> float:
-    return float(np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1]).sum())
+def share_within(segments: FloatArray, walls: FloatArray, tol_m: float) -> float:
+    """The share of ``segments``' length (sampled every 2 cm) within ``tol_m`` of one of ``walls``."""
+    p = wall_points(segments)[:, None, :]
+    a, d = walls[None, :, :2], walls[None, :, 2:] - walls[None, :, :2]
+    t = np.clip(((p - a) * d).sum(2) / np.maximum((d * d).sum(2), 1e-18), 0.0, 1.0)
+    return float((np.sqrt(((p - a - t[..., None] * d) ** 2).sum(2)).min(1) <= tol_m).mean())
 
 
 def assert_same_walls(got: FloatArray, want: FloatArray) -> None:
     """The same walls up to the pipeline's tipping points: float32 ranges and angles in the bag, mm ranges
-    and 6-decimal poses in the CARMEN text can split or merge a wall differently, so compare the wall sets
-    as geometry: each within 2 cm of the other, about as many segments, total length within 1 %."""
+    and 6-decimal poses in the CARMEN text can split, merge or extend a wall differently (one short piece
+    joined in one map and not the other moved a wall's end by 37 cm), so compare the wall sets as
+    geometry: 98 % of each map's length within 2 cm of the other (so their total lengths agree to about
+    2 %) and about as many segments. A reading error (an offset, a flipped angle, a unit) moves every
+    wall."""
     assert abs(len(got) - len(want)) <= max(1, len(want) // 10)
-    assert farthest_from(got, want) <= 0.02 and farthest_from(want, got) <= 0.02
-    assert total_length(got) == pytest.approx(total_length(want), rel=0.01)
+    assert share_within(got, want, 0.02) >= 0.98 and share_within(want, got, 0.02) >= 0.98
 
 
 @pytest.fixture(scope="module")

@@ -270,3 +270,18 @@ def test_walls_and_recent_centroids_agree_with_the_snapshot() -> None:
     for k in (0, 1, 7, len(snap.centroids), len(snap.centroids) + 5):
         want = snap.centroids[len(snap.centroids) - min(k, len(snap.centroids)) :]
         assert np.array_equal(pipe.recent_centroids(k), want)
+
+
+def test_tracks_of_people_crossing_ahead_do_not_pull_the_pose() -> None:
+    # a 14 m x 7 m hall driven along its middle: its end walls are out of range for most of the way, and
+    # people crossing ahead leave tracks in the local map (it takes every scan's lines). Seen through
+    # once they walked on, those tracks must not hold the pose: they pulled it 7 cm along the hall.
+    from shared.sim.worlds.suite import simulate_case
+
+    case = simulate_case("people-across", 0, max_scans=200)
+    run = case.run
+    pipe = Pipeline(laser_offset=run.drive.laser_offset)
+    pairs = zip(run.scans, run.true_poses, strict=True)
+    along = [pipe.step(scan).pose.x_m - truth.x_m for scan, truth in pairs]
+    rms = math.sqrt(float(np.mean(np.square(along))))
+    assert rms < 0.02, rms

@@ -37,6 +37,23 @@ def test_a_point_where_beams_passed_is_flagged_and_the_wall_is_not() -> None:
     assert moved.tolist() == [True, True, False, False, False, False, False]
 
 
+def test_free_share_of_a_track_across_seen_space_and_of_the_wall() -> None:
+    grid = SeenFree()
+    for _ in range(6):
+        grid.observe(Pose2D(), _scan_to_wall(3.0))
+    segs = np.array(
+        [
+            [1.5, -0.8, 1.5, 0.8],  # a person's track across the fan: seen through
+            [3.0, -1.0, 3.0, 1.0],  # the wall
+            [1.5, 0.0, 4.5, 0.0],  # half in front of the wall, half behind it
+        ]
+    )
+    share = grid.free_share(segs)
+    assert share[0] == 1.0 and share[1] == 0.0
+    assert 0.35 <= share[2] <= 0.5
+    assert grid.free_share(np.zeros((0, 4))).shape == (0,)
+
+
 def test_one_pass_is_not_enough_and_a_thing_that_stays_is_accepted() -> None:
     grid = SeenFree()
     grid.observe(Pose2D(), _scan_to_wall(3.0))
