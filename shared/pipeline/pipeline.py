@@ -39,7 +39,7 @@ from shared.pipeline.fusion import (
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.odonoise import OdometryNoise
-from shared.pipeline.rangenoise import RangeNoise, range_noise_for
+from shared.pipeline.rangenoise import NO_RANGE_NOISE, RangeNoise, range_noise_for
 from shared.pipeline.regroup import regroup
 from shared.pipeline.rematch import rematch
 from shared.pipeline.seenfree import SeenFree
@@ -50,6 +50,7 @@ from shared.pipeline.stages import (
     concat,
     extract_lines_grouped,
     line_uncertainty,
+    noise_floored_uncertainty,
     remove_noise,
 )
 from shared.pipeline.wallmap import MergeTolerances, WallMap
@@ -98,6 +99,7 @@ class Pipeline:
         self._gate = icp_gate or IcpGate()
         # the scanner's range noise (None: read from each scan's range window, shared.pipeline.rangenoise)
         self._range_noise = range_noise
+        self._noise = range_noise or NO_RANGE_NOISE
         self.odometry_noise = OdometryNoise()  # learned from the believed matches (shared.pipeline.odonoise)
         self._map = WallMap(merge)
         self._freespace = FreeSpace()  # walls later seen through leave the map
@@ -155,6 +157,7 @@ class Pipeline:
         odom = odometry if odometry is not None else scan.odometry
         seg = self._kernels[Stage.SEGMENTATION][0].apply(scan)
         noise = self._range_noise if self._range_noise is not None else range_noise_for(scan)
+        self._noise = noise  # for the map update (a scanner's range noise does not change within a log)
         points, labels = seg.points, np.asarray(seg.labels)
         # returns near the range limit are biased short (shared.pipeline.censoring): neither the pose nor
         # the map takes them; the robot sees the surface properly a few centimetres later
@@ -387,12 +390,20 @@ class Pipeline:
                 return out
             segments, seg_groups = extract_lines_grouped(kernels[0], batch)
             sigmas, direction_sds = line_uncertainty(segments, seg_groups, batch)
+            # a noisy piece that a wall of the map explains within the range noise (tilted past the
+            # merge's angle test, but not past three standard deviations of its own direction) may join
+            # a wall but not start one: such pieces started the short walls crossing the demo's at
+            # 10-35 degrees (issue 19 item 4, "hatching")
+            scatter, honest = noise_floored_uncertainty(segments, batch, sigmas, direction_sds, self._noise)
+            band = np.maximum(self._map.tol.offset_tol_m, 3.0 * scatter)
+            explained = self._map.explained(segments, honest, band, viewpoint=batch.viewpoint)
             self._map.add_segments(
                 segments,
                 observations=batch.steps,
                 viewpoint=batch.viewpoint,
                 sigmas_m=sigmas,
                 direction_sds_rad=direction_sds,
+                may_create=~explained,
             )
             return None
         except LinemapError:

