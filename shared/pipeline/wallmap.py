@@ -26,7 +26,9 @@ a precise wall is not widened by it, and pieces that only touch end to end still
 A merged wall is then checked against the others again, so chains of pieces fuse into one wall. Walls keep
 stable integer ids; when two walls fuse, the older id survives and the other is reported removed. A wall is
 shown (``segments``/``ids``) once ``min_observations`` segments have merged into it: clutter seen once
-stays out of the map, a wall seen from three steps is in.
+stays out of the map, a wall seen from three steps is in. A segment may be given as one that starts no
+wall (``may_create``): the pipeline does so for a noisy piece a mapped wall already explains within the
+range noise (:meth:`WallMap.explained`), which would otherwise be a short wall crossing it.
 Complexity: O(W) per inserted segment for W walls (the compiled loop in :mod:`shared.pipeline.wallmerge`).
 """
 
