@@ -303,5 +303,5 @@ def test_no_wall_of_the_simulated_room_crosses_a_true_one(seed: int) -> None:
         t = np.clip(((mid - a) * d).sum(1) / (d * d).sum(1), 0.0, 1.0)
         nearest = int(np.argmin(np.hypot(*(mid - a - t[:, None] * d).T)))
         u = seg[2:] - seg[:2]
-        cos = abs(float(u @ d[nearest])) / (np.linalg.norm(u) * np.linalg.norm(d[nearest]))
+        cos = abs(float(u @ d[nearest])) / float(np.linalg.norm(u) * np.linalg.norm(d[nearest]))
         assert math.degrees(math.acos(min(cos, 1.0))) <= 8.0, seg
