@@ -132,16 +132,16 @@ def cluster(
     order = np.argsort(inverse, kind="stable")
     pts = chunk.points[valid][order]
     bounds = np.concatenate([[0], np.cumsum(counts)])
+    # a segment with one cluster gets its mean: all of them in one pass
+    means = np.add.reduceat(pts, bounds[:-1], axis=0) / counts[:, None]
     cents: list[FloatArray] = []
     cgroups: list[IntArray] = []
-    for g, k in enumerate(shares):
-        if k == 0:
-            continue
-        block = pts[bounds[g] : bounds[g + 1]]
+    for g in np.flatnonzero(shares):
+        k = int(shares[g])
         if k == 1:
-            cents.append(block.mean(axis=0, keepdims=True))
+            cents.append(means[g : g + 1])
         else:
-            cents.append(np.asarray(with_k(int(k)).apply(block).centroids))
+            cents.append(np.asarray(with_k(k).apply(pts[bounds[g] : bounds[g + 1]]).centroids))
         cgroups.append(np.full(len(cents[-1]), uniq[g], dtype=np.intp))
     if not cents:
         return chunk

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from shared.pipeline.wallmerge import insert_all
+from shared.pipeline.wallmerge import explained_by, insert_all
 from shared.types import BoolArray, FloatArray, IntArray
 
 __all__ = ["MergeTolerances", "WallMap"]
@@ -140,24 +140,20 @@ class WallMap:
             return out
         sd = np.asarray(direction_sds_rad, dtype=np.float64).reshape(-1)
         band = np.asarray(band_m, dtype=np.float64).reshape(-1)
-        c, d, lo, hi = self._c[:n], self._d[:n], self._lo[:n], self._hi[:n]
-        nrm = np.column_stack([-d[:, 1], d[:, 0]])
-        a, b = segs[:, None, :2] - c[None], segs[:, None, 2:] - c[None]  # (L, W, 2)
-        off = np.maximum(np.abs((a * nrm[None]).sum(2)), np.abs((b * nrm[None]).sum(2)))
-        ta, tb = (a * d[None]).sum(2), (b * d[None]).sum(2)
-        overlap = (np.maximum(ta, tb) > lo[None]) & (np.minimum(ta, tb) < hi[None])
-        u = segs[:, 2:] - segs[:, :2]
-        u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
-        if viewpoint is None:
-            cos = np.abs(u @ d.T)
-        else:  # face the scanner (on the left) as the stored walls do
-            mid = 0.5 * (segs[:, :2] + segs[:, 2:])
-            left = u[:, 0] * (viewpoint[1] - mid[:, 1]) - u[:, 1] * (viewpoint[0] - mid[:, 0]) >= 0.0
-            cos = np.where(left, 1.0, -1.0)[:, None] * (u @ d.T)
-        tilt = np.arccos(np.clip(cos, -1.0, 1.0))  # (L, W), rad
-        ok = overlap & (off <= band[:, None]) & (tilt <= k_sigma * sd[:, None]) & (sd[:, None] > 0.0)
-        out[:] = ok.any(axis=1)
-        return out
+        vx, vy = viewpoint if viewpoint is not None else (0.0, 0.0)
+        return explained_by(
+            np.ascontiguousarray(segs),
+            np.ascontiguousarray(sd, dtype=np.float64),
+            np.ascontiguousarray(np.broadcast_to(band, (len(segs),)), dtype=np.float64),
+            self._c[:n],
+            self._d[:n],
+            self._lo[:n],
+            self._hi[:n],
+            float(vx),
+            float(vy),
+            viewpoint is not None,
+            float(k_sigma),
+        )
 
     # ------------------------------------------------------------------ updates
     def cut(self, wall_id: int, keep: list[tuple[float, float]]) -> list[int]:
@@ -286,7 +282,7 @@ class WallMap:
             min_info,
             create,
         )
-        self.removed.extend(int(r) for r in removed[:n_removed])
+        self.removed.extend(removed[:n_removed].tolist())
 
     def _grow(self) -> None:
         cap = 2 * len(self._w)

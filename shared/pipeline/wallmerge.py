@@ -7,12 +7,14 @@ for W walls.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from shared.kernels._jit import njit
 from shared.types import BoolArray, FloatArray, IntArray
 
-__all__ = ["OBSERVATIONS_CAP", "insert_all"]
+__all__ = ["OBSERVATIONS_CAP", "explained_by", "insert_all"]
 
 #: observation counts saturate here: a wall cut by free space and fused back with its own piece would
 #: otherwise double its count each time and wrap around int64 (it then left the shown map)
@@ -254,3 +256,48 @@ def _fuse(
     c[keep, 0], c[keep, 1] = cx, cy
     d[keep, 0], d[keep, 1] = dx, dy
     lo[keep], hi[keep] = t_lo, t_hi
+
+
+@njit
+def explained_by(
+    segs: FloatArray,
+    sd: FloatArray,
+    band: FloatArray,
+    c: FloatArray,
+    d: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    vx: float,
+    vy: float,
+    oriented: bool,
+    k_sigma: float,
+) -> BoolArray:
+    """Per segment whether one of the walls ``(c, d, lo, hi)`` explains it (the loop of
+    :meth:`shared.pipeline.wallmap.WallMap.explained`, which states the test). O(L x W)."""
+    n_seg, n_wall = segs.shape[0], c.shape[0]
+    out = np.zeros(n_seg, dtype=np.bool_)
+    for i in range(n_seg):
+        if not sd[i] > 0.0:
+            continue
+        ux, uy = segs[i, 2] - segs[i, 0], segs[i, 3] - segs[i, 1]
+        norm = max(math.hypot(ux, uy), 1e-12)
+        ux, uy = ux / norm, uy / norm
+        sign = 1.0
+        if oriented:  # face the scanner (on the left) as the stored walls do
+            mx, my = 0.5 * (segs[i, 0] + segs[i, 2]), 0.5 * (segs[i, 1] + segs[i, 3])
+            sign = 1.0 if ux * (vy - my) - uy * (vx - mx) >= 0.0 else -1.0
+        for w in range(n_wall):
+            ax, ay = segs[i, 0] - c[w, 0], segs[i, 1] - c[w, 1]
+            bx, by = segs[i, 2] - c[w, 0], segs[i, 3] - c[w, 1]
+            ta, tb = ax * d[w, 0] + ay * d[w, 1], bx * d[w, 0] + by * d[w, 1]
+            if not (max(ta, tb) > lo[w] and min(ta, tb) < hi[w]):
+                continue
+            off = max(abs(ax * -d[w, 1] + ay * d[w, 0]), abs(bx * -d[w, 1] + by * d[w, 0]))
+            if not off <= band[i]:
+                continue
+            cos = ux * d[w, 0] + uy * d[w, 1]
+            cos = sign * cos if oriented else abs(cos)
+            if math.acos(min(max(cos, -1.0), 1.0)) <= k_sigma * sd[i]:
+                out[i] = True
+                break
+    return out

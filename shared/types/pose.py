@@ -30,14 +30,16 @@ class Pose2D:
     theta_rad: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("x_m", "y_m", "theta_rad"):
-            value = float(getattr(self, name))
-            if not math.isfinite(value):
-                from shared.errors import InvalidInputError
+        x, y, theta = float(self.x_m), float(self.y_m), float(self.theta_rad)
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
+            from shared.errors import InvalidInputError
 
-                raise InvalidInputError(f"Pose2D.{name} = {value!r}: expected a finite number")
-            object.__setattr__(self, name, value)
-        object.__setattr__(self, "theta_rad", wrap_angle(self.theta_rad))
+            for name, value in (("x_m", x), ("y_m", y), ("theta_rad", theta)):
+                if not math.isfinite(value):
+                    raise InvalidInputError(f"Pose2D.{name} = {value!r}: expected a finite number")
+        object.__setattr__(self, "x_m", x)
+        object.__setattr__(self, "y_m", y)
+        object.__setattr__(self, "theta_rad", wrap_angle(theta))
 
     def __matmul__(self, other: Pose2D) -> Pose2D:
         c, s = math.cos(self.theta_rad), math.sin(self.theta_rad)

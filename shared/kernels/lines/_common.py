@@ -24,6 +24,7 @@ numba functions ``_accumulator_setup``, ``_vote``, ``_peak`` and ``_clear`` are 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -172,16 +173,27 @@ def build_lines(
         near = np.abs(pts[:, 0] * c + pts[:, 1] * s - rho_c[line_idx]) <= tolerance_m
         pts, c, s, line_idx = pts[near], c[near], s[near], line_idx[near]
     t = pts[:, 1] * c - pts[:, 0] * s
-    t0 = np.full(n_lines, np.inf)
-    t1 = np.full(n_lines, -np.inf)
-    np.minimum.at(t0, line_idx, t)
-    np.maximum.at(t1, line_idx, t)
-    support = np.bincount(line_idx, minlength=n_lines)
+    t0, t1, support = _spans(np.ascontiguousarray(line_idx, dtype=np.intp), t, n_lines)
     ok = (support > 0) & (t1 - t0 > MIN_LENGTH_M)
     segments = segments_from_hesse(rho_c[ok], theta_c[ok], t0[ok], t1[ok])
     return _make_lines(segments, rho_c[ok], theta_c[ok], grouped.labels[line_group[ok]], support[ok])
 
 
+@njit
+def _spans(line_idx: IntArray, t: FloatArray, n_lines: int) -> tuple[FloatArray, FloatArray, IntArray]:
+    """Per line the smallest and largest projection ``t`` of its supporting points and their count. O(M)."""
+    t0 = np.full(n_lines, np.inf)
+    t1 = np.full(n_lines, -np.inf)
+    support = np.zeros(n_lines, dtype=np.intp)
+    for m in range(line_idx.shape[0]):
+        k = line_idx[m]
+        t0[k] = min(t0[k], t[m])
+        t1[k] = max(t1[k], t[m])
+        support[k] += 1
+    return t0, t1, support
+
+
+@functools.lru_cache(maxsize=16)
 def theta_grid(theta_resolution_deg: float) -> tuple[FloatArray, FloatArray]:
     """``(cos, sin)`` of the accumulator's theta cells ``k pi / n_theta``, ``n_theta = round(180 / res)``.
 
@@ -189,7 +201,9 @@ def theta_grid(theta_resolution_deg: float) -> tuple[FloatArray, FloatArray]:
     """
     n_theta = max(1, round(180.0 / theta_resolution_deg))
     theta = np.arange(n_theta, dtype=np.float64) * (math.pi / n_theta)
-    return np.cos(theta), np.sin(theta)
+    cos_t, sin_t = np.cos(theta), np.sin(theta)
+    cos_t.flags.writeable = sin_t.flags.writeable = False  # cached: shared by every call
+    return cos_t, sin_t
 
 
 @njit
