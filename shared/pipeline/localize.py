@@ -122,92 +122,43 @@ def _normal_equations(
     return count, h, g, r2, lever2
 
 
-@njit
 def _step(
     h0: FloatArray,
     g0: FloatArray,
     mean_lever2: float,
     damping: float,
     ratio: float,
-    e: FloatArray,
-    info: FloatArray,
-    has_prior: bool,
+    prior: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[float, float, float]:
     """The damped Gauss-Newton step ``(dx, dy, dtheta)`` from the normal equations ``h0 = sum a a^T``,
     ``g0 = sum a r`` (rows ``a = (n_x, n_y, d r / d theta)``); with ``ratio > 0`` only along the
     eigen-directions of the normal matrix (in ``(dx, dy, s dtheta)``, ``s`` the RMS lever, from
     ``mean_lever2``) whose eigenvalue exceeds ``ratio`` times the largest: directions the walls barely
-    constrain get no update, or with a prior (``has_prior``: ``e`` the pose minus the prior pose as
-    ``(dx, dy, dtheta)`` and ``info`` its information, in units of the residuals' variance) move towards
-    the prior by its share of the information along them. O(1)."""
+    constrain get no update, or with a ``prior`` ``(e, P)`` (the pose minus the prior pose as ``(dx, dy,
+    dtheta)`` and its information, in units of the residuals' variance) move towards the prior by its
+    share of the information along them. O(1)."""
     if ratio <= 0.0:  # the plain damped step
-        h = h0.copy()
-        h[0, 0] += damping
-        h[1, 1] += damping
-        h[2, 2] += 4.0 * damping
-        sol = np.linalg.solve(h, -g0)
-        return sol[0], sol[1], sol[2]
+        h = h0 + damping * np.diag([1.0, 1.0, 4.0])
+        dx, dy, dth = (float(v) for v in np.linalg.solve(h, -g0))
+        return dx, dy, dth
     scale = max(math.sqrt(mean_lever2), 1e-3)
     unscale = np.array([1.0, 1.0, 1.0 / scale])
     # unknowns (dx, dy, scale dtheta): all lengths; the same damping as above
-    h = h0 * np.outer(unscale, unscale)
-    h[0, 0] += damping
-    h[1, 1] += damping
-    h[2, 2] += damping * 4.0 / scale**2
+    h = h0 * np.outer(unscale, unscale) + damping * np.diag([1.0, 1.0, 4.0 / scale**2])
     w, v = np.linalg.eigh(h)
-    rhs = -(g0 * unscale)
-    step = np.zeros(3)
-    e_s = e * np.array([1.0, 1.0, scale])
-    info_s = info * np.outer(unscale, unscale)
-    for k in range(3):
-        u = v[:, k]
-        if w[k] > ratio * w[2]:
-            step += u * (np.dot(u, rhs) / w[k])
-        elif has_prior:
-            pe = np.dot(u, info_s @ u)
-            step -= u * np.dot(u, e_s) * pe / (pe + max(w[k], 0.0))
-    return step[0], step[1], step[2] / scale
-
-
-@njit
-def _iterate(
-    points: FloatArray,
-    pose0: FloatArray,
-    walls: FloatArray,
-    weights: FloatArray,
-    prior: FloatArray,
-    info: FloatArray,
-    has_prior: bool,
-    max_distance_m: float,
-    trim_m: float,
-    iterations: int,
-    damping: float,
-    min_matches: int,
-    degeneracy_ratio: float,
-) -> tuple[float, float, float, int, float]:
-    """The Gauss-Newton iterations of :func:`refine_to_walls` from scanner pose ``pose0`` ``(x, y,
-    theta)``: ``(x, y, theta, matched, rmse)``, ``matched`` -1 when too few points found a wall.
-    O(iterations x N x W)."""
-    x, y, th = pose0[0], pose0[1], pose0[2]
-    matched, rmse = 0, np.inf
-    e = np.zeros(3)
-    for _ in range(iterations):
-        matched, h0, g0, r2, lever2 = _normal_equations(
-            points, x, y, th, walls, max_distance_m, trim_m, weights
-        )
-        if matched < min_matches:
-            return x, y, th, -1, rmse
-        if has_prior:
-            e[0], e[1] = x - prior[0], y - prior[1]
-            d = th - prior[2]
-            e[2] = d - 2.0 * math.pi * np.rint(d / (2.0 * math.pi))
-        dx, dy, dth = _step(h0, g0, lever2 / matched, damping, degeneracy_ratio, e, info, has_prior)
-        # a rotation about the scanner position, then a translation
-        x, y, th = x + dx, y + dy, th + dth
-        rmse = math.sqrt(r2 / matched)
-        if math.hypot(dx, dy) < 1e-4 and abs(dth) < 1e-4:
-            break
-    return x, y, th, matched, rmse
+    strong = w > ratio * w[-1]
+    keep = v[:, strong]
+    lam = w[strong]
+    step = keep @ ((keep.T @ -(g0 * unscale)) / lam)
+    if prior is not None:
+        e, info = prior
+        e_s = e * np.array([1.0, 1.0, scale])
+        info_s = info * np.outer(unscale, unscale)
+        for k in np.flatnonzero(~strong):
+            u = v[:, k]
+            pe = float(u @ info_s @ u)
+            step = step - u * float(u @ e_s) * pe / (pe + max(float(w[k]), 0.0))
+    return float(step[0]), float(step[1]), float(step[2]) / scale
 
 
 def refine_to_walls(
@@ -246,26 +197,32 @@ def refine_to_walls(
     walls = walls[near]
     if len(walls) == 0:
         return None
+    pose = scanner_pose
+    matched, rmse = 0, math.inf
     points = np.ascontiguousarray(points, dtype=np.float64)
     walls = np.ascontiguousarray(walls, dtype=np.float64)
     sr = np.maximum(range_noise.near_m, range_noise.ratio * np.hypot(points[:, 0], points[:, 1]))
     weights = sigma_m**2 / (sigma_m**2 + sr * sr)
-    has_prior = prior is not None and prior_information is not None
-    x, y, th, matched, rmse = _iterate(
-        points,
-        np.array(scanner_pose.as_tuple()),
-        walls,
-        weights,
-        np.array(prior.as_tuple()) if prior is not None else np.zeros(3),
-        np.ascontiguousarray(prior_information, dtype=np.float64) if has_prior else np.zeros((3, 3)),
-        has_prior,
-        max_distance_m,
-        trim_m,
-        iterations,
-        damping,
-        min_matches,
-        degeneracy_ratio,
-    )
-    if matched < 0:
-        return None
-    return WallFit(Pose2D(x, y, th), matched, rmse)
+    for _ in range(iterations):
+        matched, h0, g0, r2, lever2 = _normal_equations(
+            points, pose.x_m, pose.y_m, pose.theta_rad, walls, max_distance_m, trim_m, weights
+        )
+        if matched < min_matches:
+            return None
+        pr = None
+        if prior is not None and prior_information is not None:
+            e = np.array(
+                [
+                    pose.x_m - prior.x_m,
+                    pose.y_m - prior.y_m,
+                    math.remainder(pose.theta_rad - prior.theta_rad, math.tau),
+                ]
+            )
+            pr = (e, prior_information)
+        dx, dy, dth = _step(h0, g0, lever2 / matched, damping, degeneracy_ratio, pr)
+        # a rotation about the scanner position, then a translation
+        pose = Pose2D(pose.x_m + dx, pose.y_m + dy, pose.theta_rad + dth)
+        rmse = math.sqrt(r2 / matched)
+        if math.hypot(dx, dy) < 1e-4 and abs(dth) < 1e-4:
+            break
+    return WallFit(pose, matched, rmse)

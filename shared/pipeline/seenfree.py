@@ -102,17 +102,16 @@ class SeenFree:
         """Per segment ``[x0, y0, x1, y1]`` (``(W, 4)``, world frame, m), the share of points sampled every
         ``step_m`` along it (ends included) that lie in cells seen free (:meth:`moved`): near 1 for the
         track a person left in a map built from every scan, near 0 for a wall. O(total length / step_m)."""
-        segs = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+        segs = np.ascontiguousarray(np.asarray(segments, dtype=np.float64).reshape(-1, 4))
         if len(segs) == 0:
             return np.zeros(0)
-        length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
-        counts = np.maximum(np.ceil(length / step_m).astype(np.intp), 1) + 1
-        owner = np.repeat(np.arange(len(segs)), counts)
-        first = np.concatenate(([0], np.cumsum(counts)[:-1]))
-        t = (np.arange(int(counts.sum())) - first[owner]) / (counts[owner] - 1)
-        pts = segs[owner, :2] + t[:, None] * (segs[owner, 2:] - segs[owner, :2])
-        free = self.moved(pts).astype(np.float64)
-        share: FloatArray = np.bincount(owner, weights=free, minlength=len(segs)) / counts
+        if self._logodds.size == 0:
+            return np.zeros(len(segs))
+        # the grid holds float32: compare as numpy compares it with a Python float (NEP 50)
+        threshold = float(np.float32(self.model.moved_logodds))
+        share: FloatArray = _free_share(
+            segs, float(step_m), self._logodds, self._origin[0], self._origin[1], self.model.cell_m, threshold
+        )
         return share
 
     def observe(self, laser: Pose2D, scan: Scan) -> None:
@@ -265,3 +264,31 @@ def _trace(
         if 0 <= i < nx and 0 <= j < ny and hit[i, j] != scan_no:
             hit[i, j] = scan_no
             logodds[i, j] = min(logodds[i, j] + hit_lo, clamp)
+
+
+@njit
+def _free_share(
+    segs: FloatArray,
+    step_m: float,
+    logodds: np.ndarray,
+    ox: float,
+    oy: float,
+    cell: float,
+    threshold: float,
+) -> FloatArray:
+    """:meth:`SeenFree.free_share`'s loop: per segment the share of its samples (``ceil(length / step_m)
+    + 1``, evenly spaced, ends included) in cells at or below ``threshold``. O(total length / step_m)."""
+    nx, ny = logodds.shape[0], logodds.shape[1]
+    out = np.zeros(segs.shape[0])
+    for w in range(segs.shape[0]):
+        x0, y0, x1, y1 = segs[w, 0], segs[w, 1], segs[w, 2], segs[w, 3]
+        count = max(math.ceil(math.hypot(x1 - x0, y1 - y0) / step_m), 1) + 1
+        free = 0.0
+        for q in range(count):
+            t = q / (count - 1)
+            i = math.floor((x0 + t * (x1 - x0) - ox) / cell)
+            j = math.floor((y0 + t * (y1 - y0) - oy) / cell)
+            if 0 <= i < nx and 0 <= j < ny and logodds[i, j] <= threshold:
+                free += 1.0
+        out[w] = free / count
+    return out

@@ -166,29 +166,46 @@ def build_lines(
     n_lines = rho_c.shape[0]
     if n_lines == 0:
         return empty_lines()
-    cos_l, sin_l = np.cos(theta_c), np.sin(theta_c)
-    pts = grouped.points[point_idx]
-    c, s = cos_l[line_idx], sin_l[line_idx]
-    if tolerance_m is not None:
-        near = np.abs(pts[:, 0] * c + pts[:, 1] * s - rho_c[line_idx]) <= tolerance_m
-        pts, c, s, line_idx = pts[near], c[near], s[near], line_idx[near]
-    t = pts[:, 1] * c - pts[:, 0] * s
-    t0, t1, support = _spans(np.ascontiguousarray(line_idx, dtype=np.intp), t, n_lines)
+    t0, t1, support = _spans(
+        grouped.points,
+        np.ascontiguousarray(point_idx, dtype=np.intp),
+        np.ascontiguousarray(line_idx, dtype=np.intp),
+        np.cos(theta_c),
+        np.sin(theta_c),
+        rho_c,
+        math.inf if tolerance_m is None else float(tolerance_m),
+    )
     ok = (support > 0) & (t1 - t0 > MIN_LENGTH_M)
     segments = segments_from_hesse(rho_c[ok], theta_c[ok], t0[ok], t1[ok])
     return _make_lines(segments, rho_c[ok], theta_c[ok], grouped.labels[line_group[ok]], support[ok])
 
 
 @njit
-def _spans(line_idx: IntArray, t: FloatArray, n_lines: int) -> tuple[FloatArray, FloatArray, IntArray]:
-    """Per line the smallest and largest projection ``t`` of its supporting points and their count. O(M)."""
+def _spans(
+    points: FloatArray,
+    point_idx: IntArray,
+    line_idx: IntArray,
+    cos_l: FloatArray,
+    sin_l: FloatArray,
+    rho: FloatArray,
+    tolerance_m: float,
+) -> tuple[FloatArray, FloatArray, IntArray]:
+    """Per line the smallest and largest projection ``t`` (along ``(-sin, cos)``) of its supporting
+    points ``points[point_idx[m]]`` of line ``line_idx[m]`` within ``tolerance_m`` of it, and their count.
+    O(M)."""
+    n_lines = rho.shape[0]
     t0 = np.full(n_lines, np.inf)
     t1 = np.full(n_lines, -np.inf)
     support = np.zeros(n_lines, dtype=np.intp)
     for m in range(line_idx.shape[0]):
         k = line_idx[m]
-        t0[k] = min(t0[k], t[m])
-        t1[k] = max(t1[k], t[m])
+        px, py = points[point_idx[m], 0], points[point_idx[m], 1]
+        c, s = cos_l[k], sin_l[k]
+        if not abs(px * c + py * s - rho[k]) <= tolerance_m:
+            continue
+        t = py * c - px * s
+        t0[k] = min(t0[k], t)
+        t1[k] = max(t1[k], t)
         support[k] += 1
     return t0, t1, support
 
@@ -277,6 +294,7 @@ def _vote(
     n = members.shape[0]
     dx = np.empty(n)
     dy = np.empty(n)
+    cells = np.empty(n, dtype=np.intp)
     for q in range(n):
         dx[q] = pts[members[q], 0] - cx
         dy[q] = pts[members[q], 1] - cy
@@ -284,16 +302,20 @@ def _vote(
     for k in range(cos_t.shape[0]):
         c = cos_t[k] * inv_res
         s = sin_t[k] * inv_res
-        best = 0
+        # three passes, so that the first two vectorise: the cells, their range, then the votes
+        for q in range(n):
+            cells[q] = _rho_cell(dx[q], dy[q], c, s, offset)
         lo = acc.shape[1]
         hi = -1
         for q in range(n):
-            j = _rho_cell(dx[q], dy[q], c, s, offset)
+            lo = min(lo, cells[q])
+            hi = max(hi, cells[q])
+        best = 0
+        for q in range(n):
+            j = cells[q]
             v = acc[k, j] + 1
             acc[k, j] = v
             best = max(best, v)
-            lo = min(lo, j)
-            hi = max(hi, j)
         rows[k, 0] = best
         rows[k, 1] = lo
         rows[k, 2] = hi

@@ -127,3 +127,21 @@ def test_a_person_crossing_right_behind_the_robot_leaves_no_wall(seed: int) -> N
         s for s in segments if max(abs(s[0] - 3.2), abs(s[2] - 3.2)) < 0.6 and max(abs(s[1]), abs(s[3])) < 2.3
     ]
     assert inside == []
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_free_share_is_the_share_of_its_samples_that_moved_flags(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    grid = SeenFree()
+    for distance in rng.uniform(1.0, 5.0, 4):
+        pose = Pose2D(float(rng.uniform(-1, 1)), 0.0, float(rng.uniform(-3, 3)))
+        grid.observe(pose, _scan_to_wall(distance))
+    segs = rng.uniform(-6.0, 6.0, (25, 4))
+    segs[0, 2:] = segs[0, :2]  # a zero-length piece: its one sample counted twice
+    got = grid.free_share(segs)
+    for k, seg in enumerate(segs):  # the samples written out, tested by moved()
+        n = max(math.ceil(math.hypot(seg[2] - seg[0], seg[3] - seg[1]) / 0.05), 1) + 1
+        t = np.arange(n) / (n - 1)
+        pts = seg[:2] + t[:, None] * (seg[2:] - seg[:2])
+        assert got[k] == grid.moved(pts).mean()

@@ -154,3 +154,50 @@ def test_a_piece_that_may_not_create_joins_a_wall_or_is_dropped() -> None:
     assert np.allclose(m.segments()[0, [0, 2]], [0.0, 2.5], atol=0.01)
     m.add_segments([[0.0, 3.0, 1.0, 3.0]])  # allowed: a wall of its own (the dropped piece's id was
     assert sorted(m.ids.tolist()) == [0, 2]  # never shown, so it is given again)
+
+
+def _reference_explained(
+    m: WallMap, segs: np.ndarray, sd: np.ndarray, band: np.ndarray, viewpoint: tuple[float, float] | None
+) -> np.ndarray:
+    """WallMap.explained's test written out over all (segment, wall) pairs with numpy (the vectorised form
+    the compiled loop replaced)."""
+    n = len(m.all_walls()[0])
+    if n == 0:
+        return np.zeros(len(segs), dtype=bool)
+    # the map's own line parameters (centre, unit direction, span along it)
+    c, d, lo, hi = m._c[:n], m._d[:n], m._lo[:n], m._hi[:n]
+    nrm = np.column_stack([-d[:, 1], d[:, 0]])
+    a, b = segs[:, None, :2] - c[None], segs[:, None, 2:] - c[None]
+    off = np.maximum(np.abs((a * nrm[None]).sum(2)), np.abs((b * nrm[None]).sum(2)))
+    ta, tb = (a * d[None]).sum(2), (b * d[None]).sum(2)
+    overlap = (np.maximum(ta, tb) > lo[None]) & (np.minimum(ta, tb) < hi[None])
+    u = segs[:, 2:] - segs[:, :2]
+    u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
+    if viewpoint is None:
+        cos = np.abs(u @ d.T)
+    else:
+        mid = 0.5 * (segs[:, :2] + segs[:, 2:])
+        left = u[:, 0] * (viewpoint[1] - mid[:, 1]) - u[:, 1] * (viewpoint[0] - mid[:, 0]) >= 0.0
+        cos = np.where(left, 1.0, -1.0)[:, None] * (u @ d.T)
+    tilt = np.arccos(np.clip(cos, -1.0, 1.0))
+    ok = overlap & (off <= band[:, None]) & (tilt <= 3.0 * sd[:, None]) & (sd[:, None] > 0.0)
+    return np.asarray(ok.any(axis=1))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_explained_agrees_with_a_numpy_reference(seed: int, with_viewpoint: bool) -> None:
+    rng = np.random.default_rng(seed)
+    m = WallMap()
+    m.add_segments(rng.uniform(-5.0, 5.0, (int(rng.integers(1, 30)), 4)), observations=3)
+    _, walls = m.all_walls()
+    segs = rng.uniform(-5.0, 5.0, (30, 4))
+    if len(walls):  # noisy copies of mapped walls: the cases near the test's edges
+        segs[:20] = walls[rng.integers(0, len(walls), 20)] + rng.normal(0.0, 0.03, (20, 4))
+    sd = rng.uniform(0.0, 0.1, 30)
+    sd[:3] = 0.0
+    band = rng.uniform(0.02, 0.2, 30)
+    viewpoint = (float(rng.uniform(-5, 5)), float(rng.uniform(-5, 5))) if with_viewpoint else None
+    got = m.explained(segs, sd, band, viewpoint=viewpoint)
+    want = _reference_explained(m, segs, sd, band, viewpoint)
+    np.testing.assert_array_equal(got, want)
