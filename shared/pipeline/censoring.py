@@ -45,7 +45,11 @@ def censored_returns(
         far = ranges[beams] > scan.range_max_m - band_m
     if not far.any() or not missing.any():
         return out
-    # beams with a missing beam within +-window: a running count over a window of 2 window + 1
-    counts = np.convolve(missing.astype(np.int32), np.ones(2 * window + 1, dtype=np.int32), mode="same")
-    out[far] = counts[beams[far]] > 0
+    # beams with a missing beam within +-window, from a cumulative count (np.convolve's "same" mode would
+    # misalign a scan of fewer beams than the window)
+    cum = np.concatenate([[0], np.cumsum(missing, dtype=np.int64)])
+    b = beams[far]
+    lo = np.clip(b - window, 0, ranges.size)
+    hi = np.clip(b + window + 1, 0, ranges.size)
+    out[far] = cum[hi] - cum[lo] > 0
     return out

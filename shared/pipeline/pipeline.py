@@ -174,14 +174,17 @@ class Pipeline:
             segments = self._loc_lines.apply(world, groups).segments
             for local in self._loc_maps:
                 local.add_segments(segments)
+        # each return's beam spacing (range x angular step): how far apart a wall's returns lie there,
+        # which noise removal's neighbourhood follows on scanners coarser than the paper's URG-04LX
+        spacing = np.hypot(points[:, 0], points[:, 1]) * abs(scan.angle_increment_rad)
         moved = self._seen_free.moved(world)  # in space seen free before: not walls (yet)
         if moved.any():
-            world, groups = world[~moved], groups[~moved]
+            world, groups, spacing = world[~moved], groups[~moved], spacing[~moved]
         self._seen_free.observe(laser, scan)
         self._freespace.observe(self._map, laser, scan)
         self._stamp = scan.stamp_s
         self._trajectory.append((scan.stamp_s, self._pose.x_m, self._pose.y_m, self._pose.theta_rad))
-        ran = self._feed(Chunk.of(world, groups, (laser.x_m, laser.y_m)), final=False)
+        ran = self._feed(Chunk.of(world, groups, (laser.x_m, laser.y_m), spacing), final=False)
         self._version += 1
         elapsed = (time.perf_counter() - t0) * 1e3
         self._step_ms.append(elapsed)

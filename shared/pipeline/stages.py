@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 
 from shared.kernels import Lines
 from shared.kernels._jit import njit
+from shared.kernels.base import takes_spacing
 from shared.pipeline.rangenoise import RangeNoise
 from shared.types import FloatArray, IntArray
 
@@ -34,9 +35,10 @@ __all__ = [
 @dataclass(frozen=True, slots=True)
 class Chunk:
     """Points ``(N, 2)`` (metres, world frame) with group ids ``(N,)`` (-1: none), optional centroids, the
-    number of scan steps the chunk holds (the evidence its walls carry) and where the scanner saw them from
+    number of scan steps the chunk holds (the evidence its walls carry), where the scanner saw them from
     (world frame, metres; the steps' mean for a batch; ``None``: unknown), which tells the wall map which
-    face of a wall a segment is."""
+    face of a wall a segment is, and each point's beam spacing ``(N,)`` (its range times the scanner's
+    angular step, metres; ``None``: unknown), which tells noise removal how dense a wall's returns are."""
 
     points: FloatArray
     groups: IntArray
@@ -44,11 +46,18 @@ class Chunk:
     centroid_groups: IntArray
     steps: int = 1
     viewpoint: tuple[float, float] | None = None
+    spacing_m: FloatArray | None = None
 
     @classmethod
-    def of(cls, points: FloatArray, groups: IntArray, viewpoint: tuple[float, float] | None = None) -> Chunk:
+    def of(
+        cls,
+        points: FloatArray,
+        groups: IntArray,
+        viewpoint: tuple[float, float] | None = None,
+        spacing_m: FloatArray | None = None,
+    ) -> Chunk:
         """A chunk of one step's points without centroids, seen from ``viewpoint``."""
-        return cls(points, groups, np.zeros((0, 2)), np.zeros(0, dtype=np.intp), 1, viewpoint)
+        return cls(points, groups, np.zeros((0, 2)), np.zeros(0, dtype=np.intp), 1, viewpoint, spacing_m)
 
 
 def concat(chunks: list[Chunk]) -> Chunk:
@@ -62,6 +71,9 @@ def concat(chunks: list[Chunk]) -> Chunk:
         np.concatenate([c.centroid_groups for c in chunks]) if chunks else np.zeros(0, dtype=np.intp),
         sum(c.steps for c in chunks),
         _mean_viewpoint(chunks),
+        np.concatenate([c.spacing_m for c in chunks])
+        if chunks and all(c.spacing_m is not None for c in chunks)
+        else None,
     )
 
 
@@ -77,24 +89,35 @@ def _mean_viewpoint(chunks: list[Chunk]) -> tuple[float, float] | None:
 
 def remove_noise(kernels: list[Any], chunk: Chunk) -> Chunk:
     """Apply the noise-removal kernels in order (paper §3.2). Points a kernel adds (dilation) take the group
-    of the nearest kept point. O(N log N)."""
-    points, groups = chunk.points, chunk.groups
+    of the nearest kept point, and its beam spacing. Kernels that take the points' beam spacing
+    (:func:`~shared.kernels.base.takes_spacing`) are given the chunk's, when it has one. O(N log N)."""
+    points, groups, spacing = chunk.points, chunk.groups, chunk.spacing_m
     for kernel in kernels:
         if len(points) == 0:
             break
-        result = kernel.apply(points)
+        if spacing is not None and takes_spacing(kernel):
+            result = kernel.apply(points, spacing_m=spacing)
+        else:
+            result = kernel.apply(points)
         kept_groups = groups[result.keep]
+        kept_spacing = spacing[result.keep] if spacing is not None else None
         if result.n_added:
             kept_pts = points[result.keep]
             added = result.points[len(kept_pts) :]
             if len(kept_pts):
                 _, nearest = cKDTree(kept_pts).query(added)
                 add_groups = kept_groups[nearest]
+                add_spacing = kept_spacing[nearest] if kept_spacing is not None else None
             else:
                 add_groups = np.full(len(added), -1, dtype=np.intp)
+                add_spacing = np.zeros(len(added)) if kept_spacing is not None else None
             kept_groups = np.concatenate([kept_groups, add_groups])
-        points, groups = np.asarray(result.points), np.asarray(kept_groups)
-    return Chunk(points, groups, chunk.centroids, chunk.centroid_groups, chunk.steps, chunk.viewpoint)
+            if kept_spacing is not None and add_spacing is not None:
+                kept_spacing = np.concatenate([kept_spacing, add_spacing])
+        points, groups, spacing = np.asarray(result.points), np.asarray(kept_groups), kept_spacing
+    return Chunk(
+        points, groups, chunk.centroids, chunk.centroid_groups, chunk.steps, chunk.viewpoint, spacing
+    )
 
 
 def cluster(

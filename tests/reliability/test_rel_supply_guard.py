@@ -24,22 +24,22 @@ from shared.types import Pose2D
 class Nan(Dbscan):
     version = "9.0.1"
 
-    def apply(self, points: Any) -> NoiseResult:
-        out = super().apply(points)
+    def apply(self, points: Any, spacing_m: Any = None) -> NoiseResult:
+        out = super().apply(points, spacing_m)
         return NoiseResult(out.keep, np.full_like(np.asarray(out.points, float), np.nan), out.labels)
 
 
 class Shapes(Dbscan):
     version = "9.0.2"
 
-    def apply(self, points: Any) -> NoiseResult:
+    def apply(self, points: Any, spacing_m: Any = None) -> NoiseResult:
         return NoiseResult(np.ones(3, dtype=bool), np.zeros((2, 3)), np.zeros(7, dtype=np.intp))
 
 
 class WrongType(Dbscan):
     version = "9.0.3"
 
-    def apply(self, points: Any) -> Any:
+    def apply(self, points: Any, spacing_m: Any = None) -> Any:
         return [[0.0, 0.0]]
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
+from shared.errors import InvalidInputError
 from shared.kernels._jit import njit
 from shared.kernels.base import NoiseRemovalKernel
 from shared.kernels.noise._cellhash import Int64Array, _build, _find, cell_indices
@@ -56,6 +57,16 @@ class DbscanParams(KernelParams):
         le=1000,
         paper="§3.2.1",
     )
+    spacing_factor: float = param(
+        1.4,
+        description="Where the pipeline tells each point's beam spacing (range x angular step), the "
+        "neighbourhood radius of that point is max(epsilon, spacing_factor x spacing): a wall seen at up "
+        "to 45 deg incidence (1 / cos 45 deg = 1.41) keeps its neighbouring beams' returns at any range and "
+        "on any scanner. 1.4 leaves the paper's 5 cm in force on a URG-04LX (0.35 deg) out to 5.8 m, past "
+        "its range; on a 1 deg scanner it takes over beyond 2 m. 0: the paper's fixed epsilon everywhere",
+        ge=0.0,
+        le=20.0,
+    )
 
 
 @njit
@@ -69,9 +80,11 @@ def _find_root(parent: Int64Array, i: int) -> int:
 
 @njit
 def _dbscan(
-    x: FloatArray, y: FloatArray, ix: Int64Array, iy: Int64Array, eps2: float, min_points: int
+    x: FloatArray, y: FloatArray, r: FloatArray, ix: Int64Array, iy: Int64Array, min_points: int
 ) -> tuple[BoolArray, Int64Array]:
-    """Core mask and labels (``-1`` = noise) of finite points ``x, y`` with cells ``ix, iy``."""
+    """Core mask and labels (``-1`` = noise) of finite points ``x, y`` with neighbourhood radii ``r`` and
+    cells ``ix, iy`` (at least ``max(r)`` wide): two points are neighbours when their distance is at most
+    the larger of their radii (squared distances against squared radii, as scikit-learn compares)."""
     n = x.size
     cell, ucx, ucy, table = _build(ix, iy)
     m = ucx.size
@@ -91,6 +104,7 @@ def _dbscan(
         fill[c] += 1
     xs = x[order]
     ys = y[order]
+    r2 = r[order] * r[order]
     # the 3x3 block of cells around each cell; k = (dx + 1) * 3 + (dy + 1), k = 4 is the cell itself and
     # k = 5..8 ((0,1), (1,-1), (1,0), (1,1)) the "forward" half that visits every pair of cells once
     nb = np.empty((m, 9), dtype=np.int64)
@@ -107,7 +121,7 @@ def _dbscan(
             for q in range(p + 1, a1):
                 dx_ = xs[p] - xs[q]
                 dy_ = ys[p] - ys[q]
-                if dx_ * dx_ + dy_ * dy_ <= eps2:
+                if dx_ * dx_ + dy_ * dy_ <= max(r2[p], r2[q]):
                     count[p] += 1
                     count[q] += 1
         for k in range(5, 9):
@@ -120,7 +134,7 @@ def _dbscan(
                 for q in range(b0, b1):
                     dx_ = xs[p] - xs[q]
                     dy_ = ys[p] - ys[q]
-                    if dx_ * dx_ + dy_ * dy_ <= eps2:
+                    if dx_ * dx_ + dy_ * dy_ <= max(r2[p], r2[q]):
                         count[p] += 1
                         count[q] += 1
     core = count >= min_points
@@ -143,7 +157,7 @@ def _dbscan(
                         continue
                     dx_ = xs[p] - xs[q]
                     dy_ = ys[p] - ys[q]
-                    if dx_ * dx_ + dy_ * dy_ <= eps2:
+                    if dx_ * dx_ + dy_ * dy_ <= max(r2[p], r2[q]):
                         rp = _find_root(parent, p)
                         rq = _find_root(parent, q)
                         if rp != rq:
@@ -156,11 +170,11 @@ def _dbscan(
     for i in range(n):
         p = pos[i]
         if core[p]:
-            r = _find_root(parent, p)
-            if cid[r] < 0:
-                cid[r] = n_clusters
+            root = _find_root(parent, p)
+            if cid[root] < 0:
+                cid[root] = n_clusters
                 n_clusters += 1
-            labels[i] = cid[r]
+            labels[i] = cid[root]
     # border points: the lowest cluster among their core neighbours
     for i in range(n):
         p = pos[i]
@@ -177,7 +191,7 @@ def _dbscan(
                     continue
                 dx_ = xs[p] - xs[q]
                 dy_ = ys[p] - ys[q]
-                if dx_ * dx_ + dy_ * dy_ <= eps2:
+                if dx_ * dx_ + dy_ * dy_ <= max(r2[p], r2[q]):
                     lab = labels[order[q]]
                     if best < 0 or lab < best:
                         best = lab
@@ -188,25 +202,40 @@ def _dbscan(
     return core_in, labels
 
 
-def dbscan_core_labels(points: ArrayLike, epsilon_m: float, min_points: int) -> tuple[BoolArray, IntArray]:
+def dbscan_core_labels(
+    points: ArrayLike, epsilon_m: float, min_points: int, radius_m: ArrayLike | None = None
+) -> tuple[BoolArray, IntArray]:
     """DBSCAN of ``(N, 2)`` points: ``(core (N,) bool, labels (N,))``, labels ``-1`` for noise.
 
     Identical to ``sklearn.cluster.DBSCAN(eps=epsilon_m, min_samples=min_points)``'s ``labels_`` and core
-    samples; non-finite rows are noise and are not counted as anyone's neighbour. O(N + candidate pairs).
+    samples; non-finite rows are noise and are not counted as anyone's neighbour. ``radius_m`` ``(N,)``
+    (metres, each at least ``epsilon_m``) gives each point its own neighbourhood radius instead: two points
+    are neighbours when their distance is at most the larger of their two radii, which is scikit-learn's
+    DBSCAN with ``eps=1`` on the distances divided by that larger radius. O(N + candidate pairs), the cells
+    as wide as the largest radius.
     """
     pts = as_points(points)
     n = pts.shape[0]
     core = np.zeros(n, dtype=np.bool_)
     labels = np.full(n, -1, dtype=np.intp)
     finite = np.isfinite(pts).all(axis=1)
+    if radius_m is not None:
+        radius = np.asarray(radius_m, dtype=np.float64)
+        if radius.shape != (n,):
+            raise InvalidInputError(f"radius_m has shape {radius.shape}: expected ({n},), one per point")
+        finite &= np.isfinite(radius)
     all_finite = bool(finite.all())
     fp = pts if all_finite else pts[finite]
     if fp.shape[0] == 0:
         return core, labels
-    ix, iy = cell_indices(fp, epsilon_m * _CELL_MARGIN)
+    if radius_m is None:
+        r = np.full(fp.shape[0], float(epsilon_m))
+    else:
+        r = np.maximum(radius if all_finite else radius[finite], float(epsilon_m))
+    ix, iy = cell_indices(fp, float(r.max()) * _CELL_MARGIN)
     xs = fp[:, 0].copy()  # always a fresh writable array: one numba signature, however the input came
     ys = fp[:, 1].copy()
-    core_f, labels_f = _dbscan(xs, ys, ix, iy, epsilon_m * epsilon_m, min_points)
+    core_f, labels_f = _dbscan(xs, ys, r, ix, iy, min_points)
     if all_finite:
         return core_f, labels_f.astype(np.intp, copy=False)
     core[finite] = core_f
@@ -234,10 +263,18 @@ class Dbscan(NoiseRemovalKernel[DbscanParams]):
     version = "1.0.0"
     Params = DbscanParams
 
-    def apply(self, points: ArrayLike) -> NoiseResult:
-        """Filter ``points`` ``(N, 2)`` (metres)."""
+    uses_spacing = True
+
+    def apply(self, points: ArrayLike, spacing_m: ArrayLike | None = None) -> NoiseResult:
+        """Filter ``points`` ``(N, 2)`` (metres); ``spacing_m`` ``(N,)``: each point's beam spacing (its
+        range times the scanner's angular step, metres), which widens its neighbourhood by
+        ``spacing_factor``; ``None``: the fixed ``epsilon_m`` of the paper."""
         pts = as_points(points)
-        _, labels = dbscan_core_labels(pts, self.params.epsilon_m, self.params.min_points)
+        p = self.params
+        radius = None
+        if spacing_m is not None and p.spacing_factor > 0.0:
+            radius = np.maximum(p.spacing_factor * np.asarray(spacing_m, dtype=np.float64), p.epsilon_m)
+        _, labels = dbscan_core_labels(pts, p.epsilon_m, p.min_points, radius)
         keep = labels >= 0
         out = pts[keep]
         out_labels = labels[keep].astype(np.intp, copy=True)

@@ -47,7 +47,7 @@ def test_listing1_on_default_config() -> None:
     )
     kernels = config.build()
     dbscan, erosion = kernels[Stage.NOISE_REMOVAL]
-    assert dbscan.get_params() == {"epsilon_m": 0.05, "min_points": 15}
+    assert dbscan.get_params() == {"epsilon_m": 0.05, "min_points": 15, "spacing_factor": 1.4}
     assert erosion.get_params()["element"] == "PLUSx4"
     assert kernels[Stage.CLUSTERING][0].get_params()["n_clusters"] == 2
 

@@ -16,8 +16,8 @@ from shared.kernels.results import freeze
 from shared.pipeline import IcpGate, KernelChoice, Mode, Pipeline, PipelineConfig, StageSchedule
 from shared.pipeline.censoring import censored_returns
 from shared.pipeline.rangenoise import range_noise_for
-from shared.sim import RangeNoise, default_world, simulate_run, simulate_scan
-from shared.types import Pose2D, Scan, as_points
+from shared.sim import RangeNoise, World, default_world, polygon_walls, simulate_run, simulate_scan
+from shared.types import BeamGeometry, Pose2D, Scan, as_points
 
 
 class CountingParams(KernelParams):
@@ -305,3 +305,21 @@ def test_no_wall_of_the_simulated_room_crosses_a_true_one(seed: int) -> None:
         u = seg[2:] - seg[:2]
         cos = abs(float(u @ d[nearest])) / float(np.linalg.norm(u) * np.linalg.norm(d[nearest]))
         assert math.degrees(math.acos(min(cos, 1.0))) <= 8.0, seg
+
+
+def test_a_coarse_long_range_scanner_maps_the_far_walls_of_a_hall() -> None:
+    """A 1 deg scanner (a SICK LMS's layout) in a 24 m x 12 m hall: its returns of the side walls lie
+    10-40 cm apart, far beyond the paper's 5 cm epsilon, yet they are walls, and the map holds all four."""
+    geometry = BeamGeometry(-math.pi / 2, math.radians(1.0), 181, 0.1, 30.0)
+    hall = World(polygon_walls([(0.0, 0.0), (24.0, 0.0), (24.0, 12.0), (0.0, 12.0)]), 288.0, "hall")
+    rng = np.random.default_rng(3)
+    noise = RangeNoise(near_accuracy_m=0.02, far_accuracy_ratio=0.002, outlier_rate=0.02)
+    pipe = Pipeline(PipelineConfig())
+    for i in range(30):
+        pose = Pose2D(3.0 + 0.1 * i, 6.0, 0.0)
+        pipe.step(simulate_scan(hall, pose, rng, noise, geometry, stamp_s=0.1 * i))
+    segs = pipe.snapshot().segments
+    for axis, value in ((0, 24.0), (1, 0.0), (1, 12.0)):  # the end wall 21 m ahead, the sides 6 m away
+        on = (np.abs(segs[:, axis] - value) < 0.1) & (np.abs(segs[:, axis + 2] - value) < 0.1)
+        assert on.any(), f"wall at {'xy'[axis]} = {value} m missing"
+        assert np.abs(segs[on, 3 - axis] - segs[on, 1 - axis]).max() > 4.0

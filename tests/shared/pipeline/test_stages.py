@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
-from shared.kernels import REGISTRY, Stage
+from shared.kernels import REGISTRY, NoiseResult, Stage
+from shared.kernels.base import takes_spacing
+from shared.kernels.noise.dbscan import Dbscan
 from shared.pipeline.stages import Chunk, cluster, extract_lines, remove_noise
 
 
@@ -143,3 +147,37 @@ def test_noise_floored_uncertainty_takes_the_range_noise_as_the_least_scatter() 
     assert floored[2] == 0.0 and honest[2] == 0.0  # unknown stays unknown
     same = noise_floored_uncertainty(segs, chunk, sig, sd, NO_RANGE_NOISE)
     assert np.array_equal(same[0], sig) and np.array_equal(same[1], sd)
+
+
+def test_remove_noise_hands_the_beam_spacing_to_kernels_that_take_it() -> None:
+    """DBSCAN widens its neighbourhood to the returns' spacing; the erosion after it (no ``uses_spacing``)
+    gets the points alone; the spacing follows the kept points; chunks without one are the paper's."""
+    xs = np.arange(0.0, 3.0, 0.2)  # a wall sampled every 20 cm: noise at epsilon 5 cm
+    pts = np.column_stack([xs, np.full(len(xs), 8.0)])
+    groups = np.zeros(len(xs), dtype=np.intp)
+    spacing = np.full(len(xs), 0.2)
+    dbscan = REGISTRY.create(Stage.NOISE_REMOVAL, "dbscan", {})
+    assert takes_spacing(dbscan)
+    assert len(remove_noise([dbscan], Chunk.of(pts, groups)).points) == 0
+    out = remove_noise([dbscan], Chunk.of(pts, groups, (0.0, 0.0), spacing))
+    assert len(out.points) == len(xs)
+    assert out.spacing_m is not None and np.array_equal(out.spacing_m, spacing)
+    erosion = REGISTRY.create(Stage.NOISE_REMOVAL, "erosion", {})
+    assert not takes_spacing(erosion)
+    chained = remove_noise([dbscan, erosion], Chunk.of(pts, groups, (0.0, 0.0), spacing))
+    assert chained.spacing_m is not None and len(chained.spacing_m) == len(chained.points)
+
+
+def test_a_subclass_that_overrides_apply_without_spacing_is_called_with_points_alone() -> None:
+    """A kernel derived from DBSCAN whose ``apply`` takes the points only (written before the spacing
+    existed) inherits ``uses_spacing`` but is not handed an argument it cannot take."""
+
+    class Old(Dbscan):
+        def apply(self, points: Any) -> NoiseResult:  # type: ignore[override]
+            return super().apply(points)
+
+    xs = np.arange(0.0, 3.0, 0.02)
+    pts = np.column_stack([xs, np.full(len(xs), 2.0)])
+    chunk = Chunk.of(pts, np.zeros(len(xs), dtype=np.intp), (0.0, 0.0), np.full(len(xs), 0.02))
+    assert not takes_spacing(Old())
+    assert len(remove_noise([Old()], chunk).points) == len(xs)

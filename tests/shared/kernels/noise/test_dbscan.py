@@ -19,8 +19,9 @@ from shared.types import FloatArray, Scan
 # pair lying exactly at eps either way, so the exact-tie cases below pin algorithm="kd_tree".
 
 
-def sklearn_core_labels(points: FloatArray, eps: float, min_points: int,
-                        algorithm: str = "auto") -> tuple[np.ndarray, np.ndarray]:
+def sklearn_core_labels(
+    points: FloatArray, eps: float, min_points: int, algorithm: str = "auto"
+) -> tuple[np.ndarray, np.ndarray]:
     fit = DBSCAN(eps=eps, min_samples=min_points, algorithm=algorithm).fit(points)
     core = np.zeros(len(points), dtype=bool)
     core[fit.core_sample_indices_] = True
@@ -115,8 +116,13 @@ def test_border_point_between_two_clusters_takes_the_lower_cluster() -> None:
 
 def test_far_apart_coordinates() -> None:
     rng = np.random.default_rng(5)
-    pts = np.concatenate([rng.normal(0, 0.02, (50, 2)), rng.normal(0, 0.02, (50, 2)) + 1e5,
-                          rng.normal(0, 0.02, (50, 2)) - [3e4, 0]])
+    pts = np.concatenate(
+        [
+            rng.normal(0, 0.02, (50, 2)),
+            rng.normal(0, 0.02, (50, 2)) + 1e5,
+            rng.normal(0, 0.02, (50, 2)) - [3e4, 0],
+        ]
+    )
     assert_same_as_sklearn(pts, 0.03, 4)
 
 
@@ -146,10 +152,16 @@ def test_matches_sklearn_on_a_grid_with_ties_and_duplicates(
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), eps=st.floats(0.005, 0.5),
-       min_points=st.integers(1, 10), scale=st.floats(0.05, 5.0))
-def test_matches_sklearn_on_random_clustered_data(seed: int, n: int, eps: float, min_points: int,
-                                                  scale: float) -> None:
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(1, 400),
+    eps=st.floats(0.005, 0.5),
+    min_points=st.integers(1, 10),
+    scale=st.floats(0.05, 5.0),
+)
+def test_matches_sklearn_on_random_clustered_data(
+    seed: int, n: int, eps: float, min_points: int, scale: float
+) -> None:
     rng = np.random.default_rng(seed)
     centres = rng.uniform(-scale, scale, (max(1, n // 40), 2))
     pts = centres[rng.integers(0, len(centres), n)] + rng.normal(0.0, scale / 20, (n, 2))
@@ -190,7 +202,7 @@ def test_defaults_keep_walls_and_drop_isolated_outliers() -> None:
     outliers = rng.uniform(0.3, 2.5, (20, 2)) * [1.0, 0.0] + rng.uniform(-1, 1, (20, 2)) * [0.0, 1.0]
     res = Dbscan().apply(np.concatenate([wall, outliers]))
     assert res.keep[: len(wall)].mean() > 0.95
-    assert not res.keep[len(wall):].any()
+    assert not res.keep[len(wall) :].any()
 
 
 def test_empty_and_single_point() -> None:
@@ -205,3 +217,76 @@ def test_empty_and_single_point() -> None:
 def test_bad_parameters_are_rejected(bad: dict[str, float]) -> None:
     with pytest.raises(KernelParameterError, match=next(iter(bad))):
         Dbscan(bad)
+
+
+# --- neighbourhoods that follow the beam spacing ----------------------------------------------------
+
+
+def sklearn_core_labels_per_point(
+    points: FloatArray, radius: FloatArray, min_points: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """scikit-learn's DBSCAN on distances divided by the larger of the two points' radii, eps = 1."""
+    d = np.sqrt(((points[:, None, :] - points[None, :, :]) ** 2).sum(axis=2))
+    fit = DBSCAN(eps=1.0, min_samples=min_points, metric="precomputed").fit(
+        d / np.maximum(radius[:, None], radius[None, :])
+    )
+    core = np.zeros(len(points), dtype=bool)
+    core[fit.core_sample_indices_] = True
+    return core, fit.labels_
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_per_point_radii_match_sklearn_on_scaled_distances(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(20, 250))
+    pts = rng.uniform(-2.0, 2.0, (n, 2))
+    radius = rng.uniform(0.05, 0.4, n)
+    core, labels = dbscan_core_labels(pts, 0.05, 3, radius)
+    sk_core, sk_labels = sklearn_core_labels_per_point(pts, radius, 3)
+    np.testing.assert_array_equal(core, sk_core)
+    np.testing.assert_array_equal(labels, sk_labels)
+
+
+def test_radii_equal_to_epsilon_are_the_paper_dbscan() -> None:
+    pts = batch_points()
+    core, labels = dbscan_core_labels(pts, 0.05, 3)
+    core_r, labels_r = dbscan_core_labels(pts, 0.05, 3, np.full(len(pts), 0.05))
+    np.testing.assert_array_equal(core, core_r)
+    np.testing.assert_array_equal(labels, labels_r)
+
+
+def test_radii_of_the_wrong_shape_are_refused() -> None:
+    with pytest.raises(ValueError, match=r"radius_m has shape \(3,\): expected \(4,\)"):
+        dbscan_core_labels(np.zeros((4, 2)), 0.05, 3, np.ones(3))
+
+
+def _one_degree_scan_of_a_wall(distance_m: float) -> tuple[FloatArray, FloatArray]:
+    """Returns of a wall ``distance_m`` ahead seen by a 1 deg scanner within +-30 deg, and one lone return
+    2 m beside it; with each return's beam spacing (range x 1 deg)."""
+    angles = np.radians(np.arange(-30.0, 31.0, 1.0))
+    ranges = distance_m / np.cos(angles)
+    pts = np.column_stack([ranges * np.cos(angles), ranges * np.sin(angles)])
+    lone = np.array([[distance_m - 2.0, distance_m * 0.9]])
+    pts = np.vstack([pts, lone])
+    return pts, np.hypot(pts[:, 0], pts[:, 1]) * np.radians(1.0)
+
+
+def test_a_far_wall_of_a_coarse_scanner_is_kept_and_a_lone_return_is_not() -> None:
+    pts, spacing = _one_degree_scan_of_a_wall(12.0)  # 21 cm between returns
+    kernel = Dbscan()
+    paper = kernel.apply(pts)
+    assert not paper.keep[:-1].any()  # the paper's 5 cm: every return of the wall is "noise"
+    widened = kernel.apply(pts, spacing_m=spacing)
+    assert widened.keep[:-1].all()
+    assert not widened.keep[-1]
+    assert not Dbscan(spacing_factor=0.0).apply(pts, spacing_m=spacing).keep.any()
+
+
+def test_on_a_urg04lx_the_beam_spacing_changes_nothing() -> None:
+    """0.35 deg beams out to the URG-04LX's 5.6 m: 1.4 x the spacing stays below epsilon's 5 cm."""
+    pts = scan_points()
+    spacing = np.hypot(pts[:, 0], pts[:, 1]) * (2.0 * np.pi / 1024.0)
+    kernel = Dbscan()
+    a, b = kernel.apply(pts), kernel.apply(pts, spacing_m=spacing)
+    np.testing.assert_array_equal(a.keep, b.keep)
+    np.testing.assert_array_equal(a.labels, b.labels)
