@@ -23,6 +23,7 @@ Point-based kernels ignore non-finite input rows (they are noise); they accept r
 from __future__ import annotations
 
 import inspect
+import weakref
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from enum import StrEnum
@@ -183,11 +184,20 @@ class ScanMatchingKernel(Kernel[P], ABC):
 
 def takes_spacing(kernel: object) -> bool:
     """Whether ``kernel`` wants the points' beam spacing: its class sets ``uses_spacing`` and its ``apply``
-    accepts ``spacing_m`` (a subclass that overrides ``apply(points)`` does not). About 10 us."""
-    apply = getattr(kernel, "apply", None)
-    if not getattr(kernel, "uses_spacing", False) or apply is None:
-        return False
-    try:
-        return "spacing_m" in inspect.signature(apply).parameters
-    except (TypeError, ValueError):
-        return False
+    accepts ``spacing_m`` (a subclass that overrides ``apply(points)`` does not). O(1) after the first call
+    per class (the answer is cached by class)."""
+    cls = type(kernel)
+    known = _TAKES_SPACING.get(cls)
+    if known is None:
+        apply = getattr(cls, "apply", None)
+        known = False
+        if getattr(cls, "uses_spacing", False) and apply is not None:
+            try:
+                known = "spacing_m" in inspect.signature(apply).parameters
+            except (TypeError, ValueError):
+                known = False
+        _TAKES_SPACING[cls] = known
+    return known
+
+
+_TAKES_SPACING: weakref.WeakKeyDictionary[type, bool] = weakref.WeakKeyDictionary()
