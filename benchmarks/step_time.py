@@ -1,10 +1,11 @@
 """Online step time on the default simulated world and whole-log replay throughput, against a baseline tree.
 
 Issue 19's speed targets: the online step median <= 3 ms on the default world, and a whole-log replay
-(reading included) >= 300 scans/s. Each measurement runs in its own process (numba caches warm, the first
-step not counted); with ``--baseline DIR`` (an exported older tree, e.g. ``git archive <commit> | tar -x
--C DIR``) the baseline and this tree alternate ``--repeats`` times in the same session, and the medians
-and their ratio are printed, since the shared machine drifts by 20-40 % between runs.
+(reading and writing included, as ``linemap map`` does it) >= 300 scans/s. Each measurement runs in its
+own process (numba caches warm, the first step not counted); with ``--baseline DIR`` (an exported older
+tree, e.g. ``git archive <commit> | tar -x -C DIR``) the baseline and this tree alternate ``--repeats``
+times in the same session, and the medians and their ratio are printed, since the shared machine drifts
+by 20-40 % between runs.
 
     .venv/bin/python benchmarks/step_time.py [--baseline DIR] [--repeats 3] [--log mit-csail/mit-csail.clf.gz]
 """
@@ -27,9 +28,13 @@ DATA = ROOT / ".." / "shared" / "data"
 
 
 def measure(log: Path) -> dict[str, float]:
-    """Step median (ms) over the default world's scans and replay scans/s of ``log``, in this process."""
-    from shared.io import open_log
-    from shared.pipeline import Pipeline
+    """Step median (ms) over the default world's scans, and the scans/s of ``linemap map``'s own path over
+    ``log``: reading it, mapping it, and writing the GeoJSON map and the trajectory CSV, in this process
+    (the first step, which compiles, not counted)."""
+    import tempfile
+
+    from shared.cli.mapping import map_scans, open_source, write_outputs
+    from shared.pipeline import Pipeline, PipelineConfig
     from shared.sim import default_world, simulate_run
 
     run = simulate_run(default_world(), seed=0)
@@ -37,17 +42,18 @@ def measure(log: Path) -> dict[str, float]:
     for scan in run.scans:
         pipe.step(scan)
     step_ms, _ = pipe.timing_ms()
-    count = 0
-    with open_log(log) as reader:
-        pipe = Pipeline(laser_offset=reader.info.laser_offset)
-        start = time.perf_counter()
-        for scan in reader:
-            pipe.step(scan)
-            count += 1
-            if count == 1:  # the first step compiles: not throughput
-                start = time.perf_counter()
-        pipe.flush()
-    seconds = time.perf_counter() - start
+    marks: list[float] = []
+
+    def on_step(n: int) -> None:
+        if n == 1:  # the first step compiles: not throughput
+            marks.append(time.perf_counter())
+
+    with tempfile.TemporaryDirectory() as out:
+        source = open_source(str(log))
+        mapped = map_scans(source, PipelineConfig(), on_step=on_step)
+        write_outputs(mapped.snapshot, geojson=Path(out) / "map.geojson", trajectory=Path(out) / "poses.csv")
+        seconds = time.perf_counter() - marks[0]
+    count = mapped.scans
     return {"step_median_ms": step_ms, "replay_scans_per_s": (count - 1) / seconds if seconds > 0 else 0.0}
 
 

@@ -43,7 +43,7 @@ class Pose2D:
 
     def __matmul__(self, other: Pose2D) -> Pose2D:
         c, s = math.cos(self.theta_rad), math.sin(self.theta_rad)
-        return Pose2D(
+        return _composed(
             self.x_m + c * other.x_m - s * other.y_m,
             self.y_m + s * other.x_m + c * other.y_m,
             self.theta_rad + other.theta_rad,
@@ -56,7 +56,7 @@ class Pose2D:
     def inverse(self) -> Pose2D:
         """The transform that undoes this one: ``p @ p.inverse()`` is the identity."""
         c, s = math.cos(self.theta_rad), math.sin(self.theta_rad)
-        return Pose2D(-c * self.x_m - s * self.y_m, s * self.x_m - c * self.y_m, -self.theta_rad)
+        return _composed(-c * self.x_m - s * self.y_m, s * self.x_m - c * self.y_m, -self.theta_rad)
 
     def between(self, other: Pose2D) -> Pose2D:
         """The relative pose ``self^-1 @ other`` (other expressed in this frame)."""
@@ -82,3 +82,16 @@ class Pose2D:
     def as_tuple(self) -> tuple[float, float, float]:
         """``(x_m, y_m, theta_rad)``."""
         return (self.x_m, self.y_m, self.theta_rad)
+
+
+def _composed(x: float, y: float, theta: float) -> Pose2D:
+    """The pose ``(x, y, theta)`` computed from valid poses (floats already): what the constructor would
+    build, without its conversions (a pose step composes a few dozen; the checks were a tenth of the
+    arithmetic's cost). Non-finite results (an overflow) still go through the constructor's error."""
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
+        return Pose2D(x, y, theta)
+    pose = object.__new__(Pose2D)
+    object.__setattr__(pose, "x_m", x)
+    object.__setattr__(pose, "y_m", y)
+    object.__setattr__(pose, "theta_rad", wrap_angle(theta))
+    return pose

@@ -65,3 +65,23 @@ def test_between_is_relative_pose() -> None:
 def test_non_finite_rejected(bad: float) -> None:
     with pytest.raises(InvalidInputError, match="x_m"):
         Pose2D(bad, 0.0, 0.0)
+
+
+@given(
+    st.tuples(*[st.floats(-1e3, 1e3)] * 3),
+    st.tuples(*[st.floats(-1e3, 1e3)] * 3),
+)
+def test_composition_builds_what_the_constructor_builds(
+    a: tuple[float, float, float], b: tuple[float, float, float]
+) -> None:
+    """Composition and inverse skip the constructor's checks; their poses must equal constructed ones."""
+    p, q = Pose2D(*a), Pose2D(*b)
+    for pose in (p @ q, p.inverse(), p.between(q)):
+        again = Pose2D(pose.x_m, pose.y_m, pose.theta_rad)
+        assert pose == again and hash(pose) == hash(again)
+        assert -math.pi < pose.theta_rad <= math.pi
+
+
+def test_an_overflowing_composition_is_an_error() -> None:
+    with pytest.raises(InvalidInputError, match="x_m"):
+        Pose2D(1e308, 0.0, 0.0) @ Pose2D(1e308, 0.0, 0.0)

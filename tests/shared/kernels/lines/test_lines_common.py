@@ -6,11 +6,20 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from shared.errors import InvalidInputError
 from shared.kernels import REGISTRY, Stage
 from shared.kernels.lines import Hough, HoughCluster
-from shared.kernels.lines._common import MIN_LENGTH_M, build_lines, empty_lines, group_points, theta_grid
+from shared.kernels.lines._common import (
+    MAX_COORDINATE_M,
+    MIN_LENGTH_M,
+    build_lines,
+    empty_lines,
+    group_points,
+    theta_grid,
+)
 from tests.shared.kernels.lines.lines_helpers import assert_lines_valid
 
 
@@ -106,3 +115,44 @@ def test_absurd_coordinates_are_dropped_and_huge_groups_skipped() -> None:
     for kernel in (Hough(), HoughCluster()):
         assert kernel.apply(wide).n_lines == 0
         assert kernel.apply(wide, np.array([0, 0, -1, 0])).n_lines == 1
+
+
+def _numpy_grouping(points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, ...]:
+    """group_points' sort as plain numpy (its formulation before it was compiled): the reference."""
+    sane = (np.abs(points) <= MAX_COORDINATE_M).all(axis=1)
+    idx = np.flatnonzero(sane & (labels >= 0))
+    order = idx[np.argsort(labels[idx], kind="stable")]
+    sorted_lab = labels[order]
+    first = np.flatnonzero(np.diff(sorted_lab)) + 1
+    starts = (
+        np.concatenate(([0], first, [order.size])).astype(np.intp) if order.size else np.zeros(1, np.intp)
+    )
+    kept = sorted_lab[starts[:-1]]
+    return points[order], kept, starts, np.repeat(np.arange(kept.size, dtype=np.intp), np.diff(starts))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(allow_nan=True, allow_infinity=True, width=64),
+            st.floats(allow_nan=True, allow_infinity=True, width=64),
+            st.integers(-2, 6),
+        ),
+        max_size=40,
+    ),
+    st.booleans(),
+)
+def test_group_points_matches_its_numpy_formulation(
+    rows: list[tuple[float, float, int]], ascending: bool
+) -> None:
+    if ascending:
+        rows = sorted(rows, key=lambda r: r[2])
+    points = np.array([r[:2] for r in rows], dtype=np.float64).reshape(-1, 2)
+    labels = np.array([r[2] for r in rows], dtype=np.intp)
+    got = group_points(points, labels)
+    for want, have in zip(
+        _numpy_grouping(points, labels), (got.points, got.labels, got.starts, got.group_index), strict=True
+    ):
+        assert want.shape == have.shape
+        np.testing.assert_array_equal(want, have)
