@@ -45,6 +45,8 @@ __all__ = [
     "fuse_gated",
     "fuse_with_odometry",
     "hold_unseen_directions",
+    "linear_fusion",
+    "mahalanobis2",
     "odometry_information",
     "prepare_reference",
     "wheel_prior",
@@ -337,7 +339,37 @@ def fuse_gated(
         return matched
     if abs(math.remainder(fused.pose.theta_rad - matched.theta_rad, math.tau)) > gate.max_correction_rad:
         return matched  # Gauss-Newton fell into another basin: scans fix the heading, it must agree
+    if gate.fusion_chi2 > 0.0 and range_noise.near_m > 0.0:
+        linear, posterior = linear_fusion(odometry, matched, info, scan.information)
+        if mahalanobis2(fused.pose, linear, posterior) > gate.fusion_chi2:
+            return linear  # Gauss-Newton's associations pulled it beyond what the two estimates allow
     return fused.pose
+
+
+def linear_fusion(
+    odometry: Pose2D, matched: Pose2D, odometry_information: FloatArray, scan_information: FloatArray
+) -> tuple[Pose2D, FloatArray]:
+    """The information-weighted mean of two estimates of one motion and its information ``(3, 3)``:
+    ``odometry + (I_o + I_s)^-1 I_s (matched - odometry)``, the heading difference wrapped; in each
+    eigen-direction it lies between the two. O(1)."""
+    posterior = np.asarray(odometry_information, dtype=np.float64) + np.asarray(scan_information)
+    e = np.array(
+        [
+            matched.x_m - odometry.x_m,
+            matched.y_m - odometry.y_m,
+            math.remainder(matched.theta_rad - odometry.theta_rad, math.tau),
+        ]
+    )
+    step = np.linalg.solve(posterior + np.eye(3) * 1e-12, scan_information @ e)
+    pose = Pose2D(odometry.x_m + step[0], odometry.y_m + step[1], odometry.theta_rad + step[2])
+    return pose, posterior
+
+
+def mahalanobis2(a: Pose2D, b: Pose2D, information: FloatArray) -> float:
+    """Squared Mahalanobis distance of pose ``a`` from ``b`` under ``information`` ``(3, 3)`` (per m^2 and
+    rad^2; the heading difference wrapped). O(1)."""
+    d = np.array([a.x_m - b.x_m, a.y_m - b.y_m, math.remainder(a.theta_rad - b.theta_rad, math.tau)])
+    return float(d @ np.asarray(information) @ d)
 
 
 def _scan_at(

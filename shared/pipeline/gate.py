@@ -66,6 +66,12 @@ class IcpGate:
     fusion, 4 cm with it); on the benchmark logs (issue 19, same session) the fixed model gave ACES 0.168,
     Freiburg 079 0.060, MIT CSAIL 0.131 against 0.165, 0.048, 0.084 unfused, the learned factors 0.161,
     0.045, 0.086 (these figures swing by a third on float-level changes).
+    A fused pose must agree with the linear fusion of the match and odometry (their information-weighted
+    mean, :func:`shared.pipeline.fusion.linear_fusion`) within ``fusion_chi2`` (the squared Mahalanobis
+    distance under the posterior information; 11.34 is chi-square's 99 % point for 3 degrees of freedom);
+    one farther off (Gauss-Newton's point-to-line associations pulled it beyond both, 4 cm short of the
+    match and odometry alike in a simulated hall) is replaced by the linear fusion. Only for scanners with
+    a range-noise model, whose scan information is calibrated; 0 turns the test off.
     With ``refine_with_odometry`` the wall refinement's directions that the walls barely constrain
     (``refine_degeneracy``) move towards the odometry prediction by its share of the information along
     them, under the same noise figures (translation only) (:func:`shared.pipeline.localize.refine_to_walls`;
@@ -105,6 +111,7 @@ class IcpGate:
     odom_sigma_rad_per_rad: float = 0.1
     match_sigma_m: float = 0.02
     odom_huber: float = 3.0
+    fusion_chi2: float = 11.34
 
     @classmethod
     def legacy(cls) -> IcpGate:
