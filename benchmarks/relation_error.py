@@ -30,6 +30,7 @@ from rich.table import Table
 from shared.io import open_log
 from shared.metrics import RelationError, read_relations, relation_error
 from shared.pipeline import IcpGate, Pipeline, PipelineConfig
+from shared.slam import GraphMapper
 from shared.types import Pose2D
 
 __all__ = ["LOGS", "VARIANTS", "LogSpec", "Result", "main", "run"]
@@ -65,6 +66,11 @@ VARIANTS: dict[str, Callable[[], tuple[PipelineConfig, IcpGate]]] = {
     "refine": lambda: (PipelineConfig(), IcpGate(refine_with_odometry=True)),
 }
 
+#: variants mapped under the keyframe pose graph with loop closure (:mod:`shared.slam`)
+LOOP_VARIANTS: dict[str, Callable[[], tuple[PipelineConfig, IcpGate]]] = {
+    "loop": lambda: (PipelineConfig(), IcpGate()),
+}
+
 
 @dataclass(frozen=True, slots=True)
 class Result:
@@ -79,13 +85,16 @@ class Result:
 def run(spec: LogSpec, variant: str, progress: Progress, jitter_m: float = 0.0) -> Result:
     """Map ``spec``'s log with ``variant``, every odometry reading moved by ``jitter_m`` along x (module
     docstring); O(scans x step)."""
-    config, gate = VARIANTS[variant]()
+    config, gate = {**VARIANTS, **LOOP_VARIANTS}[variant]()
     stamps: list[float] = []
     poses: list[tuple[float, float, float]] = []
     odom: list[tuple[float, float, float]] = []
     task = progress.add_task(f"{spec.title} ({variant})", total=None)
     with open_log(DATA / spec.log) as reader:
-        pipeline = Pipeline(config, laser_offset=reader.info.laser_offset, icp_gate=gate)
+        offset = reader.info.laser_offset
+        pipeline: Pipeline | GraphMapper = Pipeline(config, laser_offset=offset, icp_gate=gate)
+        if variant in LOOP_VARIANTS:
+            pipeline = GraphMapper(lambda: Pipeline(config, laser_offset=offset, icp_gate=gate))
         start = time.perf_counter()
         for scan in reader:
             odo = scan.odometry
@@ -98,7 +107,15 @@ def run(spec: LogSpec, variant: str, progress: Progress, jitter_m: float = 0.0) 
             poses.append(result.pose.as_tuple())
             odom.append(scan.odometry.as_tuple() if scan.odometry is not None else (np.nan,) * 3)
             progress.advance(task)
-        pipeline.flush()
+        if isinstance(pipeline, GraphMapper):
+            pipeline.graph.optimise_batch()
+            poses = [tuple(row[1:]) for row in pipeline.trajectory()]
+            progress.console.log(
+                f"{spec.title}: {len(pipeline.keyframes)} keyframes, {len(pipeline.closures)} loop closures "
+                f"of {pipeline.candidates_tried} candidates"
+            )
+        else:
+            pipeline.flush()
         seconds = time.perf_counter() - start
     progress.remove_task(task)
     relations = read_relations(DATA / spec.relations)
@@ -119,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     """Command line: map the chosen logs with the chosen variants and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--logs", default=",".join(LOGS), help=f"comma-separated, of {', '.join(LOGS)}")
-    parser.add_argument("--variant", default="default", help=f"comma-separated, of {', '.join(VARIANTS)}")
+    names = [*VARIANTS, *LOOP_VARIANTS]
+    parser.add_argument("--variant", default="default", help=f"comma-separated, of {', '.join(names)}")
     parser.add_argument(
         "--jitter", type=int, default=0, help="K more replays per log, odometry moved by k nm (k = 1..K)"
     )
@@ -128,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--jitter {args.jitter}: expected 0 to 20 replays")
     logs = [name.strip() for name in args.logs.split(",") if name.strip()]
     variants = [name.strip() for name in args.variant.split(",") if name.strip()]
-    known = [(n, list(LOGS)) for n in logs] + [(v, list(VARIANTS)) for v in variants]
+    known = [(n, list(LOGS)) for n in logs] + [(v, names) for v in variants]
     for name, choices in known:
         if name not in choices:
             parser.error(f"unknown name {name!r}: expected one of {', '.join(choices)}")

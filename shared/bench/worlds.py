@@ -25,6 +25,7 @@ from shared.cli.mapping import MapRun, Source, map_scans
 from shared.metrics import absolute_trajectory_error, line_accuracy
 from shared.pipeline import PipelineConfig
 from shared.sim.worlds import KINDS, QUICK_KINDS, CaseRun, simulate_case
+from shared.slam import LoopClosureSettings
 from shared.types import FloatArray
 
 __all__ = ["QUICK_MAX_SCANS", "WorldResult", "measure_map", "run_case", "run_worlds", "summarize"]
@@ -84,13 +85,15 @@ def measure_map(case: CaseRun, segments: FloatArray, trajectory: FloatArray) -> 
     }
 
 
-def run_case(case: CaseRun, config: PipelineConfig | None = None) -> tuple[WorldResult, MapRun]:
-    """Map ``case`` offline (as ``linemap map`` does) and measure the map with :func:`measure_map`;
-    returns the figures and the mapping run."""
+def run_case(
+    case: CaseRun, config: PipelineConfig | None = None, loop_closure: LoopClosureSettings | None = None
+) -> tuple[WorldResult, MapRun]:
+    """Map ``case`` offline (as ``linemap map`` does; under the pose graph with ``loop_closure``) and
+    measure the map with :func:`measure_map`; returns the figures and the mapping run."""
     run = case.run
     name = f"{case.kind} seed {case.seed}"
     source = Source(name, run.scans, run.drive.laser_offset, len(run), run.world, run.trajectory())
-    mapped = map_scans(source, config or PipelineConfig())
+    mapped = map_scans(source, config or PipelineConfig(), loop_closure=loop_closure)
     figures = measure_map(case, mapped.snapshot.segments, mapped.snapshot.trajectory)
     result = WorldResult(
         kind=case.kind,
@@ -115,6 +118,7 @@ def run_worlds(
     config: PipelineConfig | None = None,
     pictures: Path | None = None,
     progress: Callable[[str, int, int], None] | None = None,
+    loop_closure: LoopClosureSettings | None = None,
 ) -> list[WorldResult]:
     """Run the suite: every kind in ``kinds`` (default: all; ``quick``: :data:`QUICK_KINDS`) with every
     seed, each case capped at :data:`QUICK_MAX_SCANS` scans when ``quick``. ``pictures``: a folder for one
@@ -129,7 +133,7 @@ def run_worlds(
         case = simulate_case(
             kind, seed, odometry=odometry, drive=drive, max_scans=QUICK_MAX_SCANS if quick else None
         )
-        result, mapped = run_case(case, config)
+        result, mapped = run_case(case, config, loop_closure)
         results.append(result)
         if pictures is not None:
             from shared.export import render_map

@@ -208,11 +208,35 @@ def map_cmd(
     ] = None,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the simulated run.")] = 0,
     limit: Annotated[int | None, typer.Option(min=1, help="Stop after this many scans.")] = None,
+    loop_closure: Annotated[
+        bool,
+        typer.Option(
+            "--loop-closure/--no-loop-closure",
+            help="Close loops with a keyframe pose graph and draw the map from its corrected poses.",
+        ),
+    ] = True,
+    loop_radius: Annotated[
+        float | None,
+        typer.Option("--loop-radius", help="Loop closure: search radius round the current pose (m; 4)."),
+    ] = None,
+    loop_min_inliers: Annotated[
+        float | None,
+        typer.Option(
+            "--loop-min-inliers", help="Loop closure: least share of returns a match explains (0.5)."
+        ),
+    ] = None,
 ) -> None:
     """Map a simulated world or a laser log into straight walls; print the accuracy when truth is known."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from shared.cli.mapping import MappingStoppedError, load_config, map_scans, open_source, write_outputs
+    from shared.cli.mapping import (
+        MappingStoppedError,
+        load_config,
+        loop_settings,
+        map_scans,
+        open_source,
+        write_outputs,
+    )
     from shared.cli.render import accuracy_table, run_summary
 
     stopped: MappingStoppedError | None = None
@@ -221,6 +245,7 @@ def map_cmd(
         raise typer.Exit(2)
     try:
         cfg = load_config(config)
+        loop = loop_settings(loop_closure, loop_radius, loop_min_inliers)
         src = open_source(source, log_format=log_format, seed=seed, scan_topic=topic, odom_topic=odom_topic)
         columns = [
             TextColumn("mapping {task.description}"),
@@ -239,7 +264,7 @@ def map_cmd(
                     progress.update(task, completed=n, rate=f"{rate:,.0f} scans/s")
 
             try:
-                run = map_scans(src, cfg, limit=limit, on_step=on_step)
+                run = map_scans(src, cfg, limit=limit, on_step=on_step, loop_closure=loop)
             except MappingStoppedError as stop:
                 run, stopped = stop.run, stop
         walls = src.world.walls if src.world is not None else None

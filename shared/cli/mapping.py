@@ -22,6 +22,7 @@ from shared.errors import LinemapError
 from shared.io.errors import NoScansError
 from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
 from shared.sim import World, default_world, load_world, simulate_run
+from shared.slam import GraphMapper, LoopClosureSettings
 from shared.types import FloatArray, Pose2D, Scan
 
 __all__ = [
@@ -30,6 +31,7 @@ __all__ = [
     "MappingStoppedError",
     "Source",
     "load_config",
+    "loop_settings",
     "map_scans",
     "no_scans",
     "open_source",
@@ -163,6 +165,8 @@ class MapRun:
     icp_used: int
     step_median_ms: float
     step_p99_ms: float
+    #: loop closures accepted (0 without the pose graph)
+    loop_closures: int = 0
 
     @property
     def scans_per_s(self) -> float:
@@ -176,13 +180,21 @@ def map_scans(
     *,
     limit: int | None = None,
     on_step: Callable[[int], None] | None = None,
+    loop_closure: LoopClosureSettings | None = None,
 ) -> MapRun:
     """Run the pipeline over every scan of ``source`` (at most ``limit``), then flush pending batches.
+
+    With ``loop_closure`` the pipeline runs under a keyframe pose graph (:class:`shared.slam.GraphMapper`):
+    loops are closed as they are found and the map is drawn again from the corrected poses at the end.
 
     A malformed record part-way through a log stops the run but loses nothing: :class:`MappingStoppedError`
     carries the map of the scans read before it.
     """
-    pipeline = Pipeline(config, laser_offset=source.laser_offset)
+    pipeline: Pipeline | GraphMapper
+    if loop_closure is None:
+        pipeline = Pipeline(config, laser_offset=source.laser_offset)
+    else:
+        pipeline = GraphMapper(lambda: Pipeline(config, laser_offset=source.laser_offset), loop_closure)
     count = icp = 0
     start = time.perf_counter()
     failure: LinemapError | None = None
@@ -205,13 +217,30 @@ def map_scans(
                 on_step(count)
     if count == 0 and source.log_path is not None and (limit is None or limit > 0):
         raise no_scans(source, failure)  # an empty map from an empty or foreign file is not a result
-    pipeline.flush()
+    if isinstance(pipeline, GraphMapper):
+        snapshot = pipeline.finish()
+        median, p99 = pipeline.front.timing_ms()
+    else:
+        pipeline.flush()
+        snapshot = pipeline.snapshot()
+        median, p99 = pipeline.timing_ms()
     seconds = time.perf_counter() - start
-    median, p99 = pipeline.timing_ms()
-    run = MapRun(pipeline.snapshot(), count, seconds, icp, median, p99)
+    closures = len(pipeline.closures) if isinstance(pipeline, GraphMapper) else 0
+    run = MapRun(snapshot, count, seconds, icp, median, p99, closures)
     if failure is not None:
         raise MappingStoppedError(failure, run)
     return run
+
+
+def loop_settings(
+    enabled: bool, search_radius_m: float | None = None, min_inlier_share: float | None = None
+) -> LoopClosureSettings | None:
+    """The command line's loop-closure choices as settings (``None`` when off); a bad value raises
+    :class:`shared.slam.LoopClosureSettingsError` naming it."""
+    if not enabled:
+        return None
+    given = {"search_radius_m": search_radius_m, "min_inlier_share": min_inlier_share}
+    return LoopClosureSettings.parse({k: v for k, v in given.items() if v is not None})
 
 
 class MappingStoppedError(LinemapError):

@@ -159,6 +159,7 @@ def run_summary(name: str, run: MapRun) -> Table:
         ("scans corrected by ICP", f"{run.icp_used:,} ({100 * run.icp_used / max(run.scans, 1):.0f} %)"),
         ("walls / total length", f"{len(snap.segments):,} / {length:,.1f} m"),
         ("centroids", f"{len(snap.centroids):,}"),
+        ("loop closures", f"{run.loop_closures:,}"),
     ]
     for what, value in rows:
         table.add_row(what, value)

@@ -16,6 +16,7 @@ from rich.table import Table
 from shared.bench.worlds import WorldResult, summarize
 from shared.cli.report import parse_seeds
 from shared.errors import LinemapError
+from shared.slam import LoopClosureSettings
 
 __all__ = ["COLUMNS", "bench_worlds_cmd", "worlds_markdown", "worlds_rows", "worlds_table"]
 
@@ -151,6 +152,13 @@ def bench_worlds_cmd(
     ] = None,
     markdown: Annotated[bool, typer.Option("--markdown", help="Print a Markdown table instead.")] = False,
     list_kinds: Annotated[bool, typer.Option("--list", help="List the world kinds and exit.")] = False,
+    loop_closure: Annotated[
+        bool,
+        typer.Option(
+            "--loop-closure/--no-loop-closure",
+            help="Map under the keyframe pose graph with loop closure (the map drawn from its poses).",
+        ),
+    ] = False,
 ) -> None:
     """Map every world of the scenario suite (issue 19) offline and print, per world and seed, wall error,
     completeness, spurious share, wall count, trajectory error beside odometry's, and throughput."""
@@ -182,7 +190,14 @@ def bench_worlds_cmd(
                 progress.update(task, description=f"mapping {label}", completed=done, total=total)
 
             results = run_worlds(
-                kinds, seed_list, quick=quick, odometry=odometry, drive=drive, pictures=out, progress=note
+                kinds,
+                seed_list,
+                quick=quick,
+                odometry=odometry,
+                drive=drive,
+                pictures=out,
+                progress=note,
+                loop_closure=LoopClosureSettings() if loop_closure else None,
             )
         if json_path is not None:
             data = {
@@ -192,6 +207,7 @@ def bench_worlds_cmd(
                     "quick": quick,
                     "odometry": odometry,
                     "drive": drive,
+                    "loop_closure": loop_closure,
                 },
                 "results": [r.as_dict() for r in results],
                 "summary": summarize(results),

@@ -125,6 +125,7 @@ class Pipeline:
         self._key_points: FloatArray | None = None  # keyframe scan points, scanner frame
         self._key_odom: Pose2D | None = None  # odometry at the keyframe
         self._key_ref: Reference | None = None  # its lines and grid for the fusion, built when first needed
+        self._points: FloatArray = np.zeros((0, 2))  # the last scan's returns the pose took (scanner frame)
         self._next_group = 0
         self._version = 0
         self._stamp = 0.0
@@ -151,8 +152,12 @@ class Pipeline:
         log.info("pipeline reconfigured: mode=%s", config.mode)
 
     # ------------------------------------------------------------------ stepping
-    def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
-        """Process one scan; ``odometry`` (robot pose from the wheels) defaults to ``scan.odometry``."""
+    def step(self, scan: Scan, odometry: Pose2D | None = None, *, pose: Pose2D | None = None) -> StepResult:
+        """Process one scan; ``odometry`` (robot pose from the wheels) defaults to ``scan.odometry``.
+
+        ``pose`` (world frame) fixes the robot pose instead of estimating it: mapping with known poses, as
+        a pose graph's corrected trajectory gives them (:mod:`shared.slam`); the localisation maps are
+        then left alone."""
         t0 = time.perf_counter()
         odom = odometry if odometry is not None else scan.odometry
         seg = self._kernels[Stage.SEGMENTATION][0].apply(scan)
@@ -164,13 +169,17 @@ class Pipeline:
         censored = censored_returns(scan, seg.beam_index, noise)
         if censored.any():
             points, labels = points[~censored], labels[~censored]
-        icp_used = self._estimate_pose(odom, points, noise)
+        self._points = points
+        if pose is None:
+            icp_used = self._estimate_pose(odom, points, noise)
+        else:
+            self._pose, self._prev_odom, icp_used = pose, odom, False
         assert self._pose is not None
         laser = self._pose @ self._offset
         world = laser.transform_points(points) if len(points) else np.zeros((0, 2))
         groups = np.where(labels >= 0, labels + self._next_group, -1).astype(np.intp)
         self._next_group += seg.n_segments
-        if self._gate.refine_to_map and len(world):
+        if self._gate.refine_to_map and len(world) and pose is None:
             segments = self._loc_lines.apply(world, groups).segments
             for local in self._loc_maps:
                 local.add_segments(segments)
@@ -431,6 +440,27 @@ class Pipeline:
     def version(self) -> int:
         """Increases with every step (and every flush that ran a stage)."""
         return self._version
+
+    @property
+    def scan_points(self) -> FloatArray:
+        """The last step's returns that the pose estimate took ``(N, 2)``: scanner frame, metres, beam
+        order, returns biased by the range limit left out (:mod:`shared.pipeline.censoring`). O(1)."""
+        return self._points
+
+    @property
+    def gate(self) -> IcpGate:
+        """The scan-match gate and odometry noise figures in force."""
+        return self._gate
+
+    @property
+    def laser_offset(self) -> Pose2D:
+        """The scanner's pose in the robot frame."""
+        return self._offset
+
+    @property
+    def range_noise(self) -> RangeNoise:
+        """The scanner's range noise model in force (read from the last scan unless given)."""
+        return self._noise
 
     @property
     def pose(self) -> Pose2D:

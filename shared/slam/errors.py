@@ -1,0 +1,20 @@
+"""Errors of the pose-graph package: one root, :class:`SlamError`, under
+:class:`shared.errors.LinemapError`."""
+
+from __future__ import annotations
+
+from shared.errors import LinemapError
+
+__all__ = ["LoopClosureSettingsError", "OptimisationError", "SlamError"]
+
+
+class SlamError(LinemapError):
+    """Root of the errors :mod:`shared.slam` raises on purpose."""
+
+
+class LoopClosureSettingsError(SlamError, ValueError):
+    """A loop-closure setting is out of its range; the message names it, its value and what is allowed."""
+
+
+class OptimisationError(SlamError):
+    """The pose-graph optimiser failed (gtsam raised); the graph before the update stays in force."""

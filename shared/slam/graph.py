@@ -1,0 +1,186 @@
+"""A 2D pose graph on gtsam: keyframe poses as nodes, relative-pose edges with their information.
+
+Sequential edges (the front end's motion between consecutive keyframes) are Gaussian; loop-closure edges
+carry a Cauchy kernel (``robust_sigmas`` wide, in standard deviations of the edge): a closure whose
+residual is far beyond its covariance, as a false one is, pulls with a weight ``1 / (1 + (r / k)^2)`` and
+cannot drag the map after it. The graph is solved incrementally with iSAM2 (Kaess et al. 2012) as nodes and
+edges arrive; :meth:`PoseGraph.optimise_batch` re-solves the whole graph with Levenberg-Marquardt (the
+offline final pass). gtsam's ``Pose2`` tangent order ``(x, y, theta)`` is the order of every information
+matrix here (per m^2, m rad, rad^2).
+
+An update that gtsam refuses (an indeterminate system, a non-finite value) raises
+:class:`~shared.slam.errors.OptimisationError`; the estimate from before it stays in force.
+
+Cost: iSAM2's update is O(affected nodes) per keyframe; a loop closure re-solves the nodes of the loop.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from shared.slam.errors import OptimisationError
+from shared.types import FloatArray, Pose2D
+
+__all__ = ["Edge", "PoseGraph"]
+
+
+@dataclass(frozen=True, slots=True)
+class Edge:
+    """A relative-pose measurement ``j`` in the frame of ``i``, its information ``(3, 3)``, and whether it
+    closes a loop (robust) or follows the chain (Gaussian)."""
+
+    i: int
+    j: int
+    measurement: Pose2D
+    information: FloatArray
+    loop: bool
+
+
+def _pose2(p: Pose2D) -> gtsam.Pose2:
+    return gtsam.Pose2(p.x_m, p.y_m, p.theta_rad)
+
+
+def _pose(p: gtsam.Pose2) -> Pose2D:
+    return Pose2D(float(p.x()), float(p.y()), float(p.theta()))
+
+
+def _local(information: FloatArray, measurement: Pose2D) -> FloatArray:
+    """``information`` over a relative pose's coordinates in the frame of its first node, expressed in the
+    measurement's own frame (gtsam's tangent space of ``Pose2``): ``B^T I B`` with ``B = diag(R, 1)``,
+    ``R`` the measurement's rotation (to first order). O(1)."""
+    c, s = math.cos(measurement.theta_rad), math.sin(measurement.theta_rad)
+    b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    out: FloatArray = b.T @ information @ b
+    return 0.5 * (out + out.T)
+
+
+class PoseGraph:
+    """Keyframe poses ``0..n-1`` (world frame) under sequential and loop-closure edges."""
+
+    def __init__(self, *, robust_sigmas: float = 3.0, extra_iterations: int = 2) -> None:
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(0.01)
+        params.relinearizeSkip = 1
+        self._params = params
+        self._isam = gtsam.ISAM2(params)
+        self._robust_sigmas = robust_sigmas
+        self._extra = extra_iterations
+        self._new_factors = gtsam.NonlinearFactorGraph()
+        self._new_values = gtsam.Values()
+        self._estimate: list[Pose2D] = []
+        self._first: Pose2D | None = None
+        self._edges: list[Edge] = []
+        self._loop_pending = False
+
+    # ------------------------------------------------------------------ building
+    def __len__(self) -> int:
+        return len(self._estimate)
+
+    @property
+    def edges(self) -> tuple[Edge, ...]:
+        """Every edge added so far, in order."""
+        return tuple(self._edges)
+
+    def add_node(self, guess: Pose2D) -> int:
+        """A new node at ``guess`` (world frame); the first is anchored there. Returns its index."""
+        index = len(self._estimate)
+        self._new_values.insert(index, _pose2(guess))
+        if index == 0:
+            self._first = guess
+            anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
+            self._new_factors.add(gtsam.PriorFactorPose2(0, _pose2(guess), anchor))
+        self._estimate.append(guess)
+        return index
+
+    def add_edge(self, i: int, j: int, measurement: Pose2D, information: FloatArray, *, loop: bool) -> None:
+        """Measurement of node ``j`` in the frame of node ``i`` with ``information`` (positive definite)
+        over its coordinates ``(x, y, theta)`` in that frame (as a scan match gives it). gtsam's error of
+        a between factor is taken in the measurement's own frame; the information is rotated into it."""
+        info = np.asarray(information, dtype=np.float64)
+        if info.shape != (3, 3) or not np.isfinite(info).all() or np.linalg.eigvalsh(info)[0] <= 0.0:
+            raise OptimisationError(f"edge {i}->{j}: information {info.tolist()} is not positive definite")
+        self._edges.append(Edge(i, j, measurement, info, loop))
+        self._loop_pending = self._loop_pending or loop
+        self._new_factors.add(
+            gtsam.BetweenFactorPose2(i, j, _pose2(measurement), self._noise(_local(info, measurement), loop))
+        )
+
+    def _noise(self, info: FloatArray, loop: bool) -> gtsam.noiseModel.Base:
+        gaussian = gtsam.noiseModel.Gaussian.Information(info)
+        if not loop:
+            return gaussian
+        kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(self._robust_sigmas)
+        return gtsam.noiseModel.Robust.Create(kernel, gaussian)
+
+    # ------------------------------------------------------------------ solving
+    def update(self) -> None:
+        """Take the new nodes and edges into the incremental solution (iSAM2), a few relinearisations
+        more when a loop edge arrived."""
+        if self._new_factors.size() == 0 and self._new_values.size() == 0:
+            return
+        loops, self._loop_pending = self._loop_pending, False
+        try:
+            self._isam.update(self._new_factors, self._new_values)
+            for _ in range(self._extra if loops else 0):
+                self._isam.update()
+            result = self._isam.calculateEstimate()
+        except RuntimeError as exc:
+            raise OptimisationError(f"iSAM2 refused the update: {exc}") from exc
+        finally:
+            self._new_factors = gtsam.NonlinearFactorGraph()
+            self._new_values = gtsam.Values()
+        self._estimate = [_pose(result.atPose2(k)) for k in range(len(self._estimate))]
+
+    def optimise_batch(self, max_iterations: int = 100) -> None:
+        """Re-solve the whole graph with Levenberg-Marquardt from the current estimate (offline)."""
+        self.update()
+        if not self._estimate:
+            return
+        graph = gtsam.NonlinearFactorGraph()
+        assert self._first is not None
+        anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
+        graph.add(gtsam.PriorFactorPose2(0, _pose2(self._first), anchor))
+        for e in self._edges:
+            graph.add(
+                gtsam.BetweenFactorPose2(
+                    e.i, e.j, _pose2(e.measurement), self._noise(_local(e.information, e.measurement), e.loop)
+                )
+            )
+        initial = gtsam.Values()
+        for k, p in enumerate(self._estimate):
+            initial.insert(k, _pose2(p))
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(max_iterations)
+        try:
+            result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+        except RuntimeError as exc:
+            raise OptimisationError(f"batch optimisation failed: {exc}") from exc
+        poses = [_pose(result.atPose2(k)) for k in range(len(self._estimate))]
+        if all(math.isfinite(p.x_m) for p in poses):
+            self._estimate = poses
+
+    # ------------------------------------------------------------------ reading
+    def pose(self, index: int) -> Pose2D:
+        """The current estimate of node ``index`` (world frame)."""
+        return self._estimate[index]
+
+    def poses(self) -> list[Pose2D]:
+        """Every node's current estimate, in order."""
+        return list(self._estimate)
+
+    def residual_sigmas(self, edge: Edge) -> float:
+        """How far the current estimate is from ``edge``'s measurement, in the edge's standard deviations
+        (Mahalanobis distance). A loop edge far beyond ``robust_sigmas`` is one the kernel outvoted."""
+        predicted = self._estimate[edge.i].between(self._estimate[edge.j])
+        d = np.array(
+            [
+                predicted.x_m - edge.measurement.x_m,
+                predicted.y_m - edge.measurement.y_m,
+                math.remainder(predicted.theta_rad - edge.measurement.theta_rad, math.tau),
+            ]
+        )
+        return float(math.sqrt(max(float(d @ edge.information @ d), 0.0)))

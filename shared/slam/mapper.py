@@ -1,0 +1,292 @@
+"""Mapping with loop closure: the front end's poses under a keyframe pose graph, the map rebuilt from the
+corrected poses.
+
+:class:`GraphMapper` drives a :class:`~shared.pipeline.Pipeline` (the front end: scan matching fused with
+odometry, the local wall refinement) one scan at a time and keeps, beside it,
+
+- **keyframes**: every ``keyframe_m`` of travel or ``keyframe_rad`` of turn, the front end's pose and the
+  scan's returns (robot frame) that the pose estimate took;
+- **sequential edges** between consecutive keyframes: the front end's relative pose, with the information
+  of the scan match between the two keyframes (:mod:`shared.slam.information`: across walls, not along a
+  featureless corridor) plus odometry's (its noise model scaled by the factors the front end learned),
+  and a covariance floor for what the front end drifts between keyframes (``SEQ_FLOOR_*``: 5 mm + 1 % of
+  the travel, 0.06 degrees + 0.23 degrees per metre + 1 % of the turn);
+- **loop-closure edges** (:mod:`shared.slam.closure`): verified matches of the current keyframe against
+  an earlier place, robust in the graph (:mod:`shared.slam.graph`).
+
+The corrected pose of step ``s`` is ``G(k) F(k)^-1 F(s)`` for the last keyframe ``k`` at or before it
+(``F`` the front end's pose, ``G`` the graph's): the front end runs undisturbed in its own frame, and the
+graph moves its keyframes. The map is a function of the graph: :meth:`GraphMapper.finish` optimises the
+whole graph once more (``final_batch``) and maps every scan again at its corrected pose with a fresh
+pipeline (:meth:`shared.pipeline.Pipeline.step` with ``pose``), so walls drawn twice before a loop was
+closed come out once.
+
+Memory: the keyframes' returns (about 2 x 150 floats each after thinning... in full here: a keyframe
+holds every return it took) and the scans themselves for the rebuild (8 bytes a beam).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from shared.kernels import REGISTRY, Stage
+from shared.pipeline import MapSnapshot, Pipeline
+from shared.pipeline.fusion import mahalanobis2, odometry_information
+from shared.pipeline.pipeline import StepResult
+from shared.slam.closure import LoopMatch, candidates, stacked, verify
+from shared.slam.errors import OptimisationError
+from shared.slam.graph import PoseGraph
+from shared.slam.information import scan_edge
+from shared.slam.settings import LoopClosureSettings
+from shared.types import FloatArray, Pose2D, Scan
+
+__all__ = ["GraphMapper", "Keyframe", "LoopClosure"]
+
+log = logging.getLogger(__name__)
+
+#: what a scan-to-scan edge misses beyond its point-to-line information (one sigma): m, per m of the
+#: edge's translation; rad, rad per m, rad per rad of its turn
+SEQ_FLOOR_M = 0.002
+SEQ_FLOOR_PER_M = 0.005
+SEQ_FLOOR_RAD = 0.0003
+SEQ_FLOOR_RAD_PER_M = 0.0005
+SEQ_FLOOR_RAD_PER_RAD = 0.005
+#: a loop closure's two estimates (ICP against the submap, point-to-line against the candidate keyframe's
+#: scan) must agree within chi-square's 99 % point for 3 degrees of freedom under the second's
+#: information: where they do not, one of them paired returns wrongly (clutter seen from another side)
+AGREEMENT_CHI2 = 11.34
+
+
+@dataclass(frozen=True, slots=True)
+class Keyframe:
+    """A keyframe: its step, the front end's robot pose then, odometry then, the returns (robot frame and
+    scanner frame in beam order, m) and the distance travelled up to it (m, by the front end's poses)."""
+
+    step: int
+    frontend: Pose2D
+    odometry: Pose2D | None
+    points: FloatArray
+    scan: FloatArray
+    travelled_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class LoopClosure:
+    """An accepted loop closure: keyframe ``current`` seen in keyframe ``candidate``'s frame at ``pose``."""
+
+    current: int
+    candidate: int
+    pose: Pose2D
+    inlier_share: float
+
+
+def _with_floor(information: FloatArray, motion: Pose2D) -> FloatArray:
+    """``(information^-1 + floor)^-1`` for an edge over ``motion``, the floor ``SEQ_FLOOR_*`` (computed
+    without inverting a singular ``information``: Woodbury). O(1)."""
+    dist = math.hypot(motion.x_m, motion.y_m)
+    s_xy = SEQ_FLOOR_M + SEQ_FLOOR_PER_M * dist
+    s_th = SEQ_FLOOR_RAD + SEQ_FLOOR_RAD_PER_M * dist + SEQ_FLOOR_RAD_PER_RAD * abs(motion.theta_rad)
+    f_inv = np.diag([1.0 / s_xy**2, 1.0 / s_xy**2, 1.0 / s_th**2])
+    out: FloatArray = f_inv - f_inv @ np.linalg.solve(np.asarray(information) + f_inv, f_inv)
+    return 0.5 * (out + out.T) + np.eye(3) * 1e-6
+
+
+class GraphMapper:
+    """The front end under a pose graph (module docstring). ``make_pipeline`` builds a pipeline (called
+    once for the front end and once for the final map)."""
+
+    def __init__(
+        self, make_pipeline: Callable[[], Pipeline], settings: LoopClosureSettings | None = None
+    ) -> None:
+        self._make = make_pipeline
+        self.settings = settings or LoopClosureSettings()
+        self.front = make_pipeline()
+        self.graph = PoseGraph(robust_sigmas=self.settings.robust_sigmas)
+        self._matcher = REGISTRY.create(
+            Stage.SCAN_MATCHING, "icp", {"max_correspondence_m": 0.3, "refine_correspondence_m": 0.1}
+        )
+        self.keyframes: list[Keyframe] = []
+        self.closures: list[LoopClosure] = []
+        self.candidates_tried = 0
+        self.optimise_ms: list[float] = []
+        self._steps: list[tuple[float, Pose2D, int]] = []  # stamp, front-end pose, keyframe index
+        self._travelled = 0.0
+        self._last: Pose2D | None = None
+        self._scans: list[tuple[Scan, Pose2D | None]] = []
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
+        """One scan through the front end, then the graph; the result's pose is the corrected one."""
+        result = self.front.step(scan, odometry)
+        odom = odometry if odometry is not None else scan.odometry
+        self._scans.append((scan, odometry))
+        pose = result.pose
+        if self._last is not None:
+            self._travelled += math.hypot(*self._last.between(pose).as_tuple()[:2])
+        self._last = pose
+        if self._is_keyframe(pose):
+            self._add_keyframe(len(self._steps), pose, odom)
+        self._steps.append((scan.stamp_s, pose, len(self.keyframes) - 1))
+        return replace(result, pose=self.pose)
+
+    def _is_keyframe(self, pose: Pose2D) -> bool:
+        if not self.keyframes:
+            return True
+        moved = self.keyframes[-1].frontend.between(pose)
+        s = self.settings
+        return math.hypot(moved.x_m, moved.y_m) >= s.keyframe_m or abs(moved.theta_rad) >= s.keyframe_rad
+
+    def _add_keyframe(self, step: int, pose: Pose2D, odom: Pose2D | None) -> None:
+        offset = self.front.laser_offset
+        scan = self.front.scan_points
+        points = offset.transform_points(scan) if len(scan) else np.zeros((0, 2))
+        key = Keyframe(step, pose, odom, points, scan, self._travelled)
+        if not self.keyframes:
+            self.keyframes.append(key)
+            self.graph.add_node(pose)
+            self.graph.update()
+            return
+        prev = self.keyframes[-1]
+        k_prev = len(self.keyframes) - 1
+        motion = prev.frontend.between(pose)
+        guess = self.graph.pose(k_prev) @ motion
+        self.keyframes.append(key)
+        k = self.graph.add_node(guess)
+        self.graph.add_edge(k_prev, k, motion, self._sequential_information(prev, key, motion), loop=False)
+        if self.settings.enabled:
+            for match in self._loop_matches(k):
+                edge = self._loop_edge(match, k)
+                if edge is None:
+                    continue
+                pose, info = edge
+                self.graph.add_edge(match.candidate, k, pose, info, loop=True)
+                self.closures.append(LoopClosure(k, match.candidate, pose, match.inlier_share))
+        t0 = time.perf_counter()
+        try:
+            self.graph.update()
+        except OptimisationError as exc:
+            log.warning("pose graph: %s; keeping the estimate from before", exc)
+        self.optimise_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _scan_edge(
+        self, ref: Keyframe, cur: Keyframe, motion: Pose2D, refine: bool
+    ) -> tuple[Pose2D, FloatArray] | None:
+        return scan_edge(
+            ref.scan,
+            cur.scan,
+            motion,
+            self.front.laser_offset,
+            sigma_m=self.front.gate.match_sigma_m,
+            range_noise=self.front.range_noise,
+            refine=refine,
+        )
+
+    def _loop_edge(self, match: LoopMatch, k: int) -> tuple[Pose2D, FloatArray] | None:
+        """The searched loop closure refined point-to-line against the candidate keyframe's own scan, with
+        that match's information and the floor; ``None`` when the refinement finds too few pairs or the
+        two estimates disagree (``AGREEMENT_CHI2``)."""
+        refined = self._scan_edge(self.keyframes[match.candidate], self.keyframes[k], match.pose, refine=True)
+        if refined is None:
+            return None
+        pose, info = refined
+        info = _with_floor(info, Pose2D(pose.x_m, pose.y_m, 0.0))  # a view, not a turn: no turn term
+        if mahalanobis2(match.pose, pose, info) > AGREEMENT_CHI2:
+            return None
+        return pose, info
+
+    def _sequential_information(self, prev: Keyframe, key: Keyframe, motion: Pose2D) -> FloatArray:
+        """The front end's motion between two keyframes: scan information plus odometry's, then the floor."""
+        edge = self._scan_edge(prev, key, motion, refine=False)
+        info = edge[1].copy() if edge is not None else np.zeros((3, 3))
+        if prev.odometry is not None and key.odometry is not None:
+            g = self.front.gate
+            odo_motion = prev.odometry.between(key.odometry)
+            model = odometry_information(
+                odo_motion,
+                sigma_m=g.odom_sigma_m,
+                sigma_ratio=g.odom_sigma_ratio,
+                sigma_rad=g.odom_sigma_rad,
+                sigma_rad_per_rad=g.odom_sigma_rad_per_rad,
+            )
+            k = self.front.odometry_noise.scale
+            d = 1.0 / np.sqrt([k.translation, k.translation, k.heading])
+            info = info + model * np.outer(d, d)
+        return _with_floor(info, motion)
+
+    def _loop_matches(self, k: int) -> list[LoopMatch]:
+        """Verified loop closures of keyframe ``k`` against its candidates."""
+        poses = self.graph.poses()
+        positions = np.array([[p.x_m, p.y_m] for p in poses])
+        travelled = np.array([kf.travelled_m for kf in self.keyframes])
+        found: list[LoopMatch] = []
+        for c in candidates(positions, travelled, k, self.settings):
+            self.candidates_tried += 1
+            lo = max(c - self.settings.submap_keyframes, 0)
+            hi = min(c + self.settings.submap_keyframes, k - 1)
+            origin = poses[c]
+            parts = [
+                origin.between(poses[m]).transform_points(self.keyframes[m].points)
+                for m in range(lo, hi + 1)
+                if len(self.keyframes[m].points)
+                and self.keyframes[m].travelled_m <= travelled[k] - self.settings.recent_m
+            ]
+            guess = origin.between(poses[k])
+            match = verify(
+                stacked(parts),
+                self.keyframes[k].points,
+                guess,
+                c,
+                self.settings,
+                self._matcher,
+                range_noise=self.front.range_noise,
+            )
+            if match is not None:
+                found.append(match)
+        return found
+
+    # ------------------------------------------------------------------ reading
+    @property
+    def pose(self) -> Pose2D:
+        """The corrected robot pose now (world frame)."""
+        if not self._steps:
+            return Pose2D()
+        return self._corrected(self._steps[-1][1], self._steps[-1][2])
+
+    def _corrected(self, frontend: Pose2D, key: int) -> Pose2D:
+        kf = self.keyframes[key]
+        return self.graph.pose(key) @ kf.frontend.between(frontend)
+
+    def trajectory(self) -> FloatArray:
+        """The corrected trajectory ``(N, 4)``: stamp (s), x, y (m), heading (rad) per step. O(N)."""
+        rows = [(t, *self._corrected(p, k).as_tuple()) for t, p, k in self._steps]
+        return np.asarray(rows, dtype=np.float64).reshape(-1, 4)
+
+    def finish(self) -> MapSnapshot:
+        """Optimise the whole graph once more (``final_batch``) and map every scan again at its corrected
+        pose; the snapshot's trajectory is the corrected one. O(scans x map step)."""
+        if self.settings.final_batch and len(self.graph) > 1:
+            t0 = time.perf_counter()
+            try:
+                self.graph.optimise_batch()
+            except OptimisationError as exc:
+                log.warning("pose graph: %s; keeping the incremental estimate", exc)
+            self.optimise_ms.append((time.perf_counter() - t0) * 1e3)
+        self.front.flush()
+        if not self.settings.enabled or not self.closures:
+            return self.front.snapshot()
+        rebuilt = self._make()
+        corrected = self.trajectory()
+        for (scan, odometry), row in zip(self._scans, corrected, strict=True):
+            rebuilt.step(scan, odometry, pose=Pose2D(row[1], row[2], row[3]))
+        rebuilt.flush()
+        return rebuilt.snapshot()
+
+    def scans(self) -> Iterable[Scan]:
+        """The scans stepped so far, in order (kept for the rebuild)."""
+        return (s for s, _ in self._scans)
