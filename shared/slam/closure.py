@@ -10,16 +10,18 @@ submap (its own returns and those of ``submap_keyframes`` keyframes either side,
 estimate) in three steps, each finer than the last:
 
 1. a correlative search over the whole window (+-``window_m``, +-``window_rad``, 10 cm cells) round the
-   graph's guess (Olson 2009, :func:`shared.kernels.matching._search.correlative_search`): it finds the
-   basin whatever the drift within the window;
+   graph's guess (Olson 2009; the look-up table of
+   :func:`shared.kernels.matching._search.correlative_search`), keeping the best score of every
+   translation cell: it finds the basin whatever the drift within the window;
 2. the same search 2.5 cm fine round the best cell;
 3. the project's ICP kernel from there.
 
-The match is a loop closure when its inlier share (returns within ``inlier_m`` of the submap) reaches
-``min_inlier_share``, its pose did not end on the window's border (the best place may lie beyond it) and
-its information (:mod:`shared.slam.information`) fixes some direction at all. The edge's covariance is the
-inverse of that information plus a floor (2 cm, 0.3 degrees: what the submap's own placement is worth);
-along a featureless corridor it stays blind, so such a closure corrects across the corridor only.
+It is no closure when the window holds a second peak (:func:`ambiguous`: a corridor whose doors repeat),
+when the pose ended on the window's border (the best place may lie beyond it), when fewer than
+``min_inlier_share`` of the returns lie within ``inlier_m`` of the submap, or when fewer than
+:data:`MIN_PAIRS` returns have a straight neighbourhood there (:mod:`shared.slam.information`). The edge's
+information is the mapper's business (:mod:`shared.slam.mapper`: a point-to-line refinement against the
+candidate's own scan).
 
 Pure: arrays, poses and settings in, a :class:`LoopMatch` or ``None`` out.
 Cost per candidate: O(R T N) for the coarse search (R rotations, T = (2 window / 10 cm)^2 shifts, N <= 150
@@ -43,32 +45,26 @@ from shared.slam.information import match_information
 from shared.slam.settings import LoopClosureSettings
 from shared.types import FloatArray, Pose2D
 
-__all__ = ["LoopMatch", "ambiguous", "candidates", "loop_information", "stacked", "verify"]
+__all__ = ["LoopMatch", "ambiguous", "candidates", "stacked", "verify"]
 
-#: the covariance floor of a loop edge: the submap's own placement error (m, rad, one sigma)
-FLOOR_SIGMA_M = 0.02
-FLOOR_SIGMA_RAD = math.radians(0.3)
 #: a match needs this many straight-neighbourhood pairs to say anything
 MIN_PAIRS = 20
-#: ambiguity: another place of the window scoring this share of the best, farther than AMBIGUITY_M from
-#: it and more than AMBIGUITY_SIGMAS standard deviations away along what the match constrains, makes the
-#: match ambiguous (a corridor's doors repeating, two rooms alike); it is then no loop closure
+#: ambiguity: another peak of the window scoring this share of the best, farther than AMBIGUITY_M from
+#: it, makes the match ambiguous (a corridor's doors repeating, two rooms alike); it is then no closure
 AMBIGUITY_RATIO = 0.9
 AMBIGUITY_M = 0.35
-AMBIGUITY_SIGMAS = 3.0
 _COARSE_CELL_M = 0.1
 _COARSE_RADIUS_M = 0.25
 
 
 @dataclass(frozen=True, slots=True)
 class LoopMatch:
-    """A verified loop closure: the current keyframe's pose in the candidate's frame, the share of its
-    returns the submap explains, and the edge's information ``(3, 3)``."""
+    """A verified loop closure: the current keyframe's pose in the candidate's frame and the share of its
+    returns the submap explains."""
 
     candidate: int
     pose: Pose2D
     inlier_share: float
-    information: FloatArray
 
 
 def candidates(
@@ -95,18 +91,6 @@ def candidates(
         if len(chosen) >= settings.max_candidates:
             break
     return chosen
-
-
-def loop_information(information: FloatArray) -> FloatArray:
-    """A loop edge's information: ``(information^-1 + floor)^-1`` with the module's covariance floor; a
-    direction the match does not fix keeps (near) zero information. O(1)."""
-    floor = np.diag([FLOOR_SIGMA_M**2, FLOOR_SIGMA_M**2, FLOOR_SIGMA_RAD**2])
-    # Woodbury, without inverting a singular I: (I^-1 + F)^-1 = F^-1 - F^-1 (I + F^-1)^-1 F^-1
-    f_inv = np.linalg.inv(floor)
-    out = f_inv - f_inv @ np.linalg.solve(np.asarray(information) + f_inv, f_inv)
-    out = 0.5 * (out + out.T)
-    # a direction no pair constrains: a tiny information keeps the system positive definite
-    return out + np.eye(3) * 1e-6
 
 
 @njit
@@ -162,9 +146,9 @@ def _score_grid(
 
 def _coarse(
     sub: FloatArray, cur: FloatArray, guess: Pose2D, settings: LoopClosureSettings, rot_step: float
-) -> tuple[Pose2D, float, FloatArray, FloatArray]:
+) -> tuple[Pose2D, float, FloatArray, tuple[int, int]]:
     """The window's best pose and score, and per translation cell the best score and its offset (m) from
-    the guess: ``(pose, score, scores (C,), offsets (C, 2))``."""
+    the guess: ``(pose, score, scores (S, S), best cell)``."""
     cell = _COARSE_CELL_M
     if len(cur) > 150:
         cur = cur[(np.arange(150) * len(cur)) // 150]
@@ -189,32 +173,35 @@ def _coarse(
     )
     shifts = (np.arange(2 * n_xy + 1) - n_xy) * cell
     ox, oy = np.meshgrid(shifts, shifts, indexing="ij")
-    a, b = np.unravel_index(int(np.argmax(scores)), scores.shape)
+    # ties (along a featureless corridor) go to the shift nearest the guess, as the search's own do
+    rank = scores - 1e-6 * (np.abs(ox) + np.abs(oy)) / cell
+    a, b = np.unravel_index(int(np.argmax(rank)), scores.shape)
     pose = Pose2D(guess.x_m + ox[a, b], guess.y_m + oy[a, b], float(thetas[a, b]))
-    offsets = np.column_stack([ox.ravel(), oy.ravel()])
-    return pose, float(scores[a, b]), scores.ravel(), offsets
+    return pose, float(scores[a, b]), scores, (int(a), int(b))
 
 
-def ambiguous(
-    best_offset: FloatArray,
-    best_score: float,
-    scores: FloatArray,
-    offsets: FloatArray,
-    information: FloatArray,
-) -> bool:
-    """Whether another place of the window (``offsets`` (C, 2) m from the guess, with ``scores``) scores
-    at least :data:`AMBIGUITY_RATIO` of ``best_score``, lies more than :data:`AMBIGUITY_M` from the best
-    and more than :data:`AMBIGUITY_SIGMAS` standard deviations from it under the translation block of
-    the match's ``information``: along a featureless corridor every shift scores alike and none counts,
-    across a repeating pattern one does. O(C)."""
-    d = offsets - best_offset
-    far = np.hypot(d[:, 0], d[:, 1]) > AMBIGUITY_M
-    rival = far & (scores >= AMBIGUITY_RATIO * best_score)
-    if not rival.any():
+def ambiguous(scores: FloatArray, best: tuple[int, int]) -> bool:
+    """Whether the window's score grid ``scores`` ``(S, S)`` (per translation cell, the best over the
+    rotations) has a second peak: a cell farther than :data:`AMBIGUITY_M` from the ``best`` cell that
+    scores at least :data:`AMBIGUITY_RATIO` of it, with a valley between them (some cell on the straight
+    line from one to the other scoring below that share). Along a featureless corridor the cells along
+    its axis score alike all the way (one ridge, which the match's information says it does not fix);
+    along a corridor whose doors or pillars repeat, the places between two repeats score less, and the
+    match could be either. O(R S) for R rival cells."""
+    a0, b0 = best
+    top = scores[a0, b0]
+    limit = AMBIGUITY_RATIO * top
+    ia, ib = np.nonzero(scores >= limit)
+    far = np.hypot(ia - a0, ib - b0) * _COARSE_CELL_M > AMBIGUITY_M
+    ia, ib = ia[far], ib[far]
+    if len(ia) == 0:
         return False
-    block = np.asarray(information)[:2, :2]
-    m2 = np.einsum("ij,jk,ik->i", d[rival], block, d[rival])
-    return bool((m2 > AMBIGUITY_SIGMAS**2).any())
+    steps = int(np.ceil(np.hypot(ia - a0, ib - b0).max())) + 1
+    t = np.linspace(0.0, 1.0, steps)[None, :]
+    path_a = np.rint(a0 + t * (ia - a0)[:, None]).astype(np.intp)
+    path_b = np.rint(b0 + t * (ib - b0)[:, None]).astype(np.intp)
+    valley = scores[path_a, path_b].min(axis=1) < limit
+    return bool(valley.any())
 
 
 def verify(
@@ -238,7 +225,9 @@ def verify(
     reach = float(np.percentile(np.hypot(cur[:, 0], cur[:, 1]), 90))
     # a rotation step moving the far returns by about one cell
     coarse_step = min(max(0.1 / max(reach, 0.5), 0.004), 0.035)
-    coarse, score, scores, offsets = _coarse(sub, cur, guess, settings, coarse_step)
+    coarse, _score, scores, cell = _coarse(sub, cur, guess, settings, coarse_step)
+    if ambiguous(scores, cell):
+        return None
     fine = correlative_search(
         sub,
         cur,
@@ -263,10 +252,7 @@ def verify(
     )
     if info.inlier_share < settings.min_inlier_share or info.pairs < MIN_PAIRS:
         return None
-    best = np.array([coarse.x_m - guess.x_m, coarse.y_m - guess.y_m])
-    if ambiguous(best, score, scores, offsets, loop_information(info.information)):
-        return None
-    return LoopMatch(candidate, pose, info.inlier_share, loop_information(info.information))
+    return LoopMatch(candidate, pose, info.inlier_share)
 
 
 def stacked(parts: Sequence[FloatArray]) -> FloatArray:
