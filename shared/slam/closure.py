@@ -49,10 +49,16 @@ __all__ = ["LoopMatch", "ambiguous", "candidates", "stacked", "verify"]
 
 #: a match needs this many straight-neighbourhood pairs to say anything
 MIN_PAIRS = 20
-#: ambiguity: another peak of the window scoring this share of the best, farther than AMBIGUITY_M from
-#: it, makes the match ambiguous (a corridor's doors repeating, two rooms alike); it is then no closure
-AMBIGUITY_RATIO = 0.9
+#: ambiguity (:func:`ambiguous`): another peak of the window farther than AMBIGUITY_M from the best,
+#: rising to AMBIGUITY_RATIO of the best's height above the valley between them (itself at least
+#: PROMINENCE of the best score deep), makes the match ambiguous (a corridor's doors repeating, two rooms
+#: alike); it is then no closure
+AMBIGUITY_RATIO = 0.75
 AMBIGUITY_M = 0.35
+PROMINENCE = 0.02
+#: the spread of a match (:func:`spread`): translations within SPREAD_M scoring SPREAD_RATIO of the best
+SPREAD_M = 0.5
+SPREAD_RATIO = 0.95
 _COARSE_CELL_M = 0.1
 _COARSE_RADIUS_M = 0.25
 
@@ -60,11 +66,13 @@ _COARSE_RADIUS_M = 0.25
 @dataclass(frozen=True, slots=True)
 class LoopMatch:
     """A verified loop closure: the current keyframe's pose in the candidate's frame and the share of its
-    returns the submap explains."""
+    returns the submap explains, and how far round that pose the scan fits about as well."""
 
     candidate: int
     pose: Pose2D
     inlier_share: float
+    #: ``(2, 2)`` m^2: the spread of the translations that explain the scan about as well (:func:`spread`)
+    spread: FloatArray
 
 
 def candidates(
@@ -182,16 +190,17 @@ def _coarse(
 
 def ambiguous(scores: FloatArray, best: tuple[int, int]) -> bool:
     """Whether the window's score grid ``scores`` ``(S, S)`` (per translation cell, the best over the
-    rotations) has a second peak: a cell farther than :data:`AMBIGUITY_M` from the ``best`` cell that
-    scores at least :data:`AMBIGUITY_RATIO` of it, with a valley between them (some cell on the straight
-    line from one to the other scoring below that share). Along a featureless corridor the cells along
-    its axis score alike all the way (one ridge, which the match's information says it does not fix);
-    along a corridor whose doors or pillars repeat, the places between two repeats score less, and the
-    match could be either. O(R S) for R rival cells."""
+    rotations) has a second peak: a cell farther than :data:`AMBIGUITY_M` from the ``best`` cell whose
+    score, above the lowest cell on the straight line between them (the valley), reaches
+    :data:`AMBIGUITY_RATIO` of the best's height above that valley, where the valley lies at least
+    :data:`PROMINENCE` of the best score below it. Along a featureless corridor the cells along its axis
+    score alike all the way (one ridge, no valley: the match's information says it does not fix that
+    direction); along a corridor whose doors or pillars repeat, the places between two repeats score
+    less, and the match could be either (the walls score everywhere, so the valley is shallow: heights
+    are measured from it). O(R S) for R candidate cells."""
     a0, b0 = best
     top = scores[a0, b0]
-    limit = AMBIGUITY_RATIO * top
-    ia, ib = np.nonzero(scores >= limit)
+    ia, ib = np.nonzero(scores >= top * (1.0 - 2.0 * PROMINENCE))
     far = np.hypot(ia - a0, ib - b0) * _COARSE_CELL_M > AMBIGUITY_M
     ia, ib = ia[far], ib[far]
     if len(ia) == 0:
@@ -200,8 +209,10 @@ def ambiguous(scores: FloatArray, best: tuple[int, int]) -> bool:
     t = np.linspace(0.0, 1.0, steps)[None, :]
     path_a = np.rint(a0 + t * (ia - a0)[:, None]).astype(np.intp)
     path_b = np.rint(b0 + t * (ib - b0)[:, None]).astype(np.intp)
-    valley = scores[path_a, path_b].min(axis=1) < limit
-    return bool(valley.any())
+    valley = scores[path_a, path_b].min(axis=1)
+    depth = top - valley
+    rise = scores[ia, ib] - valley
+    return bool(((depth >= PROMINENCE * top) & (rise >= AMBIGUITY_RATIO * depth)).any())
 
 
 def verify(
@@ -252,7 +263,45 @@ def verify(
     )
     if info.inlier_share < settings.min_inlier_share or info.pairs < MIN_PAIRS:
         return None
-    return LoopMatch(candidate, pose, info.inlier_share)
+    return LoopMatch(candidate, pose, info.inlier_share, spread(sub, cur, pose, coarse_step / 4.0))
+
+
+def spread(sub: FloatArray, cur: FloatArray, pose: Pose2D, rot_step: float) -> FloatArray:
+    """The second moment ``(2, 2)`` (m^2) about ``pose`` of the translations within +-:data:`SPREAD_M`
+    whose correlative score (2.5 cm cells, 10 cm table radius, best over rotations within four steps of
+    ``rot_step``) is at least :data:`SPREAD_RATIO` of the best there: how well the scan's shape pins the
+    place down, read off the score surface as Olson (2009) reads a match's covariance. Along a corridor
+    whose door recesses are all the scan has, the surface is nearly flat for tens of centimetres, and a
+    loop edge must not claim more (a recess seen from its other side returns from other faces). O(R T N)
+    for R = 9 rotations, T = (2 SPREAD_M / 2.5 cm)^2 shifts and N <= 150 returns."""
+    cell = 0.025
+    if len(cur) > 150:
+        cur = cur[(np.arange(150) * len(cur)) // 150]
+    centre = np.array([pose.x_m, pose.y_m])
+    lo = np.maximum(sub.min(axis=0), centre - 15.0) - SPREAD_M - 0.2
+    hi = np.minimum(sub.max(axis=0), centre + 15.0) + SPREAD_M + 0.2
+    nx, ny = (int(v) for v in np.maximum(np.ceil((hi - lo) / cell), 1))
+    table = _table(np.ascontiguousarray(sub), float(lo[0]), float(lo[1]), cell, nx, ny, 0.1)
+    n_xy = round(SPREAD_M / cell)
+    scores, _ = _score_grid(
+        table,
+        float(lo[0]),
+        float(lo[1]),
+        cell,
+        np.ascontiguousarray(cur),
+        pose.x_m,
+        pose.y_m,
+        pose.theta_rad,
+        4,
+        rot_step,
+        n_xy,
+    )
+    shifts = (np.arange(2 * n_xy + 1) - n_xy) * cell
+    ox, oy = np.meshgrid(shifts, shifts, indexing="ij")
+    near = scores >= SPREAD_RATIO * scores.max()
+    d = np.column_stack([ox[near], oy[near]])
+    out: FloatArray = d.T @ d / len(d) + np.eye(2) * cell**2 / 12.0
+    return out
 
 
 def stacked(parts: Sequence[FloatArray]) -> FloatArray:

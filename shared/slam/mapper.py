@@ -61,6 +61,14 @@ SEQ_FLOOR_RAD_PER_RAD = 0.005
 #: scan) must agree within chi-square's 99 % point for 3 degrees of freedom under the second's
 #: information: where they do not, one of them paired returns wrongly (clutter seen from another side)
 AGREEMENT_CHI2 = 11.34
+#: a loop closure must agree with the graph within chi-square's 99.9 % point for 3 degrees of freedom
+#: under its own covariance plus the chain's (GraphMapper._consistent), the chain's variance taken
+#: CHAIN_INFLATION times larger: the sequential edges' information is what the simulator's front end
+#: errs by (normalised errors 0.2-1.2), a real scanner's front end errs by more than its model says
+#: (timing, calibration, mixed pixels), and the gate is against gross errors only (a place that looks
+#: alike 1-2 m along a corridor), not against drift
+INNOVATION_CHI2 = 16.27
+CHAIN_INFLATION = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,6 +127,7 @@ class GraphMapper:
         self._travelled = 0.0
         self._last: Pose2D | None = None
         self._scans: list[tuple[Scan, Pose2D | None]] = []
+        self._seq_cov: list[FloatArray] = []  # covariance of the sequential edge k -> k + 1
 
     # ------------------------------------------------------------------ stepping
     def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
@@ -158,14 +167,26 @@ class GraphMapper:
         guess = self.graph.pose(k_prev) @ motion
         self.keyframes.append(key)
         k = self.graph.add_node(guess)
-        self.graph.add_edge(k_prev, k, motion, self._sequential_information(prev, key, motion), loop=False)
+        seq_info = self._sequential_information(prev, key, motion)
+        self.graph.add_edge(k_prev, k, motion, seq_info, loop=False)
+        self._seq_cov.append(np.linalg.inv(seq_info))
         if self.settings.enabled:
             for match in self._loop_matches(k):
                 edge = self._loop_edge(match, k)
                 if edge is None:
                     continue
                 pose, info = edge
-                self.graph.add_edge(match.candidate, k, pose, info, loop=True)
+                if not self._consistent(match.candidate, k, pose, info):
+                    continue
+                # closures between the same two stretches of the path share their errors (the same
+                # faces seen from the same sides): the n-th of them counts 1/n, not as a new witness
+                near = 2 * self.settings.submap_keyframes
+                n = sum(
+                    1
+                    for c in self.closures
+                    if abs(c.current - k) <= near and abs(c.candidate - match.candidate) <= near
+                )
+                self.graph.add_edge(match.candidate, k, pose, info / (1 + n), loop=True)
                 self.closures.append(LoopClosure(k, match.candidate, pose, match.inlier_share))
         t0 = time.perf_counter()
         try:
@@ -173,6 +194,44 @@ class GraphMapper:
         except OptimisationError as exc:
             log.warning("pose graph: %s; keeping the estimate from before", exc)
         self.optimise_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def chain_covariance(self, c: int, k: int) -> FloatArray:
+        """Covariance ``(3, 3)`` of keyframe ``k``'s pose in keyframe ``c``'s frame by the sequential
+        edges alone (dead reckoning along the front end's chain, first order): ``sum_m A_m S_m A_m^T`` for
+        edge ``m -> m + 1`` of covariance ``S_m``, with ``A_m = [[R_cm, J (p_k - p_m+1)], [0, 0, 1]]`` (an
+        error of edge m moves everything after it, its heading error about ``p_m+1``). An upper bound of
+        what the graph knows (loops in between only shrink it). O(k - c), vectorised."""
+        if k <= c:
+            return np.zeros((3, 3))
+        base = self.keyframes[c].frontend
+        rel = np.array([base.between(self.keyframes[m].frontend).as_tuple() for m in range(c, k + 1)])
+        theta = rel[:-1, 2]
+        lever = rel[-1, :2] - rel[1:, :2]  # p_k - p_(m+1)
+        n = k - c
+        a = np.zeros((n, 3, 3))
+        a[:, 0, 0], a[:, 0, 1] = np.cos(theta), -np.sin(theta)
+        a[:, 1, 0], a[:, 1, 1] = np.sin(theta), np.cos(theta)
+        a[:, 0, 2], a[:, 1, 2] = -lever[:, 1], lever[:, 0]
+        a[:, 2, 2] = 1.0
+        cov = np.asarray(self._seq_cov[c:k])
+        out: FloatArray = np.einsum("mij,mjk,mlk->il", a, cov, a)
+        return out
+
+    def _consistent(self, c: int, k: int, pose: Pose2D, info: FloatArray) -> bool:
+        """Whether a loop closure ``pose`` (keyframe ``k`` in ``c``'s frame) agrees with the graph's
+        estimate of it within chi-square's 99.9 % point (3 dof) of the closure's covariance plus the
+        chain's (:meth:`chain_covariance`): a closure the front end's own uncertainty cannot explain is
+        a place that only looks alike."""
+        predicted = self.graph.pose(c).between(self.graph.pose(k))
+        e = np.array(
+            [
+                pose.x_m - predicted.x_m,
+                pose.y_m - predicted.y_m,
+                math.remainder(pose.theta_rad - predicted.theta_rad, math.tau),
+            ]
+        )
+        total = np.linalg.inv(info) + CHAIN_INFLATION * self.chain_covariance(c, k)
+        return float(e @ np.linalg.solve(total, e)) <= INNOVATION_CHI2
 
     def _scan_edge(
         self, ref: Keyframe, cur: Keyframe, motion: Pose2D, refine: bool
@@ -198,7 +257,11 @@ class GraphMapper:
         info = _with_floor(info, Pose2D(pose.x_m, pose.y_m, 0.0))  # a view, not a turn: no turn term
         if mahalanobis2(match.pose, pose, info) > AGREEMENT_CHI2:
             return None
-        return pose, info
+        # no more certain than the score surface says: its spread adds to the translation's covariance
+        cov = np.linalg.inv(info)
+        cov[:2, :2] += match.spread
+        out: FloatArray = np.linalg.inv(cov)
+        return pose, 0.5 * (out + out.T)
 
     def _sequential_information(self, prev: Keyframe, key: Keyframe, motion: Pose2D) -> FloatArray:
         """The front end's motion between two keyframes: scan information plus odometry's, then the floor."""
