@@ -43,9 +43,19 @@ from shared.kernels.matching._search import _table, correlative_search
 from shared.pipeline.rangenoise import NO_RANGE_NOISE, RangeNoise
 from shared.slam.information import match_information
 from shared.slam.settings import LoopClosureSettings
-from shared.types import FloatArray, Pose2D
+from shared.types import BoolArray, FloatArray, Pose2D
 
-__all__ = ["LoopMatch", "ambiguous", "candidates", "stacked", "verify"]
+__all__ = [
+    "LoopMatch",
+    "ambiguous",
+    "candidates",
+    "chain_covariance",
+    "peak",
+    "spread",
+    "spread_of",
+    "stacked",
+    "verify",
+]
 
 #: a match needs this many straight-neighbourhood pairs to say anything
 MIN_PAIRS = 20
@@ -80,13 +90,18 @@ def candidates(
     travelled_m: FloatArray,
     current: int,
     settings: LoopClosureSettings,
+    headings_rad: FloatArray | None = None,
 ) -> list[int]:
     """Keyframes ``0..current-1`` that may close a loop with keyframe ``current`` (module docstring):
     ``positions`` ``(K, 2)`` are the estimated keyframe positions (m), ``travelled_m`` ``(K,)`` the
-    distance travelled up to each. O(K)."""
+    distance travelled up to each, ``headings_rad`` ``(K,)`` their headings (then a keyframe whose heading
+    differs by more than ``max_view_change_rad`` is none). O(K)."""
     if current <= 0:
         return []
     old = np.flatnonzero(travelled_m[:current] <= travelled_m[current] - settings.recent_m)
+    if headings_rad is not None and len(old):
+        turn = np.abs(np.remainder(headings_rad[old] - headings_rad[current] + np.pi, 2 * np.pi) - np.pi)
+        old = old[turn <= settings.max_view_change_rad]
     if len(old) == 0:
         return []
     dist = np.hypot(*(positions[old] - positions[current]).T)
@@ -154,9 +169,10 @@ def _score_grid(
 
 def _coarse(
     sub: FloatArray, cur: FloatArray, guess: Pose2D, settings: LoopClosureSettings, rot_step: float
-) -> tuple[Pose2D, float, FloatArray, tuple[int, int]]:
-    """The window's best pose and score, and per translation cell the best score and its offset (m) from
-    the guess: ``(pose, score, scores (S, S), best cell)``."""
+) -> tuple[Pose2D, FloatArray, tuple[int, int], BoolArray]:
+    """The window's best pose, per translation cell the best score over the rotations, the chosen cell
+    and the cells that explain the scan about as well (:func:`peak`): ``(pose, scores (S, S), cell,
+    plausible (S, S))``."""
     cell = _COARSE_CELL_M
     if len(cur) > 150:
         cur = cur[(np.arange(150) * len(cur)) // 150]
@@ -181,11 +197,20 @@ def _coarse(
     )
     shifts = (np.arange(2 * n_xy + 1) - n_xy) * cell
     ox, oy = np.meshgrid(shifts, shifts, indexing="ij")
-    # ties (along a featureless corridor) go to the shift nearest the guess, as the search's own do
-    rank = scores - 1e-6 * (np.abs(ox) + np.abs(oy)) / cell
-    a, b = np.unravel_index(int(np.argmax(rank)), scores.shape)
+    (a, b), plausible = peak(scores, np.hypot(ox, oy))
     pose = Pose2D(guess.x_m + ox[a, b], guess.y_m + oy[a, b], float(thetas[a, b]))
-    return pose, float(scores[a, b]), scores, (int(a), int(b))
+    return pose, scores, (a, b), plausible
+
+
+def peak(scores: FloatArray, distance: FloatArray) -> tuple[tuple[int, int], BoolArray]:
+    """The cell of a score grid ``(S, S)`` to take and the cells that explain the scan about as well.
+
+    The plausible cells are those scoring at least :data:`SPREAD_RATIO` of the best (the ridge: along
+    a featureless corridor, every place along it); the one nearest the guess (``distance`` ``(S, S)``, m)
+    is taken: where the scan does not tell, the graph's estimate stands. O(S^2)."""
+    ridge = scores >= SPREAD_RATIO * float(scores.max())
+    a, b = np.unravel_index(int(np.argmax(np.where(ridge, -distance, -np.inf))), scores.shape)
+    return (int(a), int(b)), ridge
 
 
 def ambiguous(scores: FloatArray, best: tuple[int, int]) -> bool:
@@ -236,7 +261,7 @@ def verify(
     reach = float(np.percentile(np.hypot(cur[:, 0], cur[:, 1]), 90))
     # a rotation step moving the far returns by about one cell
     coarse_step = min(max(0.1 / max(reach, 0.5), 0.004), 0.035)
-    coarse, _score, scores, cell = _coarse(sub, cur, guess, settings, coarse_step)
+    coarse, scores, cell, plausible = _coarse(sub, cur, guess, settings, coarse_step)
     if ambiguous(scores, cell):
         return None
     fine = correlative_search(
@@ -263,7 +288,11 @@ def verify(
     )
     if info.inlier_share < settings.min_inlier_share or info.pairs < MIN_PAIRS:
         return None
-    return LoopMatch(candidate, pose, info.inlier_share, spread(sub, cur, pose, coarse_step / 4.0))
+    # the spread on the fine grid round the pose, or on the whole window where the surface is flat
+    # beyond the fine one (a corridor: the places along it score alike for metres)
+    wide = spread_of(plausible, _COARSE_CELL_M, cell)
+    fine_spread = spread(sub, cur, pose, coarse_step / 4.0)
+    return LoopMatch(candidate, pose, info.inlier_share, fine_spread if wide is None else wide + fine_spread)
 
 
 def spread(sub: FloatArray, cur: FloatArray, pose: Pose2D, rot_step: float) -> FloatArray:
@@ -301,6 +330,40 @@ def spread(sub: FloatArray, cur: FloatArray, pose: Pose2D, rot_step: float) -> F
     near = scores >= SPREAD_RATIO * scores.max()
     d = np.column_stack([ox[near], oy[near]])
     out: FloatArray = d.T @ d / len(d) + np.eye(2) * cell**2 / 12.0
+    return out
+
+
+def spread_of(near: BoolArray, cell_m: float, best: tuple[int, int]) -> FloatArray | None:
+    """The second moment ``(2, 2)`` (m^2) about the ``best`` cell of the ``near`` cells of a grid
+    ``(S, S)`` of ``cell_m`` cells; ``None`` unless they reach the grid's border (the surface is flat
+    beyond the fine grid, and its spread is read here). O(S^2)."""
+    if not (near[0, :].any() or near[-1, :].any() or near[:, 0].any() or near[:, -1].any()):
+        return None
+    ia, ib = np.nonzero(near)
+    d = np.column_stack([ia - best[0], ib - best[1]]) * cell_m
+    out: FloatArray = d.T @ d / len(d)
+    return out
+
+
+def chain_covariance(poses: Sequence[Pose2D], covariances: Sequence[FloatArray]) -> FloatArray:
+    """Covariance ``(3, 3)`` of the last of ``poses`` in the frame of the first, by dead reckoning along
+    the chain: ``covariances[m]`` ``(3, 3)`` is that of the motion from ``poses[m]`` to ``poses[m + 1]``
+    (in the frame of ``poses[m]``); first order, ``sum_m A_m S_m A_m^T`` with
+    ``A_m = [[R_0m, J (p_last - p_m+1)], [0, 0, 1]]`` (an error of motion m moves everything after it, its
+    heading error about ``p_m+1``). What the graph knows of that relative pose is at most this (loops in
+    between only shrink it). O(len(poses)), vectorised."""
+    if len(poses) < 2:
+        return np.zeros((3, 3))
+    base = poses[0]
+    rel = np.array([base.between(p).as_tuple() for p in poses])
+    theta = rel[:-1, 2]
+    lever = rel[-1, :2] - rel[1:, :2]  # p_last - p_(m+1)
+    a = np.zeros((len(poses) - 1, 3, 3))
+    a[:, 0, 0], a[:, 0, 1] = np.cos(theta), -np.sin(theta)
+    a[:, 1, 0], a[:, 1, 1] = np.sin(theta), np.cos(theta)
+    a[:, 0, 2], a[:, 1, 2] = -lever[:, 1], lever[:, 0]
+    a[:, 2, 2] = 1.0
+    out: FloatArray = np.einsum("mij,mjk,mlk->il", a, np.asarray(covariances), a)
     return out
 
 

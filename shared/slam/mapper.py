@@ -39,7 +39,7 @@ from shared.kernels import REGISTRY, Stage
 from shared.pipeline import MapSnapshot, Pipeline
 from shared.pipeline.fusion import mahalanobis2, odometry_information
 from shared.pipeline.pipeline import StepResult
-from shared.slam.closure import LoopMatch, candidates, stacked, verify
+from shared.slam.closure import LoopMatch, candidates, chain_covariance, stacked, verify
 from shared.slam.errors import OptimisationError
 from shared.slam.graph import PoseGraph
 from shared.slam.information import scan_edge
@@ -68,6 +68,8 @@ AGREEMENT_CHI2 = 11.34
 #: (timing, calibration, mixed pixels), and the gate is against gross errors only (a place that looks
 #: alike 1-2 m along a corridor), not against drift
 INNOVATION_CHI2 = 16.27
+#: a loop closure's translation directions with a standard deviation above this hold the graph's estimate
+HOLD_SIGMA_M = 0.15
 CHAIN_INFLATION = 10.0
 
 
@@ -169,7 +171,7 @@ class GraphMapper:
         k = self.graph.add_node(guess)
         seq_info = self._sequential_information(prev, key, motion)
         self.graph.add_edge(k_prev, k, motion, seq_info, loop=False)
-        self._seq_cov.append(np.linalg.inv(seq_info))
+        self._seq_cov.append(np.asarray(np.linalg.inv(seq_info), dtype=np.float64))
         if self.settings.enabled:
             for match in self._loop_matches(k):
                 edge = self._loop_edge(match, k)
@@ -196,26 +198,9 @@ class GraphMapper:
         self.optimise_ms.append((time.perf_counter() - t0) * 1e3)
 
     def chain_covariance(self, c: int, k: int) -> FloatArray:
-        """Covariance ``(3, 3)`` of keyframe ``k``'s pose in keyframe ``c``'s frame by the sequential
-        edges alone (dead reckoning along the front end's chain, first order): ``sum_m A_m S_m A_m^T`` for
-        edge ``m -> m + 1`` of covariance ``S_m``, with ``A_m = [[R_cm, J (p_k - p_m+1)], [0, 0, 1]]`` (an
-        error of edge m moves everything after it, its heading error about ``p_m+1``). An upper bound of
-        what the graph knows (loops in between only shrink it). O(k - c), vectorised."""
-        if k <= c:
-            return np.zeros((3, 3))
-        base = self.keyframes[c].frontend
-        rel = np.array([base.between(self.keyframes[m].frontend).as_tuple() for m in range(c, k + 1)])
-        theta = rel[:-1, 2]
-        lever = rel[-1, :2] - rel[1:, :2]  # p_k - p_(m+1)
-        n = k - c
-        a = np.zeros((n, 3, 3))
-        a[:, 0, 0], a[:, 0, 1] = np.cos(theta), -np.sin(theta)
-        a[:, 1, 0], a[:, 1, 1] = np.sin(theta), np.cos(theta)
-        a[:, 0, 2], a[:, 1, 2] = -lever[:, 1], lever[:, 0]
-        a[:, 2, 2] = 1.0
-        cov = np.asarray(self._seq_cov[c:k])
-        out: FloatArray = np.einsum("mij,mjk,mlk->il", a, cov, a)
-        return out
+        """Covariance ``(3, 3)`` of keyframe ``k`` in keyframe ``c``'s frame by the sequential edges alone
+        (:func:`shared.slam.closure.chain_covariance`). O(k - c)."""
+        return chain_covariance([kf.frontend for kf in self.keyframes[c : k + 1]], self._seq_cov[c:k])
 
     def _consistent(self, c: int, k: int, pose: Pose2D, info: FloatArray) -> bool:
         """Whether a loop closure ``pose`` (keyframe ``k`` in ``c``'s frame) agrees with the graph's
@@ -258,10 +243,29 @@ class GraphMapper:
         if mahalanobis2(match.pose, pose, info) > AGREEMENT_CHI2:
             return None
         # no more certain than the score surface says: its spread adds to the translation's covariance
-        cov = np.linalg.inv(info)
+        cov: FloatArray = np.asarray(np.linalg.inv(info), dtype=np.float64)
         cov[:2, :2] += match.spread
-        out: FloatArray = np.linalg.inv(cov)
-        return pose, 0.5 * (out + out.T)
+        return self._hold_unseen(match.candidate, k, pose, cov)
+
+    def _hold_unseen(self, c: int, k: int, pose: Pose2D, cov: FloatArray) -> tuple[Pose2D, FloatArray]:
+        """A closure's translation along the directions its covariance leaves wider than
+        ``HOLD_SIGMA_M`` (along a corridor: the score surface is flat there) is the graph's own estimate,
+        with (next to) no information: a closure fixes what its scan sees and holds the rest, as the
+        front end's second-chance matches do. Many closures along one corridor would otherwise add up
+        their arbitrary along-track places into a pull. O(1)."""
+        out: FloatArray = np.asarray(np.linalg.inv(cov), dtype=np.float64)
+        eig, vec = np.linalg.eigh(cov[:2, :2])
+        blind = vec[:, eig > HOLD_SIGMA_M**2]
+        if blind.shape[1] == 0:
+            return pose, 0.5 * (out + out.T)
+        predicted = self.graph.pose(c).between(self.graph.pose(k))
+        d = np.array([predicted.x_m - pose.x_m, predicted.y_m - pose.y_m])
+        pose_xy = np.array([pose.x_m, pose.y_m]) + blind @ (blind.T @ d)
+        # the information: none along the blind directions (projected out of the translation block)
+        keep = np.eye(3)
+        keep[:2, :2] -= blind @ blind.T
+        held = keep.T @ out @ keep + np.eye(3) * 1e-6
+        return Pose2D(float(pose_xy[0]), float(pose_xy[1]), pose.theta_rad), 0.5 * (held + held.T)
 
     def _sequential_information(self, prev: Keyframe, key: Keyframe, motion: Pose2D) -> FloatArray:
         """The front end's motion between two keyframes: scan information plus odometry's, then the floor."""
@@ -288,7 +292,8 @@ class GraphMapper:
         positions = np.array([[p.x_m, p.y_m] for p in poses])
         travelled = np.array([kf.travelled_m for kf in self.keyframes])
         found: list[LoopMatch] = []
-        for c in candidates(positions, travelled, k, self.settings):
+        headings = np.array([p.theta_rad for p in poses])
+        for c in candidates(positions, travelled, k, self.settings, headings):
             self.candidates_tried += 1
             lo = max(c - self.settings.submap_keyframes, 0)
             hi = min(c + self.settings.submap_keyframes, k - 1)

@@ -29,6 +29,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "submap_keyframes": (0, 50),
     "max_candidates": (1, 50),
     "robust_sigmas": (0.1, 100.0),
+    "max_view_change_rad": (0.0, math.pi),
 }
 
 
@@ -49,6 +50,9 @@ class LoopClosureSettings:
     - ``max_candidates``: candidates tried per keyframe, nearest first;
     - ``robust_sigmas``: the Cauchy kernel's width on loop edges, in standard deviations: a loop edge
       whose residual is far beyond it counts for almost nothing (a false closure does not wreck the map);
+    - ``max_view_change_rad``: a candidate seen with a heading this different is no candidate (from the
+      opposite side a scan returns from other faces of every recess, box and door jamb, the features that
+      fix the pose along a corridor, and the match is biased there);
     - ``final_batch``: offline, one batch optimisation of the whole graph at the end.
     """
 
@@ -64,6 +68,7 @@ class LoopClosureSettings:
     submap_keyframes: int = 3
     max_candidates: int = 2
     robust_sigmas: float = 3.0
+    max_view_change_rad: float = math.pi / 2
     final_batch: bool = True
 
     def __post_init__(self) -> None:

@@ -26,7 +26,7 @@ def test_two_laps_round_a_block_close_their_loop() -> None:
     assert after["ate_m"] < 0.75 * before["ate_m"]
     assert after["mean_error_m"] < 0.6 * before["mean_error_m"]
     assert after["completeness"] >= before["completeness"] - 0.01
-    assert after["walls_mapped"] <= before["walls_mapped"]
+    assert after["walls_mapped"] <= 1.25 * after["walls_seen"]
     assert len(closed.snapshot.trajectory) == len(run)
 
 

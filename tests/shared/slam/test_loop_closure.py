@@ -14,6 +14,8 @@ from shared.pipeline.rangenoise import URG04LX_RANGE_NOISE
 from shared.sim import RangeNoise, World, simulate_scan
 from shared.sim.world import polygon_walls
 from shared.slam import LoopClosureSettings, candidates, verify
+from shared.slam.closure import chain_covariance
+from shared.slam.mapper import HOLD_SIGMA_M
 from shared.slam.information import scan_edge
 from shared.types import Pose2D
 
@@ -98,7 +100,9 @@ def test_a_repeating_place_is_ambiguous_and_no_closure() -> None:
     guess = a.between(b) @ Pose2D(0.4, 0.0, 0.0)
     reference = submap(w, a, np.arange(-1.5, 1.6, 0.5))
     assert verify(reference, points(w, b, 2), guess, 0, SETTINGS, MATCHER) is None
-    # the same place with its pillars 2.5 m apart on one side only, not mirrored: no rival, a closure
+    # the same corridor with two pillars only, not repeating: no rival, a closure across the corridor;
+    # two small pillars move the score surface by less than its ridge's width, so along the axis the
+    # closure claims nothing (its spread is wider than the mapper holds the graph's estimate for)
     walls = [
         (-20.0, -1.5, 20.0, -1.5),
         (-20.0, 1.5, 20.0, 1.5),
@@ -110,7 +114,9 @@ def test_a_repeating_place_is_ambiguous_and_no_closure() -> None:
         submap(single, a, np.arange(-1.5, 1.6, 0.5)), points(single, b, 2), guess, 0, SETTINGS, MATCHER
     )
     assert found is not None
-    assert math.hypot(found.pose.x_m - 0.3, found.pose.y_m - 0.1) < 0.03
+    assert abs(found.pose.y_m - 0.1) < 0.03
+    assert abs(found.pose.theta_rad - 0.05) < math.radians(0.5)
+    assert math.sqrt(found.spread[0, 0]) > HOLD_SIGMA_M > 5 * math.sqrt(found.spread[1, 1])
 
 
 def test_along_a_featureless_corridor_a_closure_fixes_only_what_it_sees() -> None:
@@ -156,3 +162,26 @@ def test_candidates_are_old_near_and_from_different_submaps(max_candidates: int)
     assert len(found) == max_candidates
     assert all(abs(a - b) > 1 for i, a in enumerate(found) for b in found[:i])
     assert candidates(positions, travelled, 12, settings) == []  # nothing old enough nearby
+
+
+def test_the_chain_covariance_is_what_composing_noisy_motions_gives() -> None:
+    """chain_covariance's first-order formula against a Monte Carlo of the same chain: 30 noisy motions
+    of a curving path composed 4,000 times; the two agree within 10 % along every principal direction."""
+    rng = np.random.default_rng(5)
+    motions = [Pose2D(0.5, 0.02 * (k % 3), 0.08 if k % 3 else -0.05) for k in range(30)]
+    covs = [np.diag([0.01**2, 0.004**2, 0.003**2]) for _ in motions]
+    poses = [Pose2D()]
+    for m in motions:
+        poses.append(poses[-1] @ m)
+    formula = chain_covariance(poses, covs)
+    samples = []
+    for _ in range(4000):
+        pose = Pose2D()
+        for m, c in zip(motions, covs, strict=True):
+            e = rng.multivariate_normal(np.zeros(3), c)
+            pose = pose @ Pose2D(m.x_m + e[0], m.y_m + e[1], m.theta_rad + e[2])
+        samples.append(pose.as_tuple())
+    empirical = np.cov(np.asarray(samples).T)
+    _, directions = np.linalg.eigh(empirical)
+    for d in directions.T:
+        assert 0.9 < (d @ formula @ d) / (d @ empirical @ d) < 1.1
