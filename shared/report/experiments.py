@@ -24,7 +24,7 @@ from shared.bench.table3 import Table3Row, offline_areas
 from shared.kernels import REGISTRY
 from shared.metrics import LineAccuracy, RelationError, line_accuracy, read_relations, relation_error
 from shared.metrics.distance import nearest_segment
-from shared.report.runs import MapRun, run_ekf, run_linemap
+from shared.report.runs import MapRun, run_ekf, run_linemap, run_linemap_loop
 from shared.report.worlds import CLUTTER_NOISE, cluttered_world
 from shared.sim import RangeNoise, World, default_world, patrol_lap_steps, patrol_scans, simulate_run
 from shared.types import Pose2D, Scan
@@ -215,7 +215,12 @@ def log_accuracy(
             continue
         scans, offset = _log_scans(data / spec.log)
         relations = read_relations(data / spec.relations)
-        for method, mapper in (("linemap", run_linemap), ("ekf-slam", run_ekf)):
+        methods = (
+            ("linemap", run_linemap),
+            ("linemap + loop closure", run_linemap_loop),
+            ("ekf-slam", run_ekf),
+        )
+        for method, mapper in methods:
             if method == "ekf-slam" and ekf_max_scans is not None and len(scans) > ekf_max_scans:
                 rows.append(
                     LogRow(

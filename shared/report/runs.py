@@ -14,9 +14,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from shared.pipeline import IcpGate, Pipeline, PipelineConfig
+from shared.slam import GraphMapper, LoopClosureSettings
 from shared.types import FloatArray, Pose2D, Scan
 
-__all__ = ["MapRun", "run_ekf", "run_linemap"]
+__all__ = ["MapRun", "run_ekf", "run_linemap", "run_linemap_loop"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,35 @@ def run_linemap(
     _ids, segments = pipe.walls()
     return MapRun(
         "linemap", np.asarray(segments, dtype=np.float64).reshape(-1, 4), *_arrays(stamps, poses, times)
+    )
+
+
+def run_linemap_loop(
+    scans: Iterable[Scan],
+    laser_offset: Pose2D | None = None,
+    config: PipelineConfig | None = None,
+    settings: LoopClosureSettings | None = None,
+) -> MapRun:
+    """linemap's pipeline under the keyframe pose graph with loop closure (:class:`shared.slam.GraphMapper`,
+    as ``linemap map`` runs it): the trajectory is the graph's after its final batch optimisation, the
+    walls those drawn again from it. ``step_ms`` is each online step's time (front end, keyframes, loop
+    search and the incremental update). O(scans x step), twice (the map is drawn again)."""
+    mapper = GraphMapper(
+        lambda: Pipeline(config or PipelineConfig(), laser_offset=laser_offset, icp_gate=IcpGate()), settings
+    )
+    stamps: list[float] = []
+    times: list[float] = []
+    for scan in scans:
+        t0 = time.perf_counter()
+        mapper.step(scan)
+        times.append((time.perf_counter() - t0) * 1e3)
+        stamps.append(scan.stamp_s)
+    snapshot = mapper.finish()
+    poses = [tuple(row[1:]) for row in snapshot.trajectory]
+    return MapRun(
+        "linemap + loop closure",
+        np.asarray(snapshot.segments, dtype=np.float64).reshape(-1, 4),
+        *_arrays(stamps, poses, times),
     )
 
 

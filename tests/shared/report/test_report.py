@@ -70,6 +70,7 @@ def test_quick_report_writes_every_section_and_figure(tmp_path: Path) -> None:
     assert "linemap report --quick" in text and "numpy" in text.lower()
     if have_data:
         assert "| MIT CSAIL |" in text  # the smallest benchmark log, mapped by linemap
+        assert "| log | scans | linemap | linemap + loop closure |" in text  # with and without the graph
     else:
         assert "Not run: the data folder was not found." in text
     assert "ekf-slam" in text and "cluttered" in text
