@@ -49,6 +49,7 @@ from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Kernel, Stage
 from shared.pipeline import Pipeline, PipelineConfig
 from shared.signing import load_public_key
+from shared.slam import LoopClosureSettings, OnlineGraphMapper
 from shared.types import Pose2D, Scan
 
 __all__ = ["Agent", "AgentSettings"]
@@ -90,6 +91,8 @@ class AgentSettings:
     max_retry_after_s: float = DEFAULT_MAX_RETRY_AFTER_S  # a longer Retry-After is capped to this
     error_clear_s: float = 60.0  # last_error is cleared after this long without a new one (health.py)
     laser_offset: Pose2D | None = None  # scanner pose in the robot frame; None: the source's own (sources.py)
+    # loop closure under a keyframe pose graph (shared.slam.online); None: the front end alone
+    loop_closure: LoopClosureSettings | None = None
 
 
 class Agent:
@@ -125,7 +128,15 @@ class Agent:
         self._mapping_over = threading.Event()  # set once the mapping thread recorded its last step
         self._stepped: tuple[int, float] = (0, 0.0)
         offset = settings.laser_offset if settings.laser_offset is not None else laser_offset(settings.source)
-        self.pipeline = Pipeline(self._initial_config(), laser_offset=offset)
+        self.pipeline: Pipeline | OnlineGraphMapper
+        if settings.loop_closure is not None:
+            self.pipeline = OnlineGraphMapper(
+                lambda config: Pipeline(config, laser_offset=offset),
+                self._initial_config(),
+                settings.loop_closure,
+            )
+        else:
+            self.pipeline = Pipeline(self._initial_config(), laser_offset=offset)
         self._prev_walls: dict[int, tuple[float, float, float, float]] = {}
         stored = self.db.walls()
         self._id_offset = int(max((w[0] for w in stored), default=-1)) + 1
@@ -279,6 +290,8 @@ class Agent:
                 fatal=(LinemapError,),
             )
         finally:
+            if isinstance(self.pipeline, OnlineGraphMapper):
+                self.pipeline.close()
             self._mapping_over.set()
             stop.set()
             self._wake_uploader.set()

@@ -12,10 +12,23 @@ from typing import Annotated, Any
 import typer
 
 from shared.errors import LinemapError
+from shared.slam import LoopClosureSettings
 
 __all__ = ["agent_cmd"]
 
 log = logging.getLogger(__name__)
+
+
+def _loop_settings(option: bool | None, in_file: object, file: Path | None) -> LoopClosureSettings | None:
+    """Loop closure from the option, else the file's ``loop_closure``: true / false, or a table of
+    :class:`shared.slam.LoopClosureSettings` fields (``search_radius_m``, ``min_inlier_share``, ...)."""
+    if option is not None:
+        return LoopClosureSettings() if option else None
+    if isinstance(in_file, bool):
+        return LoopClosureSettings() if in_file else None
+    if isinstance(in_file, dict):
+        return LoopClosureSettings.parse(in_file)
+    raise LinemapError(f"{file}: loop_closure = {in_file!r}: expected true, false or a table of settings")
 
 
 def _file_settings(path: Path | None) -> dict[str, Any]:
@@ -144,6 +157,13 @@ def agent_cmd(
             "server, s [60].",
         ),
     ] = None,
+    loop_closure: Annotated[
+        bool | None,
+        typer.Option(
+            "--loop-closure/--no-loop-closure",
+            help="Close loops with a keyframe pose graph; the map is drawn again from its poses [off].",
+        ),
+    ] = None,
 ) -> None:
     """Map from SOURCE and follow the server: apply control messages between steps, hot-swap verified
     kernels, upload every map version (kept in the Robot DB until the server has it)."""
@@ -180,6 +200,7 @@ def agent_cmd(
         error_clear_s=error_clear
         if error_clear is not None
         else _seconds(f.get("error_clear", 60.0), file, "error_clear", 0, 86400),
+        loop_closure=_loop_settings(loop_closure, f.get("loop_closure", False), file),
     )
     if settings.allow_unsigned:
         typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)

@@ -8,6 +8,7 @@ from shared.slam.errors import LoopClosureSettingsError, OptimisationError, Slam
 from shared.slam.graph import Edge, PoseGraph
 from shared.slam.information import MatchInformation, match_information
 from shared.slam.mapper import GraphMapper, Keyframe, LoopClosure
+from shared.slam.online import OnlineGraphMapper
 from shared.slam.settings import LoopClosureSettings
 
 __all__ = [
@@ -19,6 +20,7 @@ __all__ = [
     "LoopClosureSettingsError",
     "LoopMatch",
     "MatchInformation",
+    "OnlineGraphMapper",
     "OptimisationError",
     "PoseGraph",
     "SlamError",

@@ -81,7 +81,7 @@ class LoopMatch:
     candidate: int
     pose: Pose2D
     inlier_share: float
-    #: ``(2, 2)`` m^2: the spread of the translations that explain the scan about as well (:func:`spread`)
+    #: ``(3, 3)`` m^2, rad^2: the spread of the poses that explain the scan about as well (:func:`spread`)
     spread: FloatArray
 
 
@@ -292,17 +292,20 @@ def verify(
     # beyond the fine one (a corridor: the places along it score alike for metres)
     wide = spread_of(plausible, _COARSE_CELL_M, cell)
     fine_spread = spread(sub, cur, pose, coarse_step / 4.0)
-    return LoopMatch(candidate, pose, info.inlier_share, fine_spread if wide is None else wide + fine_spread)
+    if wide is not None:
+        fine_spread[:2, :2] += wide
+    return LoopMatch(candidate, pose, info.inlier_share, fine_spread)
 
 
 def spread(sub: FloatArray, cur: FloatArray, pose: Pose2D, rot_step: float) -> FloatArray:
-    """The second moment ``(2, 2)`` (m^2) about ``pose`` of the translations within +-:data:`SPREAD_M`
-    whose correlative score (2.5 cm cells, 10 cm table radius, best over rotations within four steps of
-    ``rot_step``) is at least :data:`SPREAD_RATIO` of the best there: how well the scan's shape pins the
-    place down, read off the score surface as Olson (2009) reads a match's covariance. Along a corridor
-    whose door recesses are all the scan has, the surface is nearly flat for tens of centimetres, and a
-    loop edge must not claim more (a recess seen from its other side returns from other faces). O(R T N)
-    for R = 9 rotations, T = (2 SPREAD_M / 2.5 cm)^2 shifts and N <= 150 returns."""
+    """How well the scan's shape pins its place down, read off the correlative score surface as Olson
+    (2009) reads a match's covariance: a diagonal-block ``(3, 3)`` second moment about ``pose`` (m^2,
+    rad^2) of the translations within +-:data:`SPREAD_M` (2.5 cm cells, 10 cm table radius, best over
+    rotations within four steps of ``rot_step``) and of the rotations within +-16 ``rot_step`` (at the
+    pose's translation) that score at least :data:`SPREAD_RATIO` of the best. Along a corridor whose door
+    recesses are all the scan has, the surface is nearly flat for tens of centimetres; in a hall whose
+    pillars are all the scan has, for half a degree; a loop edge must not claim more. O(R T N) for
+    R = 9 rotations, T = (2 SPREAD_M / 2.5 cm)^2 shifts and N <= 150 returns."""
     cell = 0.025
     if len(cur) > 150:
         cur = cur[(np.arange(150) * len(cur)) // 150]
@@ -329,7 +332,30 @@ def spread(sub: FloatArray, cur: FloatArray, pose: Pose2D, rot_step: float) -> F
     ox, oy = np.meshgrid(shifts, shifts, indexing="ij")
     near = scores >= SPREAD_RATIO * scores.max()
     d = np.column_stack([ox[near], oy[near]])
-    out: FloatArray = d.T @ d / len(d) + np.eye(2) * cell**2 / 12.0
+    out: FloatArray = np.zeros((3, 3))
+    out[:2, :2] = d.T @ d / len(d) + np.eye(2) * cell**2 / 12.0
+    # the rotations: the score at the pose's translation, turned in steps of rot_step
+    turns = np.arange(-16, 17) * rot_step
+    at = np.array(
+        [
+            _score_grid(
+                table,
+                float(lo[0]),
+                float(lo[1]),
+                cell,
+                np.ascontiguousarray(cur),
+                pose.x_m,
+                pose.y_m,
+                pose.theta_rad + t,
+                0,
+                rot_step,
+                0,
+            )[0][0, 0]
+            for t in turns
+        ]
+    )
+    plausible = turns[at >= SPREAD_RATIO * at.max()]
+    out[2, 2] = float(np.mean(plausible**2)) + rot_step**2 / 12.0
     return out
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -68,6 +68,9 @@ AGREEMENT_CHI2 = 11.34
 #: (timing, calibration, mixed pixels), and the gate is against gross errors only (a place that looks
 #: alike 1-2 m along a corridor), not against drift
 INNOVATION_CHI2 = 16.27
+#: skip edges (GraphMapper._add_skip_edges): from these many keyframes back, within SKIP_MAX_M of travel
+SKIP_KEYFRAMES = (4, 8, 16)
+SKIP_MAX_M = 10.0
 #: a loop closure's translation directions with a standard deviation above this hold the graph's estimate
 HOLD_SIGMA_M = 0.15
 CHAIN_INFLATION = 10.0
@@ -130,6 +133,8 @@ class GraphMapper:
         self._last: Pose2D | None = None
         self._scans: list[tuple[Scan, Pose2D | None]] = []
         self._seq_cov: list[FloatArray] = []  # covariance of the sequential edge k -> k + 1
+        #: search for loop closures in the step (offline); the online mapper searches on a worker instead
+        self.search_inline = True
 
     # ------------------------------------------------------------------ stepping
     def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
@@ -172,24 +177,43 @@ class GraphMapper:
         seq_info = self._sequential_information(prev, key, motion)
         self.graph.add_edge(k_prev, k, motion, seq_info, loop=False)
         self._seq_cov.append(np.asarray(np.linalg.inv(seq_info), dtype=np.float64))
-        if self.settings.enabled:
-            for match in self._loop_matches(k):
-                edge = self._loop_edge(match, k)
-                if edge is None:
-                    continue
-                pose, info = edge
-                if not self._consistent(match.candidate, k, pose, info):
-                    continue
-                # closures between the same two stretches of the path share their errors (the same
-                # faces seen from the same sides): the n-th of them counts 1/n, not as a new witness
-                near = 2 * self.settings.submap_keyframes
-                n = sum(
-                    1
-                    for c in self.closures
-                    if abs(c.current - k) <= near and abs(c.candidate - match.candidate) <= near
-                )
-                self.graph.add_edge(match.candidate, k, pose, info / (1 + n), loop=True)
-                self.closures.append(LoopClosure(k, match.candidate, pose, match.inlier_share))
+        self._add_skip_edges(k)
+        if self.settings.enabled and self.search_inline:
+            self.add_closures(k, self.find_closures(k))
+        else:
+            self._update()
+
+    def find_closures(self, k: int) -> list[LoopMatch]:
+        """The verified loop closures of keyframe ``k`` (the slow part: correlative searches); changes
+        nothing, so it may run beside the step (:mod:`shared.slam.online`)."""
+        return self._loop_matches(k)
+
+    def add_closures(self, k: int, matches: list[LoopMatch]) -> int:
+        """Turn verified ``matches`` of keyframe ``k`` into loop edges (refined, held where blind, checked
+        against the graph) and update the graph; returns how many were added."""
+        added = 0
+        for match in matches:
+            edge = self._loop_edge(match, k)
+            if edge is None:
+                continue
+            pose, info = edge
+            if not self._consistent(match.candidate, k, pose, info):
+                continue
+            # closures between the same two stretches of the path share their errors (the same faces
+            # seen from the same sides): the n-th of them counts 1/n, not as a new witness
+            near = 2 * self.settings.submap_keyframes
+            n = sum(
+                1
+                for c in self.closures
+                if abs(c.current - k) <= near and abs(c.candidate - match.candidate) <= near
+            )
+            self.graph.add_edge(match.candidate, k, pose, info / (1 + n), loop=True)
+            self.closures.append(LoopClosure(k, match.candidate, pose, match.inlier_share))
+            added += 1
+        self._update()
+        return added
+
+    def _update(self) -> None:
         t0 = time.perf_counter()
         try:
             self.graph.update()
@@ -218,6 +242,23 @@ class GraphMapper:
         total = np.linalg.inv(info) + CHAIN_INFLATION * self.chain_covariance(c, k)
         return float(e @ np.linalg.solve(total, e)) <= INNOVATION_CHI2
 
+    def _add_skip_edges(self, k: int) -> None:
+        """Edges from keyframes ``SKIP_KEYFRAMES`` back to ``k``, where their scans overlap: the front
+        end's relative pose with the point-to-line information of the two scans. The front end matches
+        against a local wall map spanning metres of travel, so its error over several keyframes is far
+        below a random walk of its keyframe-to-keyframe errors; these edges say so, and one loop closure
+        a little off cannot bend a whole lap that the front end had right."""
+        key = self.keyframes[k]
+        for j in SKIP_KEYFRAMES:
+            if k - j < 0 or key.travelled_m - self.keyframes[k - j].travelled_m > SKIP_MAX_M:
+                continue
+            ref = self.keyframes[k - j]
+            motion = ref.frontend.between(key.frontend)
+            edge = self._scan_edge(ref, key, motion, refine=False)
+            if edge is None:
+                continue
+            self.graph.add_edge(k - j, k, motion, _with_floor(edge[1], motion), loop=False)
+
     def _scan_edge(
         self, ref: Keyframe, cur: Keyframe, motion: Pose2D, refine: bool
     ) -> tuple[Pose2D, FloatArray] | None:
@@ -244,7 +285,7 @@ class GraphMapper:
             return None
         # no more certain than the score surface says: its spread adds to the translation's covariance
         cov: FloatArray = np.asarray(np.linalg.inv(info), dtype=np.float64)
-        cov[:2, :2] += match.spread
+        cov += match.spread
         return self._hold_unseen(match.candidate, k, pose, cov)
 
     def _hold_unseen(self, c: int, k: int, pose: Pose2D, cov: FloatArray) -> tuple[Pose2D, FloatArray]:
@@ -355,6 +396,6 @@ class GraphMapper:
         rebuilt.flush()
         return rebuilt.snapshot()
 
-    def scans(self) -> Iterable[Scan]:
-        """The scans stepped so far, in order (kept for the rebuild)."""
-        return (s for s, _ in self._scans)
+    def stepped(self) -> list[tuple[Scan, Pose2D | None]]:
+        """The scans stepped so far with the odometry each was given, in order (kept for the rebuild)."""
+        return self._scans

@@ -1,0 +1,291 @@
+"""Loop closure on the robot: the pose graph beside the step, its slow work on a worker thread.
+
+:class:`OnlineGraphMapper` has the interface of :class:`~shared.pipeline.Pipeline` that the robot agent
+uses (``step``, ``walls``, ``recent_centroids``, ``snapshot``, ``config``, ``reconfigure``, ``timing_ms``,
+``pose``, ``version``), so the agent runs it in the pipeline's place. In the step it runs the front end and,
+at a keyframe, adds the node with its sequential and skip edges (:class:`~shared.slam.mapper.GraphMapper`,
+about a millisecond). Off the step's path, on one worker thread:
+
+- the **loop search** of each new keyframe (correlative searches, tens of milliseconds), whose closures
+  join the graph between two steps' graph updates, under the mapper's lock;
+- after closures, a **rebuild of the shown map**: every scan so far mapped again at its corrected pose by a
+  fresh pipeline (as :meth:`GraphMapper.finish` does offline). It is swapped in between two steps, the
+  scans stepped meanwhile are caught up at their corrected poses, and from then on each step feeds it at
+  the corrected pose. Walls drawn twice before the loop was closed come out once; the agent's next map
+  version carries the changed and removed walls.
+
+Until the first closure the shown map is the front end's own. A rebuild costs as much as mapping every scan
+again (about 2 ms a scan on the simulated world): after an hour at 10 Hz that is a minute of the worker's
+time, and closures arriving meanwhile are taken by the next rebuild. Keyframe-anchored wall observations,
+re-placed without mapping the scans again, are the way to bound it (docs/loopclosure.md, "Not yet").
+
+Thread safety: the step, the worker and the readers (``walls``, ``snapshot``) share the mapper under one
+lock; the worker holds it only to read the graph's poses and to add edges, never while it searches or
+rebuilds.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from collections.abc import Callable
+
+import numpy as np
+
+from shared.errors import LinemapError
+from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
+from shared.pipeline.pipeline import StepResult
+from shared.slam.mapper import GraphMapper
+from shared.slam.settings import LoopClosureSettings
+from shared.types import FloatArray, IntArray, Pose2D, Scan
+
+__all__ = ["OnlineGraphMapper"]
+
+log = logging.getLogger(__name__)
+
+_REBUILD = -1  # the worker's job id for a rebuild (keyframe jobs are their index)
+_STOP = -2
+#: a rebuild hands over when at most this many scans are left to catch up (in the step, ~2 ms each)
+_CATCH_UP_IN_STEP = 3
+#: keyframes (0.5 m each by default) between the starts of two rebuilds of the shown map
+REBUILD_EVERY_KEYFRAMES = 20
+
+
+class OnlineGraphMapper:
+    """The front end, the pose graph and the shown map, for a robot (module docstring).
+
+    ``make_pipeline(config)`` builds a pipeline with the robot's laser offset; ``config`` is the first
+    configuration. ``worker=False`` runs the search and the rebuild in the step (tests, replays that
+    must be deterministic)."""
+
+    def __init__(
+        self,
+        make_pipeline: Callable[[PipelineConfig], Pipeline],
+        config: PipelineConfig,
+        settings: LoopClosureSettings | None = None,
+        *,
+        worker: bool = True,
+    ) -> None:
+        self._make = make_pipeline
+        self._config = config
+        self._mapper = GraphMapper(lambda: make_pipeline(self._config), settings)
+        self._mapper.search_inline = False
+        self._lock = threading.RLock()
+        self._shown: Pipeline | None = None  # the rebuilt map, once a loop was closed
+        self._pending: tuple[Pipeline, int] | None = None  # a rebuilt map and the scans it covers
+        self._closed_since_rebuild = False
+        self._rebuilt_at = -REBUILD_EVERY_KEYFRAMES  # keyframe count when the last rebuild began
+        self._version = 0
+        self.rebuilds = 0
+        self.failure: str | None = None  # the worker's last error (the robot keeps mapping)
+        self._jobs: queue.Queue[int] = queue.Queue()
+        self._idle = threading.Condition()
+        self._outstanding = 0  # jobs submitted and not finished
+        self._thread: threading.Thread | None = None
+        if worker:
+            self._thread = threading.Thread(target=self._work, name="loop-closure", daemon=True)
+            self._thread.start()
+
+    # ------------------------------------------------------------------ the step
+    def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
+        """One scan: the front end, the graph's keyframes, the shown map; the pose is the corrected one."""
+        with self._lock:
+            self._swap_in()
+            keyframes = len(self._mapper.keyframes)
+            result = self._mapper.step(scan, odometry)
+            if self._shown is not None:
+                self._shown.step(scan, odometry, pose=result.pose)
+            new_key = len(self._mapper.keyframes) > keyframes
+        self._version += 1
+        if new_key and self._mapper.settings.enabled:
+            self._submit(len(self._mapper.keyframes) - 1)
+        return StepResult(self._version, result.pose, result.icp_used, result.ran, result.step_ms)
+
+    def flush(self) -> None:
+        """Take in the closures not yet drawn (a rebuild now, in the step or on the worker, waited for)
+        and run every pending batch of the shown map's stages."""
+        if self._closed_since_rebuild:
+            if self._thread is None:
+                self._run(_REBUILD)
+            else:
+                self._enqueue(_REBUILD)
+        self.wait_idle()
+        with self._lock:
+            self._swap_in()
+            self._shown_or_front().flush()
+
+    def _rebuild_due(self) -> bool:
+        """Closures not drawn yet, and ``REBUILD_EVERY_KEYFRAMES`` keyframes since the last rebuild began:
+        each rebuild maps every scan again, so they are spaced out (``flush`` takes the rest)."""
+        return (
+            self._closed_since_rebuild
+            and len(self._mapper.keyframes) - self._rebuilt_at >= REBUILD_EVERY_KEYFRAMES
+        )
+
+    def _submit(self, job: int) -> None:
+        if self._thread is None:
+            self._run(job)
+            if self._rebuild_due():
+                self._run(_REBUILD)
+            self._swap_in()
+            return
+        self._enqueue(job)
+
+    def _enqueue(self, job: int) -> None:
+        with self._idle:
+            self._outstanding += 1
+        self._jobs.put(job)
+
+    def _swap_in(self) -> None:
+        """Take a finished rebuild: catch it up on the scans stepped since its poses were read."""
+        pending, self._pending = self._pending, None
+        if pending is None:
+            return
+        rebuilt, covered = pending
+        trajectory = self._mapper.trajectory()
+        scans = self._mapper.stepped()
+        for (scan, odometry), row in zip(scans[covered:], trajectory[covered:], strict=True):
+            rebuilt.step(scan, odometry, pose=Pose2D(row[1], row[2], row[3]))
+        self._shown = rebuilt
+        self.rebuilds += 1
+        log.info("loop closure: map rebuilt from %d corrected poses", len(trajectory))
+
+    # ------------------------------------------------------------------ the worker
+    def _work(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job == _STOP:
+                return
+            self._run(job)
+            if job >= 0 and self._jobs.empty() and self._rebuild_due():
+                self._run(_REBUILD)
+            with self._idle:
+                self._outstanding -= 1
+                self._idle.notify_all()
+
+    def _run(self, job: int) -> None:
+        try:
+            if job == _REBUILD:
+                self._rebuild()
+            else:
+                self._search(job)
+        except LinemapError as exc:
+            self.failure = f"loop closure: {exc}"
+            log.warning("%s; mapping goes on without it", self.failure)
+        except Exception as exc:  # the worker must not die with the robot still mapping
+            self.failure = f"loop closure failed: {type(exc).__name__}: {exc}"
+            log.exception("loop closure failed; mapping goes on without it")
+
+    def _search(self, k: int) -> None:
+        matches = self._mapper.find_closures(k)
+        if not matches:
+            return
+        with self._lock:
+            if self._mapper.add_closures(k, matches):
+                self._closed_since_rebuild = True
+
+    def _rebuild(self) -> None:
+        with self._lock:
+            self._closed_since_rebuild = False
+            self._rebuilt_at = len(self._mapper.keyframes)
+            trajectory = self._mapper.trajectory()
+            scans = list(self._mapper.stepped())
+        rebuilt = self._make(self._config)
+        covered = 0
+        while True:  # catch up here, not in the step: the robot went on while this ran
+            for (scan, odometry), row in zip(scans[covered:], trajectory[covered:], strict=True):
+                rebuilt.step(scan, odometry, pose=Pose2D(row[1], row[2], row[3]))
+            covered = len(scans)
+            with self._lock:
+                if len(self._mapper.stepped()) - covered <= _CATCH_UP_IN_STEP:
+                    self._pending = (rebuilt, covered)
+                    return
+                trajectory = self._mapper.trajectory()
+                scans = list(self._mapper.stepped())
+
+    def wait_idle(self, timeout_s: float | None = None) -> bool:
+        """Block until the worker has no job left (tests, the end of a replay), then take a finished
+        rebuild in; whether it got there within ``timeout_s``."""
+        with self._idle:
+            done = self._idle.wait_for(lambda: self._outstanding == 0, timeout_s)
+        if done:
+            with self._lock:
+                self._swap_in()
+        return done
+
+    def close(self) -> None:
+        """Stop the worker (what it was doing is dropped)."""
+        if self._thread is not None:
+            self._jobs.put(_STOP)
+            self._thread.join(timeout=5.0)
+            self._thread = None
+
+    # ------------------------------------------------------------------ the pipeline's interface
+    def _shown_or_front(self) -> Pipeline:
+        return self._shown if self._shown is not None else self._mapper.front
+
+    @property
+    def config(self) -> PipelineConfig:
+        """The configuration in force."""
+        return self._config
+
+    def reconfigure(self, config: PipelineConfig) -> None:
+        """Swap in a new configuration between steps (front end and shown map; a rebuild under way uses
+        the old one for the scans it had); on any error the old one stays in force and the error
+        propagates."""
+        with self._lock:
+            self._mapper.front.reconfigure(config)
+            if self._shown is not None:
+                try:
+                    self._shown.reconfigure(config)
+                except Exception:
+                    self._mapper.front.reconfigure(self._config)
+                    raise
+            self._config = config
+
+    @property
+    def version(self) -> int:
+        """Increases with every step."""
+        return self._version
+
+    @property
+    def pose(self) -> Pose2D:
+        """The corrected robot pose now (world frame)."""
+        with self._lock:
+            return self._mapper.pose
+
+    @property
+    def closures(self) -> int:
+        """Loop closures accepted so far."""
+        return len(self._mapper.closures)
+
+    def timing_ms(self) -> tuple[float, float]:
+        """Median and 99th percentile of the front end's recent step times (ms)."""
+        return self._mapper.front.timing_ms()
+
+    def walls(self) -> tuple[IntArray, FloatArray]:
+        """The shown map's walls: ids ``(W,)`` and end points ``(W, 4)`` (m)."""
+        with self._lock:
+            return self._shown_or_front().walls()
+
+    def recent_centroids(self, limit: int) -> FloatArray:
+        """The shown map's last ``limit`` centroids ``(C, 2)`` (m)."""
+        with self._lock:
+            return self._shown_or_front().recent_centroids(limit)
+
+    def snapshot(self) -> MapSnapshot:
+        """The shown map with the corrected trajectory and pose."""
+        with self._lock:
+            snap = self._shown_or_front().snapshot()
+            trajectory = self._mapper.trajectory()
+            pose = self._mapper.pose
+        trajectory.setflags(write=False)
+        return MapSnapshot(
+            self._version, snap.stamp_s, snap.segments, snap.segment_ids, snap.centroids, pose, trajectory
+        )
+
+    def trajectory(self) -> FloatArray:
+        """The corrected trajectory ``(N, 4)`` (stamp s, x m, y m, heading rad)."""
+        with self._lock:
+            return np.asarray(self._mapper.trajectory())

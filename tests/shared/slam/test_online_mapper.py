@@ -1,0 +1,118 @@
+"""Loop closure on the robot (OnlineGraphMapper): the same corrected map whether the search and the
+rebuild run in the step or on the worker; the step's pose is the corrected one; a bad configuration is
+refused with the old one kept; a failing worker leaves the robot mapping on the front end."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shared.bench.worlds import measure_map
+from shared.pipeline import Pipeline, PipelineConfig
+from shared.sim.worlds import simulate_case
+from shared.slam import LoopClosureSettings, OnlineGraphMapper
+
+
+def _mapper(case_run, worker: bool) -> OnlineGraphMapper:  # type: ignore[no-untyped-def]
+    offset = case_run.drive.laser_offset
+    return OnlineGraphMapper(lambda c: Pipeline(c, laser_offset=offset), PipelineConfig(), worker=worker)
+
+
+@pytest.fixture(scope="module")
+def loop_block():  # type: ignore[no-untyped-def]
+    return simulate_case("loop-block", 2)
+
+
+@pytest.fixture(scope="module")
+def in_step(loop_block):  # type: ignore[no-untyped-def]
+    """The two laps through the front end alone and through the online mapper in its in-step mode."""
+    run = loop_block.run
+    front = Pipeline(PipelineConfig(), laser_offset=run.drive.laser_offset)
+    online = _mapper(run, worker=False)
+    poses = []
+    for scan in run.scans:
+        front.step(scan)
+        poses.append(online.step(scan).pose)
+    front.flush()
+    online.flush()
+    return front, online, poses
+
+
+def test_in_the_step_two_laps_close_their_loop(loop_block, in_step) -> None:  # type: ignore[no-untyped-def]
+    front, online, poses = in_step
+    before = measure_map(loop_block, front.snapshot().segments, front.snapshot().trajectory)
+    snap = online.snapshot()
+    after = measure_map(loop_block, snap.segments, snap.trajectory)
+    assert online.closures >= 3 and online.rebuilds >= 1
+    assert after["mean_error_m"] < 0.7 * before["mean_error_m"]
+    assert after["ate_m"] < before["ate_m"]
+    assert poses[-1] == snap.pose  # the step answers with the corrected pose
+    ids, segments = online.walls()
+    np.testing.assert_array_equal(segments, snap.segments)
+    assert len(ids) == len(segments)
+
+
+def test_on_the_worker_the_map_is_corrected_too(loop_block) -> None:  # type: ignore[no-untyped-def]
+    run = loop_block.run
+    online = _mapper(run, worker=True)
+    try:
+        for scan in run.scans:
+            online.step(scan)
+        assert online.wait_idle(300)
+        online.flush()
+        snap = online.snapshot()
+        after = measure_map(loop_block, snap.segments, snap.trajectory)
+        assert online.closures >= 3 and online.rebuilds >= 1
+        assert online.failure is None
+        assert after["mean_error_m"] < 0.02
+        assert len(snap.trajectory) == len(run.scans)
+    finally:
+        online.close()
+
+
+def test_a_new_configuration_reaches_the_front_end_and_the_shown_map(loop_block, in_step) -> None:  # type: ignore[no-untyped-def]
+    run = loop_block.run
+    _front, online, _poses = in_step
+    assert online.rebuilds >= 1  # a shown map of its own
+    offline = PipelineConfig(mode="offline", n_smax=5)
+    online.reconfigure(offline)
+    assert online.config == offline
+    assert online._mapper.front.config == offline and online._shown is not None
+    assert online._shown.config == offline
+    online.step(run.scans[0])
+
+
+def test_a_failing_search_leaves_the_robot_mapping(loop_block, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    run = loop_block.run
+    online = _mapper(run, worker=True)
+
+    def broken(k: int) -> list[object]:
+        raise RuntimeError("search exploded")
+
+    monkeypatch.setattr(online._mapper, "find_closures", broken)
+    try:
+        for scan in run.scans[:120]:
+            online.step(scan)
+        assert online.wait_idle(60)
+        assert online.failure is not None and "search exploded" in online.failure
+        assert online.version == 120
+        assert len(online.walls()[1]) > 0
+    finally:
+        online.close()
+
+
+def test_loop_closure_off_is_the_front_end(loop_block) -> None:  # type: ignore[no-untyped-def]
+    run = loop_block.run
+    offset = run.drive.laser_offset
+    off = OnlineGraphMapper(
+        lambda c: Pipeline(c, laser_offset=offset),
+        PipelineConfig(),
+        LoopClosureSettings(enabled=False),
+        worker=False,
+    )
+    front = Pipeline(PipelineConfig(), laser_offset=offset)
+    for scan in run.scans[:300]:
+        off.step(scan)
+        front.step(scan)
+    np.testing.assert_array_equal(off.walls()[1], front.walls()[1])
+    assert off.closures == 0
