@@ -12,7 +12,7 @@ from typing import Annotated, Any
 import typer
 
 from shared.errors import LinemapError
-from shared.slam import LoopClosureSettings
+from shared.slam import LoopClosureSettings, OnlineGraphMapper
 
 __all__ = ["agent_cmd"]
 
@@ -211,4 +211,9 @@ def agent_cmd(
     where = f"server {server_url} as robot {rid}" if server_url else "no server"
     typer.echo(f"linemap agent: source {src}, Robot DB {settings.db_path}, {where}", err=True)
     agent.run(stop)
-    typer.echo(f"linemap agent: stopped after {agent.stats.steps} steps", err=True)
+    closed = (
+        f", {agent.pipeline.closures} loop closures, map redrawn {agent.pipeline.rebuilds} times"
+        if isinstance(agent.pipeline, OnlineGraphMapper)
+        else ""
+    )
+    typer.echo(f"linemap agent: stopped after {agent.stats.steps} steps{closed}", err=True)

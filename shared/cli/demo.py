@@ -194,6 +194,13 @@ def demo_cmd(
         Path | None,
         typer.Option(help="On stopping, draw the robot's map over the world's true walls to this PNG."),
     ] = None,
+    loop_closure: Annotated[
+        bool,
+        typer.Option(
+            "--loop-closure/--no-loop-closure",
+            help="The robot closes loops with a keyframe pose graph (docs/loopclosure.md).",
+        ),
+    ] = False,
 ) -> None:
     """Run a server and a simulated robot, print the dashboard's URL and operator token, wait for Ctrl-C."""
     source = world_source(world)
@@ -242,6 +249,7 @@ def demo_cmd(
                 "--token", robot_token,
                 "--db", str(directory / "robot.db"),
                 "--trust-key", public_key,
+                *(["--loop-closure"] if loop_closure else []),
             ],
             directory / "agent.log",
         )  # fmt: skip

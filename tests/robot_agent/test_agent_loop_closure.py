@@ -1,0 +1,49 @@
+"""The agent with loop closure as a real process against a real server on 127.0.0.1: two laps round a
+block close their loop on the robot, every map version still reaches the server once and in order, and the
+server's last map is the corrected one."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shared.metrics import line_accuracy
+from shared.sim.worlds import simulate_case
+from tests.robot_agent.agentproc import AgentProcess, integrity
+from tests.server.live import Live, start_live
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
+    yield from start_live("sqlite", tmp_path_factory.mktemp("agent-loop-server"), poll_recheck_s=1.0)
+
+
+def test_two_laps_close_their_loop_on_the_robot(live: Live, tmp_path: Path) -> None:
+    case = simulate_case("loop-block", 0)
+    n_scans = len(case.run.scans)
+    rid, token = live.new_robot()
+    agent = AgentProcess(
+        tmp_path / "robot.db",
+        server=live.base_url,
+        robot_id=rid,
+        token=token,
+        extra=["--source", "sim:loop-block", "--rate", "0", "--loop-closure", "--exit-at-end"],
+    )
+    assert agent.proc.wait(600) == 0, agent.output()
+    agent.stop()
+    out = agent.output()
+    assert "Traceback" not in out
+    closures = int(out.split(" loop closures")[0].rsplit(", ", 1)[-1])
+    assert closures >= 3, out
+    assert integrity(agent.db) == "ok"
+    op = live.operator()
+    latest = op.get(f"/robots/{rid}/maps/latest").json()
+    stamps = [row[0] for row in latest["trajectory"]]
+    assert len(stamps) == n_scans and stamps == sorted(set(stamps)), "each scan exactly once, in order"
+    walls = np.array([row[1:] for row in latest["segments"]], dtype=np.float64)
+    acc = line_accuracy(walls.reshape(-1, 4), case.run.world.walls)
+    assert acc.mean_distance_m < 0.025
+    assert acc.spurious_share < 0.03
