@@ -167,6 +167,66 @@ def _score_grid(
     return best, best_th
 
 
+class _Surface:
+    """A correlative score surface (Olson 2009): the look-up table of ``sub`` (``cell`` m cells, table
+    radius ``radius`` m) round ``centre`` (at most ``clip_m`` away, so the table stays bounded) and the
+    current returns (at most 150, even stride), scored over translations within +-``half_m``."""
+
+    def __init__(
+        self,
+        sub: FloatArray,
+        cur: FloatArray,
+        centre: Pose2D,
+        cell: float,
+        radius: float,
+        half_m: float,
+        *,
+        clip_m: float,
+    ) -> None:
+        if len(cur) > 150:
+            cur = cur[(np.arange(150) * len(cur)) // 150]
+        self.cur = np.ascontiguousarray(cur)
+        self.cell = cell
+        self.n_xy = round(half_m / cell)
+        margin = half_m + radius + cell
+        c = np.array([centre.x_m, centre.y_m])
+        self.lo = np.maximum(sub.min(axis=0) - margin, c - clip_m)
+        hi = np.minimum(sub.max(axis=0) + margin, c + clip_m)
+        nx, ny = (int(v) for v in np.maximum(np.ceil((hi - self.lo) / cell), 1))
+        self.table = _table(
+            np.ascontiguousarray(sub), float(self.lo[0]), float(self.lo[1]), cell, nx, ny, radius
+        )
+
+    def scores(
+        self, pose: Pose2D, n_rot: int, rot_step: float, n_xy: int | None = None
+    ) -> tuple[FloatArray, FloatArray]:
+        """Per translation cell round ``pose`` the best score over ``2 n_rot + 1`` rotations and that
+        rotation (rad): two ``(S, S)`` arrays (:func:`_score_grid`)."""
+        return _score_grid(
+            self.table,
+            float(self.lo[0]),
+            float(self.lo[1]),
+            self.cell,
+            self.cur,
+            pose.x_m,
+            pose.y_m,
+            pose.theta_rad,
+            n_rot,
+            rot_step,
+            self.n_xy if n_xy is None else n_xy,
+        )
+
+    def at(self, pose: Pose2D) -> float:
+        """The score of ``pose`` itself."""
+        return float(self.scores(pose, 0, 0.0, 0)[0][0, 0])
+
+    def offsets(self) -> tuple[FloatArray, FloatArray]:
+        """The translation of each cell of :meth:`scores` (m): two ``(S, S)`` arrays, x and y."""
+        shifts = (np.arange(2 * self.n_xy + 1) - self.n_xy) * self.cell
+        ox, oy = np.meshgrid(shifts, shifts, indexing="ij")
+        return ox, oy
+
+
 def _coarse(
     sub: FloatArray, cur: FloatArray, guess: Pose2D, settings: LoopClosureSettings, rot_step: float
 ) -> tuple[Pose2D, FloatArray, tuple[int, int], BoolArray]:
@@ -174,29 +234,9 @@ def _coarse(
     and the cells that explain the scan about as well (:func:`peak`): ``(pose, scores (S, S), cell,
     plausible (S, S))``."""
     cell = _COARSE_CELL_M
-    if len(cur) > 150:
-        cur = cur[(np.arange(150) * len(cur)) // 150]
-    margin = settings.window_m + _COARSE_RADIUS_M + cell
-    lo = np.maximum(sub.min(axis=0) - margin, np.array([guess.x_m, guess.y_m]) - 30.0)
-    hi = np.minimum(sub.max(axis=0) + margin, np.array([guess.x_m, guess.y_m]) + 30.0)
-    nx, ny = (int(v) for v in np.maximum(np.ceil((hi - lo) / cell), 1))
-    table = _table(np.ascontiguousarray(sub), float(lo[0]), float(lo[1]), cell, nx, ny, _COARSE_RADIUS_M)
-    n_xy = round(settings.window_m / cell)
-    scores, thetas = _score_grid(
-        table,
-        float(lo[0]),
-        float(lo[1]),
-        cell,
-        np.ascontiguousarray(cur),
-        guess.x_m,
-        guess.y_m,
-        guess.theta_rad,
-        int(settings.window_rad / rot_step),
-        rot_step,
-        n_xy,
-    )
-    shifts = (np.arange(2 * n_xy + 1) - n_xy) * cell
-    ox, oy = np.meshgrid(shifts, shifts, indexing="ij")
+    surface = _Surface(sub, cur, guess, cell, _COARSE_RADIUS_M, settings.window_m, clip_m=30.0)
+    scores, thetas = surface.scores(guess, int(settings.window_rad / rot_step), rot_step)
+    ox, oy = surface.offsets()
     (a, b), plausible = peak(scores, np.hypot(ox, oy))
     pose = Pose2D(guess.x_m + ox[a, b], guess.y_m + oy[a, b], float(thetas[a, b]))
     return pose, scores, (a, b), plausible
@@ -307,53 +347,16 @@ def spread(sub: FloatArray, cur: FloatArray, pose: Pose2D, rot_step: float) -> F
     pillars are all the scan has, for half a degree; a loop edge must not claim more. O(R T N) for
     R = 9 rotations, T = (2 SPREAD_M / 2.5 cm)^2 shifts and N <= 150 returns."""
     cell = 0.025
-    if len(cur) > 150:
-        cur = cur[(np.arange(150) * len(cur)) // 150]
-    centre = np.array([pose.x_m, pose.y_m])
-    lo = np.maximum(sub.min(axis=0), centre - 15.0) - SPREAD_M - 0.2
-    hi = np.minimum(sub.max(axis=0), centre + 15.0) + SPREAD_M + 0.2
-    nx, ny = (int(v) for v in np.maximum(np.ceil((hi - lo) / cell), 1))
-    table = _table(np.ascontiguousarray(sub), float(lo[0]), float(lo[1]), cell, nx, ny, 0.1)
-    n_xy = round(SPREAD_M / cell)
-    scores, _ = _score_grid(
-        table,
-        float(lo[0]),
-        float(lo[1]),
-        cell,
-        np.ascontiguousarray(cur),
-        pose.x_m,
-        pose.y_m,
-        pose.theta_rad,
-        4,
-        rot_step,
-        n_xy,
-    )
-    shifts = (np.arange(2 * n_xy + 1) - n_xy) * cell
-    ox, oy = np.meshgrid(shifts, shifts, indexing="ij")
+    surface = _Surface(sub, cur, pose, cell, 0.1, SPREAD_M, clip_m=15.0)
+    scores, _ = surface.scores(pose, 4, rot_step)
+    ox, oy = surface.offsets()
     near = scores >= SPREAD_RATIO * scores.max()
     d = np.column_stack([ox[near], oy[near]])
     out: FloatArray = np.zeros((3, 3))
     out[:2, :2] = d.T @ d / len(d) + np.eye(2) * cell**2 / 12.0
     # the rotations: the score at the pose's translation, turned in steps of rot_step
     turns = np.arange(-16, 17) * rot_step
-    at = np.array(
-        [
-            _score_grid(
-                table,
-                float(lo[0]),
-                float(lo[1]),
-                cell,
-                np.ascontiguousarray(cur),
-                pose.x_m,
-                pose.y_m,
-                pose.theta_rad + t,
-                0,
-                rot_step,
-                0,
-            )[0][0, 0]
-            for t in turns
-        ]
-    )
+    at = np.array([surface.at(Pose2D(pose.x_m, pose.y_m, pose.theta_rad + t)) for t in turns])
     plausible = turns[at >= SPREAD_RATIO * at.max()]
     out[2, 2] = float(np.mean(plausible**2)) + rot_step**2 / 12.0
     return out
