@@ -53,6 +53,7 @@ def _file_settings(path: Path | None) -> dict[str, Any]:
         "retry_base",
         "max_retry_after",
         "error_clear",
+        "loop_closure",
     }
     unknown = sorted(set(data) - allowed)
     if unknown:

@@ -47,3 +47,50 @@ def test_two_laps_close_their_loop_on_the_robot(live: Live, tmp_path: Path) -> N
     acc = line_accuracy(walls.reshape(-1, 4), case.run.world.walls)
     assert acc.mean_distance_m < 0.025
     assert acc.spurious_share < 0.03
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ("[loop_closure]\nsearch_radius_m = -3\n", "search_radius_m = -3: expected a value in [0, 100]"),
+        ('loop_closure = "yes"\n', "loop_closure = 'yes': expected true, false or a table of settings"),
+        ("[loop_closure]\nradius = 3.0\n", "unknown loop-closure setting(s) radius"),
+    ],
+)
+def test_a_bad_loop_setting_in_the_agent_file_is_refused(tmp_path: Path, setting: str, message: str) -> None:
+    """The agent's TOML file takes loop_closure as true / false or a table of settings; a bad one is
+    refused before anything runs, naming the setting, with no traceback."""
+    import subprocess
+
+    from tests.robot_agent.agentproc import LINEMAP
+
+    file = tmp_path / "agent.toml"
+    file.write_text(f'source = "sim"\ndb = "{tmp_path / "robot.db"}"\n{setting}', encoding="utf-8")
+    run = subprocess.run(
+        [LINEMAP, "agent", "--file", str(file), "--max-steps", "3", "--exit-at-end"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 2, run.stderr
+    assert message in " ".join(run.stderr.split())
+    assert "Traceback" not in run.stderr
+    assert not (tmp_path / "robot.db").exists()
+
+
+def test_loop_closure_settings_from_the_agent_file_run(tmp_path: Path) -> None:
+    import subprocess
+
+    from tests.robot_agent.agentproc import LINEMAP
+
+    file = tmp_path / "agent.toml"
+    db = tmp_path / "robot.db"
+    file.write_text(f'source = "sim"\ndb = "{db}"\n[loop_closure]\nsearch_radius_m = 6.0\n', encoding="utf-8")
+    run = subprocess.run(
+        [LINEMAP, "agent", "--file", str(file), "--max-steps", "20", "--exit-at-end", "--rate", "0"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "stopped after 20 steps, 0 loop closures" in run.stderr
