@@ -128,15 +128,13 @@ class Agent:
         self._mapping_over = threading.Event()  # set once the mapping thread recorded its last step
         self._stepped: tuple[int, float] = (0, 0.0)
         offset = settings.laser_offset if settings.laser_offset is not None else laser_offset(settings.source)
+        self._offset = offset
         self.pipeline: Pipeline | OnlineGraphMapper
-        if settings.loop_closure is not None:
-            self.pipeline = OnlineGraphMapper(
-                lambda config: Pipeline(config, laser_offset=offset),
-                self._initial_config(),
-                settings.loop_closure,
-            )
+        config = self._initial_config()
+        if config.loop_closure is not None:
+            self.pipeline = OnlineGraphMapper(self._make_pipeline, config)
         else:
-            self.pipeline = Pipeline(self._initial_config(), laser_offset=offset)
+            self.pipeline = Pipeline(config, laser_offset=offset)
         self._prev_walls: dict[int, tuple[float, float, float, float]] = {}
         stored = self.db.walls()
         self._id_offset = int(max((w[0] for w in stored), default=-1)) + 1
@@ -198,9 +196,26 @@ class Agent:
                 broken.extend(notes)
         if broken:
             self.stats.last_error = "at start-up: " + "; ".join(broken)
+        if self.s.loop_closure is not None:  # given at start (command line, TOML): over the stored choice
+            lc = self.s.loop_closure
+            config = config.model_copy(update={"loop_closure": lc.as_dict() if lc.enabled else None})
         config = pin_versions(config)
         self.db.record_config(config.model_dump(mode="json"), "start-up", kernels_run(config))
         return config
+
+    def _make_pipeline(self, config: PipelineConfig) -> Pipeline:
+        return Pipeline(config, laser_offset=self._offset)
+
+    def _reconfigure(self, config: PipelineConfig) -> None:
+        """Swap ``config`` in between two steps. Loop closure switched on over the front end alone starts
+        the pose graph here, at the pose the robot has, over the map drawn so far (which stays as drawn);
+        switched off, the graph stays and stops searching (:class:`OnlineGraphMapper`)."""
+        if isinstance(self.pipeline, Pipeline) and config.loop_closure is not None:
+            self.pipeline.reconfigure(config)  # raises with the old configuration kept
+            self.pipeline = OnlineGraphMapper(self._make_pipeline, config, front=self.pipeline)
+            log.info("loop closure switched on at step %d", self.pipeline.version)
+            return
+        self.pipeline.reconfigure(config)
 
     def _register_record(self, rec: KernelRecord) -> None:
         from robot_agent.kernels import verify_artifact
@@ -451,7 +466,7 @@ class Agent:
                 before,
                 self._register,
                 _unregister,
-                self.pipeline.reconfigure,
+                self._reconfigure,
                 floors=self.db.run_floors(),
             )
         except Exception as exc:  # anything the message caused: reject it, keep mapping as before

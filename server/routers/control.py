@@ -24,6 +24,7 @@ from shared.control import (
     KernelOperation,
     KernelSpec,
     OperationKind,
+    ParamValue,
     build_message,
     parse_message,
     to_config,
@@ -32,7 +33,7 @@ from shared.kernels import Stage
 from shared.kernels.versions import VERSION_PATTERN
 from shared.pipeline.config import Mode, PipelineConfig
 
-__all__ = ["ControlDraft", "KernelDraft", "OperationDraft", "router"]
+__all__ = ["ControlDraft", "KernelDraft", "LoopClosureDraft", "OperationDraft", "router"]
 
 router = APIRouter(prefix="/control", tags=["control"])
 
@@ -63,6 +64,20 @@ class OperationDraft(BaseModel):
     )
 
 
+class LoopClosureDraft(BaseModel):
+    """Loop closure stated whole (what is left out takes the defaults); the ranges are checked as the
+    robot checks them (:class:`shared.slam.settings.LoopClosureSettings`), naming the element."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = True
+    search_radius_m: float | None = Field(None, description="Earlier places within this distance (m).")
+    min_inlier_share: float | None = Field(None, description="Share of returns a match needs (0..1).")
+    params: dict[str, ParamScalar] = Field(
+        default_factory=dict, description="Any other loop-closure setting by its own name (SI units)."
+    )
+
+
 class ControlDraft(BaseModel):
     """What the tuning form sends; every field is optional (what is left out stays as the robot has it)."""
 
@@ -76,6 +91,7 @@ class ControlDraft(BaseModel):
     clustering: KernelDraft | None = None
     straight_line: KernelDraft | None = None
     scan_matching: KernelDraft | Literal["none"] | None = None
+    loop_closure: LoopClosureDraft | None = None
     operations: list[OperationDraft] = Field(default_factory=list, max_length=32)
 
 
@@ -86,6 +102,18 @@ class ControlXml(BaseModel):
 def _spec(draft: KernelDraft, stage: Stage) -> KernelSpec:
     params = {k: tuple(v) if isinstance(v, list) else v for k, v in draft.params.items()}
     return KernelSpec(draft.name, tuple(sorted(params.items())), draft.version)
+
+
+def _loop_closure(draft: LoopClosureDraft) -> KernelSpec:
+    params: dict[str, ParamValue] = {
+        k: tuple(v) if isinstance(v, list) else v for k, v in draft.params.items()
+    }
+    params["enabled"] = draft.enabled
+    if draft.search_radius_m is not None:
+        params["search_radius_m"] = draft.search_radius_m
+    if draft.min_inlier_share is not None:
+        params["min_inlier_share"] = draft.min_inlier_share
+    return KernelSpec.of("loop-closure", params)
 
 
 def draft_message(draft: ControlDraft) -> ControlMessage:
@@ -108,6 +136,7 @@ def draft_message(draft: ControlDraft) -> ControlMessage:
         clustering=_spec(draft.clustering, Stage.CLUSTERING) if draft.clustering else None,
         straight_line=_spec(draft.straight_line, Stage.STRAIGHT_LINE) if draft.straight_line else None,
         scan_matching=scan,
+        loop_closure=_loop_closure(draft.loop_closure) if draft.loop_closure else None,
         operations=tuple(
             KernelOperation(
                 OperationKind(op.kind),

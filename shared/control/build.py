@@ -17,6 +17,7 @@ from shared.control.errors import ControlMessageError
 from shared.control.model import NO_SCAN_MATCHING, ControlMessage, KernelSpec, ParamValue
 from shared.control.vocabulary import (
     CLUSTERING_KERNELS,
+    LOOP_CLOSURE,
     NOISE_KERNELS,
     SCAN_MATCHERS,
     SEGMENTATION_KERNELS,
@@ -77,6 +78,10 @@ def build_message(msg: ControlMessage) -> bytes:
             stage = etree.SubElement(schedule, "stage", name=entry.stage.value, mode=entry.mode.value)
             if entry.n_smax is not None:
                 stage.set("n-smax", _integer(entry.n_smax, "<stage>"))
+    if msg.loop_closure is not None:
+        if msg.loop_closure.version is not None:
+            raise ControlMessageError("loop closure has no versions", element="<loop-closure>")
+        _body(etree.SubElement(m, LOOP_CLOSURE.name), msg.loop_closure, LOOP_CLOSURE)
     for op in msg.operations:
         el = etree.SubElement(m, f"kernel-{op.kind.value}", stage=op.stage.value, name=op.name)
         el.set("version", op.version)
@@ -160,6 +165,10 @@ def _named(el: _Element, tag: str, kind: Kind, value: ParamValue) -> None:
         _leaf(el, tag, _integer(value, display))
     elif kind is Kind.FLOAT:
         _leaf(el, tag, _number(value, display))
+    elif kind is Kind.BOOL:
+        if not isinstance(value, bool):
+            raise ControlMessageError(f"{value!r} is not true or false", element=display)
+        _leaf(el, tag, format_value(value))
     elif isinstance(value, str) and value.strip() == value and value:
         _leaf(el, tag, value)
     else:

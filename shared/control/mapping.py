@@ -21,10 +21,12 @@ from pydantic import ValidationError
 
 from shared.control.errors import ControlMessageError
 from shared.control.model import NO_SCAN_MATCHING, ControlMessage, KernelSpec, ParamValue, ScheduleEntry
-from shared.control.vocabulary import is_length_param, kernel_element, param_element
+from shared.control.vocabulary import LOOP_CLOSURE, is_length_param, kernel_element, param_element
 from shared.errors import KernelParameterError, UnknownKernelError
 from shared.kernels import Stage
 from shared.pipeline.config import SCHEDULED, KernelChoice, Mode, PipelineConfig, StageSchedule
+from shared.slam.errors import LoopClosureSettingsError
+from shared.slam.settings import LoopClosureSettings
 
 __all__ = ["Checkable", "from_config", "to_config"]
 
@@ -47,6 +49,7 @@ _FIELD_ELEMENT = {
     "n_smax": "n-smax",
     "heading_flush_deg": "heading-flush",
     "schedule": "schedule",
+    "loop_closure": "loop-closure",
 }
 
 
@@ -89,6 +92,8 @@ def to_config(
         updates["scan_matching"] = _choice(msg.scan_matching, Stage.SCAN_MATCHING)
     if msg.schedule is not None:
         updates["schedule"] = {e.stage: _stage_schedule(e) for e in msg.schedule}
+    if msg.loop_closure is not None:
+        updates["loop_closure"] = _loop_closure(msg.loop_closure)
     fields = {name: getattr(base, name) for name in PipelineConfig.model_fields}
     merged = {**fields, **updates}
     try:
@@ -150,6 +155,10 @@ def from_config(config: PipelineConfig, seq: int | None = None) -> ControlMessag
             else _spec(config.scan_matching, Stage.SCAN_MATCHING)
         ),
         schedule=tuple(schedule),
+        loop_closure=KernelSpec(
+            LOOP_CLOSURE.name,
+            tuple((config.loop_closure or {"enabled": False}).items()),
+        ),
     )
 
 
@@ -173,6 +182,24 @@ def _kernel_display(spec: KernelSpec, stage: Stage) -> str:
     if stage in (Stage.STRAIGHT_LINE, Stage.SCAN_MATCHING):
         return f"<{_STAGE_ELEMENT[stage]}>"
     return f"<{spec.name}>"
+
+
+def _loop_closure(spec: KernelSpec) -> dict[str, Any] | None:
+    """The configuration's ``loop_closure`` for a ``<loop-closure>`` element (None: off); errors name the
+    setting and the element's line."""
+    try:
+        settings = LoopClosureSettings.parse(spec.params_dict())
+    except LoopClosureSettingsError as exc:
+        field = exc.fields[0] if exc.fields else ""
+        named = LOOP_CLOSURE.by_param(field)
+        if named is not None and field in dict(spec.params):
+            element, line = f"<{named.element}>", spec.param_line(field)
+        elif field in dict(spec.params):
+            element, line = f'<param name="{field}">', spec.param_line(field)
+        else:
+            element, line = "<loop-closure>", spec.line
+        raise ControlMessageError(str(exc), element=element, line=line) from None
+    return settings.as_dict() if settings.enabled else None
 
 
 def _stage_schedule(entry: ScheduleEntry) -> StageSchedule:

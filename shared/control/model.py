@@ -118,7 +118,9 @@ class ControlMessage:
 
     ``noise_removal`` is the whole chain in order (an empty tuple switches noise removal off);
     ``scan_matching`` may be :data:`NO_SCAN_MATCHING`; ``schedule`` (mixed mode) replaces the whole
-    per-stage schedule; ``operations`` run in document order. ``lines`` maps top-level element names to
+    per-stage schedule; ``loop_closure`` (name ``"loop-closure"``, the settings of
+    :class:`shared.slam.settings.LoopClosureSettings` as parameters) states loop closure whole, ``enabled``
+    false switching it off; ``operations`` run in document order. ``lines`` maps top-level element names to
     their source lines (errors only).
     """
 
@@ -132,6 +134,7 @@ class ControlMessage:
     straight_line: KernelSpec | None = None
     scan_matching: KernelSpec | Literal["none"] | None = None
     schedule: tuple[ScheduleEntry, ...] | None = None
+    loop_closure: KernelSpec | None = None
     operations: tuple[KernelOperation, ...] = ()
     lines: tuple[tuple[str, int], ...] = field(default=(), compare=False, repr=False)
 

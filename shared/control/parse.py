@@ -26,6 +26,7 @@ from shared.control.safe_xml import MAX_MESSAGE_BYTES, load_xml
 from shared.control.vocabulary import (
     CLUSTERING_KERNELS,
     KERNEL_NAME,
+    LOOP_CLOSURE,
     NOISE_KERNELS,
     PARAM_NAME,
     SCAN_MATCHERS,
@@ -36,6 +37,7 @@ from shared.control.vocabulary import (
     Kind,
     is_length_param,
     lex_value,
+    parse_bool,
     parse_float,
     parse_int,
     scale_angle,
@@ -237,6 +239,8 @@ def _named_value(el: _Element, kind: Kind) -> ParamValue:
         return _value(el, parse_int, "an integer")
     if kind is Kind.FLOAT:
         return _value(el, parse_float, "a number")
+    if kind is Kind.BOOL:
+        return _value(el, parse_bool, "true or false")
     return _leaf(el, "a name")
 
 
@@ -301,6 +305,19 @@ def _straight_line(el: _Element) -> KernelSpec:
 def _scan_matching(el: _Element) -> KernelSpec | Literal["none"]:
     spec: KernelSpec | Literal["none"] = _method(el, SCAN_MATCHERS, "icp, icp-line or none", True)
     return spec
+
+
+def _loop_closure(el: _Element) -> KernelSpec:
+    _attributes(el, ())
+    children = _elements(el)
+    for child in children:
+        if child.tag == "version":
+            _fail(
+                child,
+                "<loop-closure> has no versions: expected <enabled>, <search-radius>, "
+                "<min-inlier-share> or <param>",
+            )
+    return _kernel_body(el, LOOP_CLOSURE, children)
 
 
 def _schedule(el: _Element) -> tuple[ScheduleEntry, ...]:
@@ -374,4 +391,5 @@ _TOP: dict[str, tuple[str, Callable[[_Element], Any]]] = {
     "straight-line-method": ("straight_line", _straight_line),
     "scan-matching": ("scan_matching", _scan_matching),
     "schedule": ("schedule", _schedule),
+    "loop-closure": ("loop_closure", _loop_closure),
 }

@@ -32,6 +32,7 @@ __all__ = [
     "DEFAULT_LENGTH_UNIT",
     "KERNEL_NAME",
     "LENGTH_UNITS",
+    "LOOP_CLOSURE",
     "MAX_INT",
     "NOISE_KERNELS",
     "PARAM_NAME",
@@ -48,6 +49,7 @@ __all__ = [
     "kernel_element",
     "lex_value",
     "param_element",
+    "parse_bool",
     "parse_float",
     "parse_int",
     "scale_angle",
@@ -78,6 +80,7 @@ class Kind(StrEnum):
     FLOAT = "number"
     LENGTH = "length"
     TEXT = "text"
+    BOOL = "true or false"
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +150,17 @@ STRAIGHT_LINE_SPELLING: dict[str, str] = {
     "centroid-join": "CentroidJoin",
     "hough-cluster": "HoughCluster",
 }
+#: ``<loop-closure>``: loop closure under a keyframe pose graph, stated whole (what it leaves out takes
+#: :class:`shared.slam.settings.LoopClosureSettings`' defaults); any other setting by ``<param name="..">``.
+LOOP_CLOSURE = KernelElement(
+    "loop-closure",
+    (
+        NamedParam("enabled", "enabled", Kind.BOOL),
+        NamedParam("search-radius", "search_radius_m", Kind.LENGTH),
+        NamedParam("min-inlier-share", "min_inlier_share", Kind.FLOAT),
+    ),
+)
+
 #: ``<scan-matching>`` text, lower-cased, -> scan-matching kernel (``none`` switches it off).
 SCAN_MATCHERS: dict[str, str] = {"icp": "icp", "icp-line": "icp-line"}
 
@@ -194,6 +208,16 @@ def parse_float(text: str) -> float:
     if not math.isfinite(value):
         raise ValueError(f"{text!r} is out of range: expected a finite number")
     return value
+
+
+def parse_bool(text: str) -> bool:
+    """``true``/``on``/``1`` or ``false``/``off``/``0``, any case."""
+    key = text.lower()
+    if key in ("true", "on", "1"):
+        return True
+    if key in ("false", "off", "0"):
+        return False
+    raise ValueError(f"{text!r} is not a switch: expected true or false (on/off, 1/0)")
 
 
 def scale_length(value: float, unit: str | None) -> float:

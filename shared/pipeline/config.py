@@ -10,10 +10,12 @@ from __future__ import annotations
 from enum import StrEnum
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from shared.errors import KernelParameterError, LinemapError, UnknownKernelError
 from shared.kernels import REGISTRY, Kernel, Stage
+from shared.slam.errors import LoopClosureSettingsError
+from shared.slam.settings import LoopClosureSettings
 
 __all__ = ["SCHEDULED", "KernelChoice", "Mode", "PipelineConfig", "StageSchedule"]
 
@@ -71,6 +73,26 @@ class PipelineConfig(BaseModel):
     schedule: dict[Stage, StageSchedule] = Field(
         default_factory=dict, description="Mixed mode: online/offline and N_smax per scheduled stage"
     )
+    loop_closure: dict[str, Any] | None = Field(
+        None,
+        description=(
+            "Loop closure under a keyframe pose graph (shared.slam.settings.LoopClosureSettings, every "
+            "field stated); None: off, the front end's map alone"
+        ),
+    )
+
+    @field_validator("loop_closure")
+    @classmethod
+    def _loop_closure_settings(cls, value: dict[str, Any] | None) -> dict[str, Any] | None:
+        """Validate against :class:`~shared.slam.settings.LoopClosureSettings` and state every field, so
+        two configurations that mean the same compare equal; ``enabled = false`` is the same as None."""
+        if value is None:
+            return None
+        try:
+            settings = LoopClosureSettings.parse(value)
+        except LoopClosureSettingsError as exc:
+            raise ValueError(str(exc)) from None
+        return settings.as_dict() if settings.enabled else None
 
     @model_validator(mode="after")
     def _kernels_exist(self) -> PipelineConfig:
@@ -96,6 +118,10 @@ class PipelineConfig(BaseModel):
         if self.scan_matching is not None:
             out[Stage.SCAN_MATCHING] = [self.scan_matching.build(Stage.SCAN_MATCHING)]
         return out
+
+    def loop_closure_settings(self) -> LoopClosureSettings | None:
+        """The loop-closure settings in force, or None when loop closure is off."""
+        return None if self.loop_closure is None else LoopClosureSettings.parse(self.loop_closure)
 
     def stage_schedule(self, stage: Stage) -> StageSchedule:
         """How ``stage`` runs: from ``mode`` unless mixed, where ``schedule`` decides (default online)."""

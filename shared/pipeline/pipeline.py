@@ -15,6 +15,7 @@ The pipeline is stateful (it is the robot's memory); the kernels it calls are pu
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import time
@@ -56,7 +57,7 @@ from shared.pipeline.stages import (
 from shared.pipeline.wallmap import MergeTolerances, WallMap
 from shared.types import FloatArray, IntArray, Pose2D, Scan, wrap_angle
 
-__all__ = ["IcpGate", "Pipeline", "StepResult"]
+__all__ = ["IcpGate", "MapState", "Pipeline", "StepResult"]
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +78,16 @@ class _Buffer:
     chunks: list[Chunk] = field(default_factory=list)
     steps: int = 0
     heading0: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class MapState:
+    """A pipeline's shown map at one moment (:meth:`Pipeline.map_state`): opaque outside the pipeline."""
+
+    parts: tuple[Any, Any, Any]  # the wall map, its free-space evidence, the points seen free
+    centroids: tuple[FloatArray, ...]
+    trajectory: tuple[tuple[float, float, float, float], ...]
+    next_group: int
 
 
 class Pipeline:
@@ -491,6 +502,23 @@ class Pipeline:
         if not out:
             return np.zeros((0, 2))
         return np.vstack(out[::-1])[-limit:]
+
+    def map_state(self) -> MapState:
+        """A copy of what the shown map holds (walls with their evidence, free space, centroids, trajectory)
+        to start another pipeline from (:meth:`seed_map`); pending offline batches are not in it (flush
+        first). O(map + trajectory)."""
+        parts = copy.deepcopy((self._map, self._freespace, self._seen_free))
+        return MapState(parts, tuple(self._centroids), tuple(self._trajectory), self._next_group)
+
+    def seed_map(self, state: MapState) -> None:
+        """Start this pipeline's shown map from ``state`` (a copy is taken): what it maps next merges into
+        those walls. Only before the first step (:class:`LinemapError` otherwise)."""
+        if self._version or self._trajectory:
+            raise LinemapError("a pipeline's map can be seeded only before its first step")
+        self._map, self._freespace, self._seen_free = copy.deepcopy(state.parts)
+        self._centroids = list(state.centroids)
+        self._trajectory = list(state.trajectory)
+        self._next_group = state.next_group
 
     def snapshot(self) -> MapSnapshot:
         """The temporary map now: walls, centroids, pose, trajectory, version. O(map + trajectory)."""

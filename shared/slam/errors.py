@@ -13,7 +13,12 @@ class SlamError(LinemapError):
 
 
 class LoopClosureSettingsError(SlamError, ValueError):
-    """A loop-closure setting is out of its range; the message names it, its value and what is allowed."""
+    """A loop-closure setting is out of its range; the message names it, its value and what is allowed;
+    ``fields`` lists the settings at fault (first first)."""
+
+    def __init__(self, message: str, fields: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.fields = fields
 
 
 class OptimisationError(SlamError):

@@ -117,11 +117,16 @@ class GraphMapper:
     once for the front end and once for the final map)."""
 
     def __init__(
-        self, make_pipeline: Callable[[], Pipeline], settings: LoopClosureSettings | None = None
+        self,
+        make_pipeline: Callable[[], Pipeline],
+        settings: LoopClosureSettings | None = None,
+        *,
+        front: Pipeline | None = None,
     ) -> None:
         self._make = make_pipeline
         self.settings = settings or LoopClosureSettings()
-        self.front = make_pipeline()
+        # the front end: a new pipeline, or one that has mapped already (the graph starts at its pose)
+        self.front = front if front is not None else make_pipeline()
         self.graph = PoseGraph(robust_sigmas=self.settings.robust_sigmas)
         self._matcher = REGISTRY.create(
             Stage.SCAN_MATCHING, "icp", {"max_correspondence_m": 0.3, "refine_correspondence_m": 0.1}

@@ -30,12 +30,13 @@ import logging
 import queue
 import threading
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
 from shared.errors import LinemapError
 from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
-from shared.pipeline.pipeline import StepResult
+from shared.pipeline.pipeline import MapState, StepResult
 from shared.slam.mapper import GraphMapper
 from shared.slam.settings import LoopClosureSettings
 from shared.types import FloatArray, IntArray, Pose2D, Scan
@@ -56,8 +57,13 @@ class OnlineGraphMapper:
     """The front end, the pose graph and the shown map, for a robot (module docstring).
 
     ``make_pipeline(config)`` builds a pipeline with the robot's laser offset; ``config`` is the first
-    configuration. ``worker=False`` runs the search and the rebuild in the step (tests, replays that
-    must be deterministic)."""
+    configuration; ``settings`` the loop closure's (default: ``config``'s, else the defaults).
+    ``worker=False`` runs the search and the rebuild in the step (tests, replays that must be
+    deterministic).
+
+    ``front``: a pipeline that has mapped already (loop closure switched on while the robot runs). It goes
+    on as the front end, the graph starts at its pose, and its map so far is the base every rebuild
+    starts from: what was drawn before stays as drawn, and what is mapped from now on is corrected."""
 
     def __init__(
         self,
@@ -66,17 +72,23 @@ class OnlineGraphMapper:
         settings: LoopClosureSettings | None = None,
         *,
         worker: bool = True,
+        front: Pipeline | None = None,
     ) -> None:
         self._make = make_pipeline
         self._config = config
-        self._mapper = GraphMapper(lambda: make_pipeline(self._config), settings)
+        settings = settings or config.loop_closure_settings()
+        self._base: MapState | None = None
+        if front is not None and front.version:
+            front.flush()
+            self._base = front.map_state()
+        self._mapper = GraphMapper(lambda: make_pipeline(self._config), settings, front=front)
         self._mapper.search_inline = False
         self._lock = threading.RLock()
         self._shown: Pipeline | None = None  # the rebuilt map, once a loop was closed
         self._pending: tuple[Pipeline, int] | None = None  # a rebuilt map and the scans it covers
         self._closed_since_rebuild = False
         self._rebuilt_at = -REBUILD_EVERY_KEYFRAMES  # keyframe count when the last rebuild began
-        self._version = 0
+        self._version = front.version if front is not None else 0
         self.rebuilds = 0
         self.failure: str | None = None  # the worker's last error (the robot keeps mapping)
         self._jobs: queue.Queue[int] = queue.Queue()
@@ -192,6 +204,8 @@ class OnlineGraphMapper:
             trajectory = self._mapper.trajectory()
             scans = list(self._mapper.stepped())
         rebuilt = self._make(self._config)
+        if self._base is not None:
+            rebuilt.seed_map(self._base)
         covered = 0
         while True:  # catch up here, not in the step: the robot went on while this ran
             for (scan, odometry), row in zip(scans[covered:], trajectory[covered:], strict=True):
@@ -233,8 +247,13 @@ class OnlineGraphMapper:
     def reconfigure(self, config: PipelineConfig) -> None:
         """Swap in a new configuration between steps (front end and shown map; a rebuild under way uses
         the old one for the scans it had); on any error the old one stays in force and the error
-        propagates."""
+        propagates. The loop closure's settings come from ``config`` (``loop_closure`` None: the search
+        stops, the graph and the map drawn so far stay); the robust kernel's width is the graph's from
+        its start."""
         with self._lock:
+            self._mapper.settings = config.loop_closure_settings() or replace(
+                self._mapper.settings, enabled=False
+            )
             self._mapper.front.reconfigure(config)
             if self._shown is not None:
                 try:
@@ -254,6 +273,11 @@ class OnlineGraphMapper:
         """The corrected robot pose now (world frame)."""
         with self._lock:
             return self._mapper.pose
+
+    @property
+    def settings(self) -> LoopClosureSettings:
+        """The loop closure's settings in force."""
+        return self._mapper.settings
 
     @property
     def closures(self) -> int:
@@ -278,7 +302,7 @@ class OnlineGraphMapper:
         """The shown map with the corrected trajectory and pose."""
         with self._lock:
             snap = self._shown_or_front().snapshot()
-            trajectory = self._mapper.trajectory()
+            trajectory = self._trajectory()
             pose = self._mapper.pose
         trajectory.setflags(write=False)
         return MapSnapshot(
@@ -286,6 +310,13 @@ class OnlineGraphMapper:
         )
 
     def trajectory(self) -> FloatArray:
-        """The corrected trajectory ``(N, 4)`` (stamp s, x m, y m, heading rad)."""
+        """The corrected trajectory ``(N, 4)`` (stamp s, x m, y m, heading rad); with a ``front`` that had
+        mapped before, its poses from then first, as they were."""
         with self._lock:
-            return np.asarray(self._mapper.trajectory())
+            return self._trajectory()
+
+    def _trajectory(self) -> FloatArray:
+        corrected = np.asarray(self._mapper.trajectory(), dtype=np.float64).reshape(-1, 4)
+        if self._base is None or not self._base.trajectory:
+            return corrected
+        return np.vstack([np.asarray(self._base.trajectory, dtype=np.float64), corrected])

@@ -73,7 +73,9 @@ class LoopClosureSettings:
 
     def __post_init__(self) -> None:
         problems: list[str] = []
+        bad: list[str] = []
         for f in fields(self):
+            before = len(problems)
             value = getattr(self, f.name)
             if f.name in ("enabled", "final_batch"):
                 if not isinstance(value, bool):
@@ -87,8 +89,12 @@ class LoopClosureSettings:
                 problems.append(f"{f.name} = {value!r}: expected {expected} in [{low:g}, {high:g}]")
             elif not (math.isfinite(value) and low <= value <= high):
                 problems.append(f"{f.name} = {value!r}: expected a value in [{low:g}, {high:g}]")
+            if len(problems) > before:
+                bad.append(f.name)
         if problems:
-            raise LoopClosureSettingsError("invalid loop-closure settings: " + "; ".join(problems))
+            raise LoopClosureSettingsError(
+                "invalid loop-closure settings: " + "; ".join(problems), tuple(bad)
+            )
 
     @classmethod
     def parse(cls, data: Mapping[str, Any]) -> LoopClosureSettings:
@@ -98,7 +104,8 @@ class LoopClosureSettings:
         if unknown:
             raise LoopClosureSettingsError(
                 f"unknown loop-closure setting(s) {', '.join(unknown)}: "
-                f"expected some of {', '.join(sorted(known))}"
+                f"expected some of {', '.join(sorted(known))}",
+                tuple(unknown),
             )
         return cls(**dict(data))
 

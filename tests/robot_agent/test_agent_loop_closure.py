@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -94,3 +95,69 @@ def test_loop_closure_settings_from_the_agent_file_run(tmp_path: Path) -> None:
     )
     assert run.returncode == 0, run.stderr
     assert "stopped after 20 steps, 0 loop closures" in run.stderr
+
+
+def test_the_operator_switches_loop_closure_on_while_the_robot_maps(live: Live, tmp_path: Path) -> None:
+    """A robot started without loop closure gets ``<loop-closure>`` in a control message: it applies it
+    between two steps, reports the settings it runs and closes the loop on the second lap; a bad setting
+    is refused by the server before it is queued, naming the element, and the robot keeps its settings."""
+    from tests.robot_agent.agentproc import wait_for
+
+    case = simulate_case("loop-block", 0)
+    rid, token = live.new_robot()
+    op = live.operator()
+    agent = AgentProcess(
+        tmp_path / "robot.db",
+        server=live.base_url,
+        robot_id=rid,
+        token=token,
+        extra=["--source", "sim:loop-block", "--rate", "40", "--exit-at-end"],
+    )
+    try:
+        wait_for("first map", lambda: op.get(f"/robots/{rid}").json()["map_version"] > 0, 120)
+        on = _send(op, rid, '<loop-closure><search-radius unit="m">5</search-radius></loop-closure>')
+        assert on["status"] == "applied", on
+        config = wait_for(
+            "the robot's report of loop closure",
+            lambda: (c := op.get(f"/robots/{rid}").json()["config"]) and c.get("loop_closure") and c,
+        )
+        assert config["loop_closure"]["search_radius_m"] == 5.0
+        bad = op.post(
+            f"/robots/{rid}/messages",
+            content="<xml><message><loop-closure><min-inlier-share>2</min-inlier-share></loop-closure>"
+            "</message></xml>",
+            headers={"Content-Type": "application/xml"},
+        )
+        assert bad.status_code == 422, bad.text  # the server checks it as the robot would: never queued
+        assert "<min-inlier-share>" in bad.text and "expected a value in [0, 1]" in bad.text
+        assert agent.proc.wait(600) == 0, agent.output()
+    finally:
+        agent.stop()
+    out = agent.output()
+    assert "Traceback" not in out
+    closures = int(out.split(" loop closures")[0].rsplit(", ", 1)[-1])
+    assert closures >= 3, out
+    assert op.get(f"/robots/{rid}").json()["config"]["loop_closure"]["search_radius_m"] == 5.0
+    latest = op.get(f"/robots/{rid}/maps/latest").json()
+    walls = np.array([row[1:] for row in latest["segments"]], dtype=np.float64)
+    acc = line_accuracy(walls.reshape(-1, 4), case.run.world.walls)
+    assert acc.mean_distance_m < 0.03
+
+
+def _send(op: Any, rid: int, body: str) -> dict[str, Any]:
+    from tests.robot_agent.agentproc import wait_for
+
+    r = op.post(
+        f"/robots/{rid}/messages",
+        content=f"<xml><message>{body}</message></xml>",
+        headers={"Content-Type": "application/xml"},
+    )
+    assert r.status_code == 201, r.text
+    seq = r.json()["seq"]
+    return dict(
+        wait_for(
+            f"acknowledgement of message {seq}",
+            lambda: (m := op.get(f"/robots/{rid}/messages/{seq}").json())["status"] != "queued" and m,
+            120,
+        )
+    )

@@ -108,3 +108,29 @@ def test_any_valid_draft_round_trips(live: Live, epsilon_m: float, min_points: i
     assert config.noise_removal[0].params["min_points"] == min_points
     assert abs(float(config.noise_removal[0].params["epsilon_m"]) - epsilon_m) <= 1e-9 * max(1.0, epsilon_m)
     assert config.clustering.params == {"n_clusters": clusters}
+
+
+def test_loop_closure_in_the_draft(live: Live) -> None:
+    code, body = _xml(
+        live,
+        {"loop_closure": {"search_radius_m": 6.0, "min_inlier_share": 0.55, "params": {"window_m": 1.5}}},
+    )
+    assert code == 200, body
+    assert '<search-radius unit="m">6.0</search-radius>' in body["xml"]
+    settings = to_config(parse_message(body["xml"]), PipelineConfig()).loop_closure_settings()
+    assert settings is not None
+    assert (settings.search_radius_m, settings.min_inlier_share, settings.window_m) == (6.0, 0.55, 1.5)
+    code, body = _xml(live, {"loop_closure": {"enabled": False}})
+    assert code == 200, body
+    on = PipelineConfig(loop_closure={})
+    assert to_config(parse_message(body["xml"]), on).loop_closure is None
+
+
+def test_a_bad_loop_closure_setting_is_named(live: Live) -> None:
+    code, body = _xml(live, {"loop_closure": {"min_inlier_share": 1.5}})
+    assert code == 422
+    text = str(body)
+    assert "<min-inlier-share>" in text and "min_inlier_share = 1.5: expected a value in [0, 1]" in text
+    code, body = _xml(live, {"loop_closure": {"params": {"radius": 2}}})
+    assert code == 422
+    assert "unknown loop-closure setting(s) radius" in str(body)

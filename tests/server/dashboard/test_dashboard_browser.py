@@ -179,6 +179,40 @@ def test_tuning_dbscan_epsilon_is_acknowledged_and_in_force(page: Any, demo: dic
     shot(page, "04-tuned")
 
 
+def test_loop_closure_switched_on_and_off_from_the_form(page: Any, demo: dict[str, Any]) -> None:
+    open_robot(page, demo)
+    tid(page, "tab-tune").click()
+    tid(page, "tune-loop-enabled").check()
+    tid(page, "tune-loop-radius").fill("5")
+    tid(page, "tune-preview").click()
+    expect(tid(page, "xml-preview")).to_contain_text("<loop-closure>")
+    expect(tid(page, "xml-preview")).to_contain_text('<search-radius unit="m">5.0</search-radius>')
+    tid(page, "tune-send").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    wait_for(
+        "loop closure in force on the robot",
+        lambda: (robot_state(demo)["config"].get("loop_closure") or {}).get("search_radius_m") == 5.0,
+        60,
+    )
+    tid(page, "tab-status").click()
+    row = page.locator('[data-testid="config-table"] [data-param="loop_closure"]')
+    expect(row).to_contain_text("on", timeout=30_000)
+    shot(page, "04b-loop-closure-on")
+    # a value out of range is refused before anything is queued, naming the element
+    before = robot_state(demo)["last_seq"]
+    tid(page, "tab-tune").click()
+    tid(page, "tune-loop-inliers").fill("1.5")
+    tid(page, "tune-send").click()
+    expect(tid(page, "form-error")).to_contain_text("min-inlier-share")
+    assert robot_state(demo)["last_seq"] == before, "nothing was queued"
+    # and off again
+    tid(page, "tune-reset").click()
+    tid(page, "tune-loop-enabled").uncheck()
+    tid(page, "tune-send").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    wait_for("loop closure off", lambda: robot_state(demo)["config"].get("loop_closure") is None, 60)
+
+
 def test_out_of_range_value_is_refused_with_its_name(page: Any, demo: dict[str, Any]) -> None:
     before = robot_state(demo)["last_seq"]
     open_robot(page, demo)

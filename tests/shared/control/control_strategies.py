@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 from hypothesis import strategies as st
@@ -17,6 +18,7 @@ from shared.control import (
 )
 from shared.control.vocabulary import (
     CLUSTERING_KERNELS,
+    LOOP_CLOSURE,
     MAX_INT,
     NOISE_KERNELS,
     SCAN_MATCHERS,
@@ -69,6 +71,7 @@ def kernel_specs(draw: st.DrawFn, entry: KernelElement) -> KernelSpec:
                 Kind.FLOAT: floats,
                 Kind.LENGTH: floats,
                 Kind.TEXT: words,
+                Kind.BOOL: st.booleans(),
             }[named.kind]
             params[named.param] = draw(strategy)
     taken = {p.param for p in entry.named}
@@ -127,6 +130,7 @@ def messages(draw: st.DrawFn) -> ControlMessage:
             | st.sampled_from([KernelElement(k) for k in SCAN_MATCHERS]).flatmap(kernel_specs)
         ),
         schedule=draw(st.none() | schedule_entries),
+        loop_closure=draw(st.none() | kernel_specs(LOOP_CLOSURE).map(lambda s: replace(s, version=None))),
         operations=tuple(op for op in ops),
     )
 
@@ -195,6 +199,20 @@ schedules = st.dictionaries(
 )
 
 
+loop_closures = st.fixed_dictionaries(
+    {},
+    optional={
+        "enabled": st.booleans(),
+        "search_radius_m": st.floats(0.0, 100.0),
+        "min_inlier_share": st.floats(0.0, 1.0),
+        "window_m": st.floats(0.0, 10.0),
+        "window_rad": st.floats(0.0, 3.14),
+        "max_candidates": st.integers(1, 50),
+        "final_batch": st.booleans(),
+    },
+)
+
+
 @st.composite
 def configs(draw: st.DrawFn) -> PipelineConfig:
     """A valid pipeline configuration whose every kernel is in the control vocabulary."""
@@ -208,4 +226,5 @@ def configs(draw: st.DrawFn) -> PipelineConfig:
         straight_line=draw(line_choices),
         scan_matching=draw(matcher_choices),
         schedule=draw(schedules),
+        loop_closure=draw(st.none() | loop_closures),
     )

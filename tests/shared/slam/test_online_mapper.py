@@ -116,3 +116,54 @@ def test_loop_closure_off_is_the_front_end(loop_block) -> None:  # type: ignore[
         front.step(scan)
     np.testing.assert_array_equal(off.walls()[1], front.walls()[1])
     assert off.closures == 0
+
+
+def test_switched_on_while_mapping_it_corrects_what_comes_after(loop_block) -> None:  # type: ignore[no-untyped-def]
+    """Loop closure switched on a third of the way round the first lap: the front end goes on under the
+    graph, the map drawn so far stays (its walls keep their ids), the versions go on, and the second lap
+    closes the loop."""
+    run = loop_block.run
+    offset = run.drive.laser_offset
+    third = len(run.scans) // 6  # two laps: a third of the first
+    front = Pipeline(PipelineConfig(), laser_offset=offset)
+    alone = Pipeline(PipelineConfig(), laser_offset=offset)
+    for scan in run.scans[:third]:
+        front.step(scan)
+        alone.step(scan)
+    before_ids = set(front.walls()[0].tolist())
+    config = PipelineConfig(loop_closure={})
+    online = OnlineGraphMapper(lambda c: Pipeline(c, laser_offset=offset), config, worker=False, front=front)
+    assert online.step(run.scans[third]).version == third + 1
+    for scan in run.scans[third + 1 :]:
+        online.step(scan)
+    for scan in run.scans[third:]:
+        alone.step(scan)
+    online.flush()
+    alone.flush()
+    snap = online.snapshot()
+    assert online.closures >= 3 and online.rebuilds >= 1
+    assert len(snap.trajectory) == len(run.scans)
+    assert before_ids & set(snap.segment_ids.tolist()), "walls drawn before the switch keep their ids"
+    after = measure_map(loop_block, snap.segments, snap.trajectory)
+    plain = measure_map(loop_block, alone.snapshot().segments, alone.snapshot().trajectory)
+    assert after["mean_error_m"] < plain["mean_error_m"]
+    assert after["ate_m"] < plain["ate_m"]
+
+
+def test_switched_off_the_search_stops_and_the_map_stays(loop_block) -> None:  # type: ignore[no-untyped-def]
+    run = loop_block.run
+    online = _mapper(run, worker=False)
+    half = len(run.scans) // 2
+    for scan in run.scans[:half]:
+        online.step(scan)
+    online.reconfigure(PipelineConfig(loop_closure={"search_radius_m": 6.0}))
+    assert online.settings.enabled and online.settings.search_radius_m == 6.0
+    online.reconfigure(PipelineConfig())
+    assert not online.settings.enabled
+    closures, rebuilds = online.closures, online.rebuilds
+    for scan in run.scans[half:]:  # the second lap: the first lap's places again, and no search
+        online.step(scan)
+    online.flush()
+    assert online.closures == closures
+    assert online.rebuilds == rebuilds  # the map is not redrawn either
+    assert len(online.snapshot().trajectory) == len(run.scans)

@@ -126,7 +126,10 @@ class StatusTab {
     if (!cfg) {
       configEl = h("p", { class: "muted", "data-testid": "config-table" }, "The robot has not reported its configuration yet.");
     } else {
-      const general = [["mode", cfg.mode], ["n_smax", cfg.n_smax], ["heading_flush_deg", cfg.heading_flush_deg, "deg"]]
+      const lc = cfg.loop_closure;
+      const general = [["mode", cfg.mode], ["n_smax", cfg.n_smax], ["heading_flush_deg", cfg.heading_flush_deg, "deg"],
+        ["loop_closure", lc ? "on" : "off"],
+        ...(lc ? [["loop search_radius_m", lc.search_radius_m, "m"], ["loop min_inlier_share", lc.min_inlier_share]] : [])]
         .filter(([, v]) => v !== undefined);
       const rows = configRows(cfg, builtins);
       const out = [];

@@ -127,8 +127,42 @@ export class TuneTab {
         h("label", { class: "field" }, h("span", { class: "field-label" }, "Mode"), this.mode),
         h("label", { class: "field" }, h("span", { class: "field-label" }, "N", h("sub", null, "smax")), this.nsmax,
           h("span", { class: "field-hint muted" }, "scans per batch, integer ≥ 1"))),
-      fieldsets);
+      fieldsets,
+      this.loopFieldset(cfg?.loop_closure || null, touch("loop-closure")));
     this.built = true;
+  }
+
+  // Loop closure: on/off, search radius (m), minimum inlier share; the robot's other loop-closure settings
+  // are sent as they are (the element states loop closure whole).
+  loopFieldset(lc, onTouch) {
+    this.loopSettings = lc;
+    this.loopOn = h("input", { type: "checkbox", "data-testid": "tune-loop-enabled", onchange: onTouch });
+    this.loopOn.checked = !!lc;
+    this.loopRadius = h("input", { type: "number", min: 0, max: 100, step: "any", "data-testid": "tune-loop-radius",
+      oninput: onTouch, value: lc ? lc.search_radius_m : 4, placeholder: "m" });
+    this.loopInliers = h("input", { type: "number", min: 0, max: 1, step: "any", "data-testid": "tune-loop-inliers",
+      oninput: onTouch, value: lc ? lc.min_inlier_share : 0.5 });
+    return h("fieldset", { class: "stage", "data-stage": "loop-closure" },
+      h("legend", null, "loop closure ", h("span", { class: "muted small" }, "(pose graph: walls redrawn when a loop closes)")),
+      h("label", { class: "field" }, this.loopOn, h("span", null, " on")),
+      h("div", { class: "row2" },
+        h("label", { class: "field" }, h("span", { class: "field-label" }, "Search radius"), this.loopRadius,
+          h("span", { class: "field-hint muted" }, "m, earlier places this near are tried")),
+        h("label", { class: "field" }, h("span", { class: "field-label" }, "Minimum inlier share"), this.loopInliers,
+          h("span", { class: "field-hint muted" }, "0 to 1, of the scan's returns"))));
+  }
+
+  loopDraft() {
+    if (!this.loopOn.checked) return { block: { enabled: false } };
+    const radius = Number(this.loopRadius.value);
+    const share = Number(this.loopInliers.value);
+    if (this.loopRadius.value === "" || !Number.isFinite(radius)) return { error: `loop closure: search radius '${this.loopRadius.value}' must be a number of metres` };
+    if (this.loopInliers.value === "" || !Number.isFinite(share)) return { error: `loop closure: minimum inlier share '${this.loopInliers.value}' must be a number from 0 to 1` };
+    const params = {};
+    for (const [k, v] of Object.entries(this.loopSettings || {})) {
+      if (!["enabled", "search_radius_m", "min_inlier_share"].includes(k)) params[k] = v;
+    }
+    return { block: { enabled: true, search_radius_m: radius, min_inlier_share: share, params } };
   }
 
   chainFieldset(blocks, builtins, uploaded, onTouch) {
@@ -192,6 +226,11 @@ export class TuneTab {
         if (r.block === NONE && stage !== "scan-matching") return { error: `${stage}: choose a kernel` };
         d[stageKey(stage)] = r.block;
       }
+    }
+    if (this.touched.has("loop-closure")) {
+      const r = this.loopDraft();
+      if (r.error) return r;
+      d.loop_closure = r.block;
     }
     return { draft: d };
   }
