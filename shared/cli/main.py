@@ -17,6 +17,7 @@ from robot_agent.cli import agent_cmd
 from server.cli import server_app
 from shared.cli.demo import demo_cmd
 from shared.cli.keys import keys_app
+from shared.cli.laps import bench_laps_cmd
 from shared.cli.report import report_cmd
 from shared.cli.worlds import bench_worlds_cmd
 from shared.errors import LinemapError
@@ -33,6 +34,7 @@ app = typer.Typer(
 bench_app = typer.Typer(help="Benchmarks (figures, not tests).", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
 bench_app.command("worlds")(bench_worlds_cmd)
+bench_app.command("laps")(bench_laps_cmd)
 app.add_typer(keys_app, name="keys")
 app.add_typer(server_app, name="server")
 app.command("agent")(agent_cmd)

@@ -18,8 +18,10 @@ from importlib import metadata
 from pathlib import Path
 from typing import TypeVar
 
+from shared.bench.laps import LapsRun, run_laps_suite
 from shared.bench.table3 import Table3Row
 from shared.report import experiments as ex
+from shared.report.laps import LAPS_PNG, plot_position_error
 from shared.report.markdown import write_markdown
 from shared.report.plots import plot_area_sweep, plot_maps, plot_suite_grid, plot_timing
 from shared.report.suite import GRID_PNG, SuiteRun, run_suite, suite_document
@@ -78,6 +80,7 @@ class ReportResults:
     started: str
     sections_s: dict[str, float]
     suite: SuiteRun | None = None
+    laps: tuple[LapsRun, ...] = ()
 
 
 def _versions() -> dict[str, str]:
@@ -139,9 +142,18 @@ def run_report(out: Path, settings: ReportSettings, progress: Callable[[str], No
         else []
     )
     noise = timed("noise removal", lambda: ex.noise_removal(s.seeds[0], s.noise_every, say))
+    laps = timed(
+        "multi-lap worlds",
+        lambda: run_laps_suite(
+            s.seeds[:1] if s.quick else s.seeds,
+            2 if s.quick else 3,
+            progress=lambda label, _done, _total: say(f"multi-lap: {label}"),
+        ),
+    )
     say("figures")
     plot_area_sweep(area, out / "fig19_area_vs_clusters.png")
     plot_timing(timing, out / "fig24_time_per_step.png")
+    plot_position_error(laps, out / LAPS_PNG)
     plot_maps(accuracy, cluttered_world().walls, "cluttered", settings.seeds[0], out / "maps_cluttered.png")
     _write_suite(out, suite, _command(s, worlds_only=False), started)
     results = ReportResults(
@@ -156,6 +168,7 @@ def run_report(out: Path, settings: ReportSettings, progress: Callable[[str], No
         started,
         sections,
         suite,
+        tuple(laps),
     )
     path = out / "report.md"
     path.write_text(write_markdown(results), encoding="utf-8")

@@ -15,6 +15,7 @@ import numpy as np
 
 from shared.bench.table3 import PAPER_TABLE3
 from shared.report.experiments import LOGS, LogRow
+from shared.report.laps import laps_section
 from shared.report.suite import suite_section
 
 if TYPE_CHECKING:
@@ -321,5 +322,6 @@ def _noise(r: ReportResults) -> list[str]:
 def write_markdown(r: ReportResults) -> str:
     """The whole report as Markdown text."""
     suite = suite_section(r.suite) if r.suite is not None else []
-    parts = [_header(r), _table3(r), _fig19(r), _fig24(r), _accuracy(r), suite, _logs(r), _noise(r)]
+    laps = laps_section(r.laps)
+    parts = [_header(r), _table3(r), _fig19(r), _fig24(r), _accuracy(r), suite, _logs(r), laps, _noise(r)]
     return "\n".join(line for part in parts for line in part) + "\n"

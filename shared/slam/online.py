@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -90,6 +91,7 @@ class OnlineGraphMapper:
         self._rebuilt_at = -REBUILD_EVERY_KEYFRAMES  # keyframe count when the last rebuild began
         self._version = front.version if front is not None else 0
         self.rebuilds = 0
+        self.redraw_ms: list[float] = []  # each redraw of the shown map, its catch-up included
         self.failure: str | None = None  # the worker's last error (the robot keeps mapping)
         self._jobs: queue.Queue[int] = queue.Queue()
         self._idle = threading.Condition()
@@ -198,6 +200,13 @@ class OnlineGraphMapper:
                 self._closed_since_rebuild = True
 
     def _rebuild(self) -> None:
+        t0 = time.perf_counter()
+        try:
+            self._redraw()
+        finally:
+            self.redraw_ms.append((time.perf_counter() - t0) * 1e3)
+
+    def _redraw(self) -> None:
         with self._lock:
             self._closed_since_rebuild = False
             self._rebuilt_at = len(self._mapper.keyframes)
@@ -278,6 +287,12 @@ class OnlineGraphMapper:
     def settings(self) -> LoopClosureSettings:
         """The loop closure's settings in force."""
         return self._mapper.settings
+
+    @property
+    def optimise_ms(self) -> list[float]:
+        """The time of each pose-graph optimisation so far (an iSAM2 update at every keyframe and after
+        each batch of closures), ms."""
+        return self._mapper.optimise_ms
 
     @property
     def closures(self) -> int:

@@ -55,6 +55,7 @@ def test_quick_report_writes_every_section_and_figure(tmp_path: Path) -> None:
         "## Accuracy on simulated worlds",
         "## Scenario suite (issue 19)",
         "## Relation error on the SLAM benchmark logs",
+        "## Multi-lap worlds: loop closure over time",
         "## Noise removal kernels",
     ):
         assert heading in text, heading
@@ -63,6 +64,7 @@ def test_quick_report_writes_every_section_and_figure(tmp_path: Path) -> None:
         "fig24_time_per_step.png",
         "maps_cluttered.png",
         "worlds_maps.png",
+        "fig20_position_error.png",
     ):
         data = (out / png).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, png
@@ -76,6 +78,9 @@ def test_quick_report_writes_every_section_and_figure(tmp_path: Path) -> None:
     assert "ekf-slam" in text and "cluttered" in text
     assert "`linemap bench worlds --quick`" in text  # the suite's quick path
     assert "## Scenario suite (issue 19)" in (out / "worlds.md").read_text()
+    # the multi-lap section: both ways of mapping at each lap's end, and the optimisations' times
+    assert "| loop-block | 0 | front end | 2 |" in text and "| loop-block | 0 | loop closure | 2 |" in text
+    assert "pose-graph optimisations" in text and "map redraws" in text
     assert "nan" not in text.replace("nanoseconds", "")
 
 
