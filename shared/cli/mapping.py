@@ -194,7 +194,12 @@ def map_scans(
     if loop_closure is None:
         pipeline = Pipeline(config, laser_offset=source.laser_offset)
     else:
-        pipeline = GraphMapper(lambda: Pipeline(config, laser_offset=source.laser_offset), loop_closure)
+        # searching for loops, the front end tracks poses only: the map is drawn once, at the end, from
+        # the corrected poses (loop closure off: the front end's own map, as without the graph)
+        front = Pipeline(config, laser_offset=source.laser_offset, track_only=loop_closure.enabled)
+        pipeline = GraphMapper(
+            lambda: Pipeline(config, laser_offset=source.laser_offset), loop_closure, front=front
+        )
     count = icp = 0
     start = time.perf_counter()
     failure: LinemapError | None = None

@@ -102,8 +102,11 @@ class Pipeline:
         icp_gate: IcpGate | None = None,
         range_noise: RangeNoise | None = None,
         timing_window: int = 1000,
+        track_only: bool = False,
     ) -> None:
         self._config = config or PipelineConfig()
+        # poses only: no shown map (a pose graph draws it later from its corrected poses, shared.slam)
+        self.track_only = track_only
         # typed Any: each stage's kernels are driven through that stage's own apply signature
         self._kernels: dict[Stage, list[Any]] = dict(self._config.build())
         self._offset = laser_offset or Pose2D()
@@ -197,14 +200,18 @@ class Pipeline:
         # each return's beam spacing (range x angular step): how far apart a wall's returns lie there,
         # which noise removal's neighbourhood follows on scanners coarser than the paper's URG-04LX
         spacing = np.hypot(points[:, 0], points[:, 1]) * abs(scan.angle_increment_rad)
-        moved = self._seen_free.moved(world)  # in space seen free before: not walls (yet)
-        if moved.any():
-            world, groups, spacing = world[~moved], groups[~moved], spacing[~moved]
+        if not self.track_only:
+            moved = self._seen_free.moved(world)  # in space seen free before: not walls (yet)
+            if moved.any():
+                world, groups, spacing = world[~moved], groups[~moved], spacing[~moved]
         self._seen_free.observe(laser, scan)
-        self._freespace.observe(self._map, laser, scan)
+        if not self.track_only:
+            self._freespace.observe(self._map, laser, scan)
         self._stamp = scan.stamp_s
         self._trajectory.append((scan.stamp_s, self._pose.x_m, self._pose.y_m, self._pose.theta_rad))
-        ran = self._feed(Chunk.of(world, groups, (laser.x_m, laser.y_m), spacing), final=False)
+        ran: tuple[Stage, ...] = ()
+        if not self.track_only:
+            ran = self._feed(Chunk.of(world, groups, (laser.x_m, laser.y_m), spacing), final=False)
         self._version += 1
         elapsed = (time.perf_counter() - t0) * 1e3
         self._step_ms.append(elapsed)

@@ -44,8 +44,13 @@ def _pose2(p: Pose2D) -> gtsam.Pose2:
     return gtsam.Pose2(p.x_m, p.y_m, p.theta_rad)
 
 
-def _pose(p: gtsam.Pose2) -> Pose2D:
-    return Pose2D(float(p.x()), float(p.y()), float(p.theta()))
+def _poses_of(values: gtsam.Values, n: int) -> list[Pose2D]:
+    """Nodes ``0..n-1`` of ``values`` as poses, in key order (one C++ call for the array: the per-node
+    ``atPose2`` took a third of an update's time on long graphs). O(n)."""
+    arr = gtsam.utilities.extractPose2(values)
+    if len(arr) != n:
+        raise OptimisationError(f"the solution holds {len(arr)} poses for {n} nodes")
+    return [Pose2D(x, y, th) for x, y, th in arr.tolist()]
 
 
 def _local(information: FloatArray, measurement: Pose2D) -> FloatArray:
@@ -133,7 +138,7 @@ class PoseGraph:
         finally:
             self._new_factors = gtsam.NonlinearFactorGraph()
             self._new_values = gtsam.Values()
-        self._estimate = [_pose(result.atPose2(k)) for k in range(len(self._estimate))]
+        self._estimate = _poses_of(result, len(self._estimate))
 
     def optimise_batch(self, max_iterations: int = 100) -> None:
         """Re-solve the whole graph with Levenberg-Marquardt from the current estimate (offline)."""
@@ -159,7 +164,7 @@ class PoseGraph:
             result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
         except RuntimeError as exc:
             raise OptimisationError(f"batch optimisation failed: {exc}") from exc
-        poses = [_pose(result.atPose2(k)) for k in range(len(self._estimate))]
+        poses = _poses_of(result, len(self._estimate))
         if all(math.isfinite(p.x_m) for p in poses):
             self._estimate = poses
 

@@ -394,7 +394,7 @@ class GraphMapper:
                 log.warning("pose graph: %s; keeping the incremental estimate", exc)
             self.optimise_ms.append((time.perf_counter() - t0) * 1e3)
         self.front.flush()
-        if not self.settings.enabled or not self.closures:
+        if not self.front.track_only and (not self.settings.enabled or not self.closures):
             return self.front.snapshot()
         rebuilt = self._make()
         corrected = self.trajectory()

@@ -323,3 +323,18 @@ def test_a_coarse_long_range_scanner_maps_the_far_walls_of_a_hall() -> None:
         on = (np.abs(segs[:, axis] - value) < 0.1) & (np.abs(segs[:, axis + 2] - value) < 0.1)
         assert on.any(), f"wall at {'xy'[axis]} = {value} m missing"
         assert np.abs(segs[on, 3 - axis] - segs[on, 1 - axis]).max() > 4.0
+
+
+def test_tracking_only_gives_the_same_poses_and_no_map() -> None:
+    """``track_only``: the pose estimate is the full pipeline's, step for step (the map's stages take no
+    part in it), and nothing is mapped; a pose graph draws the map later from its corrected poses."""
+    run = simulate_run(default_world(), seed=1)
+    full = Pipeline(laser_offset=run.drive.laser_offset)
+    track = Pipeline(laser_offset=run.drive.laser_offset, track_only=True)
+    for scan in run.scans[:300]:
+        assert track.step(scan).pose == full.step(scan).pose
+    track.flush()
+    full.flush()
+    assert len(full.walls()[1]) > 5
+    assert len(track.walls()[1]) == 0 and len(track.snapshot().centroids) == 0
+    np.testing.assert_array_equal(track.snapshot().trajectory, full.snapshot().trajectory)
