@@ -7,8 +7,11 @@ and the operator token, and waits. Ctrl-C (or SIGTERM, or ``--for-s`` seconds) s
 server; ``--png FILE`` first draws the robot's map as the server holds it then over the true walls.
 ``DIR/demo.json`` records what it made (URL, token, robot id, key files) for scripts and tests.
 
-Each start is fresh: the databases in ``DIR`` are replaced (``--keep`` reuses them). The processes are real
-subprocesses talking HTTP on loopback, exactly as a robot and a server on two machines would.
+Each start is fresh: the databases in ``DIR`` are replaced. ``--keep`` resumes the last demo instead: the
+same server database, robot (its token is kept in ``DIR/robot.token``), Robot DB and signing key, so the
+robot continues its map. The processes are real subprocesses talking HTTP on loopback, exactly as a robot
+and a server on two machines would; a server that dies is started again (at most
+:data:`SERVER_RESTARTS` times a minute) while the robot rides out the outage, as a robot does anywhere.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Annotated
 
@@ -36,6 +39,8 @@ __all__ = ["DemoInfo", "demo_cmd"]
 
 EXAMPLE_KERNEL = Path(__file__).resolve().parents[2] / "docs" / "examples" / "dbscan_1_1_0.py"
 ROBOT_NAME = "sim-robot"
+#: server restarts allowed within a minute before the demo gives up
+SERVER_RESTARTS = 5
 
 
 @dataclass(frozen=True)
@@ -169,6 +174,40 @@ def _setup(base: str, op_token: str, directory: Path) -> tuple[int, str, str, st
     return int(robot["id"]), str(robot["token"]), str(key_file), pair.public_b64, example, signature
 
 
+def _save_robot_token(directory: Path, token: str) -> None:
+    fd = os.open(directory / "robot.token", os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(token + "\n")
+
+
+def _resume(directory: Path, world: str) -> tuple[int, str, str, str, str | None, str | None] | None:
+    """What ``--keep`` continues: the last demo's robot id, robot token, key files and example kernel;
+    ``None`` when ``directory`` holds no demo at all (a fresh start). :class:`LinemapError` when it holds
+    a server database but not what resuming needs, or the last demo patrolled another world."""
+    info_file, token_file = directory / "demo.json", directory / "robot.token"
+    if not info_file.is_file() or not token_file.is_file():
+        if not (directory / "server.db").exists():
+            return None
+        missing = "demo.json" if not info_file.is_file() else "robot.token"
+        raise LinemapError(
+            f"--keep: {directory} holds a server database but no {missing}, which resuming needs (a demo "
+            "from before resuming was possible): run without --keep to start fresh"
+        )
+    try:
+        info = json.loads(info_file.read_text(encoding="utf-8"))
+        token = token_file.read_text(encoding="utf-8").strip()
+        last = (int(info["robot_id"]), str(info["private_key"]), str(info["public_key"]))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise LinemapError(f"--keep: cannot read the last demo from {info_file}: {exc}") from None
+    if info.get("world") != world:
+        raise LinemapError(
+            f"--keep: the last demo in {directory} patrolled world {info.get('world')!r}, not {world!r}: "
+            "pass the same --world, or run without --keep to start fresh"
+        )
+    robot_id, key_file, public_key = last
+    return robot_id, token, key_file, public_key, info.get("example_kernel"), info.get("example_signature")
+
+
 def demo_cmd(
     directory: Annotated[
         Path, typer.Option("--dir", help="Where the demo keeps its databases, keys and logs.")
@@ -209,8 +248,9 @@ def demo_cmd(
     if not _port_free(host, port):
         raise LinemapError(f"port {port} on {host} is in use: stop what runs there or pass --port")
     directory.mkdir(parents=True, exist_ok=True)
+    resume = _resume(directory, world) if keep else None
     if not keep:
-        for pattern in ("server.db*", "robot.db*", "*.log", "demo.json*"):
+        for pattern in ("server.db*", "robot.db*", "*.log", "demo.json*", "robot.token"):
             for old in directory.glob(pattern):
                 old.unlink()
     db = directory / "server.db"
@@ -230,14 +270,20 @@ def demo_cmd(
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    server = _Child(
-        "server", ["server", "--db", str(db), "--host", host, "--port", str(port)], directory / "server.log"
-    )
+    server_args = ["server", "--db", str(db), "--host", host, "--port", str(port)]
+    server = _Child("server", server_args, directory / "server.log")
     agent: _Child | None = None
     code = 0
     try:
         _wait_healthy(base, server)
-        robot_id, robot_token, key_file, public_key, example, signature = _setup(base, op_token, directory)
+        if resume is None:
+            robot_id, robot_token, key_file, public_key, example, signature = _setup(
+                base, op_token, directory
+            )
+            _save_robot_token(directory, robot_token)
+        else:
+            robot_id, robot_token, key_file, public_key, example, signature = resume
+            typer.echo(f"linemap demo: resuming the last demo's robot (id {robot_id}) and map", err=True)
         agent = _Child(
             "agent",
             [
@@ -258,25 +304,45 @@ def demo_cmd(
             server.proc.pid, agent.proc.pid,
         )  # fmt: skip
         _banner(info, directory)
-        # after the banner (scripts that wait for demo.json find the banner printed) and atomically
-        # (never read half-written)
-        partial = directory / "demo.json.partial"
-        partial.write_text(json.dumps(asdict(info), indent=2) + "\n", encoding="utf-8")
-        partial.replace(directory / "demo.json")
+        # after the banner (scripts that wait for demo.json find the banner printed)
+        _write_info(info, directory)
         deadline = None if for_s is None else time.monotonic() + for_s
+        restarts: list[float] = []
         while not stop.wait(0.5):
             if deadline is not None and time.monotonic() >= deadline:
                 typer.echo(f"linemap demo: {for_s:g} s are up", err=True)
                 stop.set()
-            for child in (server, agent):
-                if not child.alive():
+            if not agent.alive():
+                typer.echo(
+                    f"linemap demo: the agent stopped (code {agent.proc.returncode}); "
+                    f"its log ends:\n{_tail(agent.log)}",
+                    err=True,
+                )
+                code = 1
+                stop.set()
+            elif not server.alive() and not stop.is_set():
+                now = time.monotonic()
+                restarts = [t for t in restarts if now - t < 60.0] + [now]
+                why = (
+                    f"the server stopped (code {server.proc.returncode}); its log ends:\n{_tail(server.log)}"
+                )
+                if len(restarts) > SERVER_RESTARTS:
                     typer.echo(
-                        f"linemap demo: the {child.name} stopped (code {child.proc.returncode}); "
-                        f"its log ends:\n{_tail(child.log)}",
-                        err=True,
+                        f"linemap demo: {why}\n{SERVER_RESTARTS} restarts in a minute: giving up", err=True
                     )
                     code = 1
                     stop.set()
+                    continue
+                typer.echo(f"linemap demo: {why}\nrestarting it; the robot rides out the outage", err=True)
+                server.stop(1.0)
+                server = _Child("server", server_args, directory / "server.log")
+                try:
+                    _wait_healthy(base, server)
+                except LinemapError as exc:
+                    typer.echo(f"linemap demo: {exc}", err=True)
+                    continue
+                info = replace(info, server_pid=server.proc.pid)
+                _write_info(info, directory)
         if png is not None and server.alive():
             summary = save_map_png(base, op_token, robot_id, world, png)
             typer.echo(f"linemap demo: the robot's map ({summary}) drawn to {png}", err=True)
@@ -288,6 +354,13 @@ def demo_cmd(
     typer.echo("linemap demo: stopped", err=True)
     if code:
         raise typer.Exit(code)
+
+
+def _write_info(info: DemoInfo, directory: Path) -> None:
+    """``DIR/demo.json``, atomically (never read half-written)."""
+    partial = directory / "demo.json.partial"
+    partial.write_text(json.dumps(asdict(info), indent=2) + "\n", encoding="utf-8")
+    partial.replace(directory / "demo.json")
 
 
 def _banner(info: DemoInfo, directory: Path) -> None:

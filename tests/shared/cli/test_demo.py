@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -106,3 +107,112 @@ def test_children_do_not_outlive_a_killed_demo(tmp_path: Path) -> None:
         if proc.poll() is None:
             proc.kill()
         out.close()
+
+
+def _start(tmp_path: Path, port: int, *extra: str) -> tuple[subprocess.Popen[bytes], Path]:
+    log = tmp_path / f"demo-{len(list(tmp_path.glob('demo-*.out')))}.out"
+    with log.open("wb") as out:
+        proc = subprocess.Popen(
+            [LINEMAP, "demo", "--dir", str(tmp_path / "d"), "--port", str(port), *extra],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
+    return proc, log
+
+
+def _operator(info: dict[str, object]) -> httpx.Client:
+    return httpx.Client(
+        base_url=f"{info['url']}api/v1", headers={"Authorization": f"Bearer {info['operator_token']}"}
+    )
+
+
+def _version(op: httpx.Client, robot_id: object) -> int:
+    try:
+        return int(op.get(f"/robots/{robot_id}").json()["map_version"])
+    except (httpx.TransportError, KeyError, ValueError):
+        return -1  # the server is down or starting
+
+
+def test_a_killed_server_is_restarted_and_the_robot_carries_on(tmp_path: Path) -> None:
+    proc, log = _start(tmp_path, free_port())
+    try:
+        info_file = tmp_path / "d" / "demo.json"
+        wait_for("demo.json", info_file.is_file, 120)
+        info = json.loads(info_file.read_text())
+        with _operator(info) as op:
+            wait_for("the robot's map", lambda: _version(op, info["robot_id"]) > 20, 120)
+            os.kill(info["server_pid"], signal.SIGKILL)
+            wait_for(
+                "a new server",
+                lambda: json.loads(info_file.read_text())["server_pid"] != info["server_pid"],
+                120,
+            )
+            before = _version(op, info["robot_id"])
+            wait_for("the map to go on", lambda: _version(op, info["robot_id"]) > max(before, 0) + 20, 120)
+        assert proc.poll() is None, "the demo kept running"
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(90) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = log.read_text()
+    assert "the server stopped (code -9)" in text and "restarting it" in text
+    assert "Traceback" not in text
+
+
+def test_keep_resumes_the_last_robot_and_its_map(tmp_path: Path) -> None:
+    port = free_port()
+    proc, _ = _start(tmp_path, port)
+    info_file = tmp_path / "d" / "demo.json"
+    try:
+        wait_for("demo.json", info_file.is_file, 120)
+        first = json.loads(info_file.read_text())
+        with _operator(first) as op:
+            wait_for("the robot's map", lambda: _version(op, first["robot_id"]) > 20, 120)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(90) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    last = first["robot_id"]
+    kept_version = None
+    proc, log = _start(tmp_path, port, "--keep")
+    try:
+        wait_for(
+            "the resumed demo",
+            lambda: json.loads(info_file.read_text())["agent_pid"] != first["agent_pid"],
+            120,
+        )
+        second = json.loads(info_file.read_text())
+        assert second["robot_id"] == last
+        with _operator(second) as op:
+            kept_version = _version(op, last)
+            assert kept_version > 20, "the server kept the map"
+            wait_for("the map to go on", lambda: _version(op, last) > kept_version + 20, 120)
+            assert [r["id"] for r in op.get("/robots").json()] == [last]
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(90) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = log.read_text()
+    assert f"resuming the last demo's robot (id {last})" in text and "Traceback" not in text
+
+
+def test_keep_refuses_another_world(tmp_path: Path) -> None:
+    d = tmp_path / "d"
+    d.mkdir()
+    (d / "server.db").write_bytes(b"")
+    (d / "robot.token").write_text("x\n")
+    (d / "demo.json").write_text(
+        json.dumps({"world": "room", "robot_id": 1, "private_key": "k", "public_key": "p"})
+    )
+    r = subprocess.run(
+        [LINEMAP, "demo", "--dir", str(d), "--port", str(free_port()), "--keep", "--world", "corridor-long"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2, r.stderr
+    assert "patrolled world 'room', not 'corridor-long'" in " ".join(r.stderr.split())
+    assert "Traceback" not in r.stderr
