@@ -30,6 +30,7 @@ from server.errors import AuthError, ForbiddenError
 from server.hub import Hub
 from server.limiter import AuthLimiter, retry_after_header
 from server.models import Robot, utcnow
+from server.recentmaps import RecentMaps
 from server.security import SESSION_PREFIX, hash_token
 from server.settings import Settings
 from server.writer import WriteBatcher
@@ -64,6 +65,7 @@ class AppState:
     db: Database
     writer: WriteBatcher
     hub: Hub = field(default_factory=Hub)
+    recent_maps: RecentMaps = field(default_factory=RecentMaps)
     limiter: AuthLimiter = field(init=False)
     credentials: CredentialCache = field(init=False)
     _seen: dict[int, datetime] = field(default_factory=dict)

@@ -121,9 +121,40 @@ async def upload_map(
     return applied.out
 
 
-def _read(state: AppState, robot_id: int, tail: int | None) -> MapOut:
+def _read(state: AppState, robot_id: int, tail: int | None, version: int | None = None) -> MapOut:
+    """The current map (``version`` None) or version ``version`` if it is the current one or this process
+    read it lately (:mod:`server.recentmaps`); 409 naming the versions held otherwise. ``tail``: only the
+    last N trajectory poses."""
+    if version is not None:
+        kept = state.recent_maps.get(robot_id, version)
+        if kept is not None:
+            return _tail_of(kept, tail)
     with state.db.read() as s:
-        return read_map(s, robot_id, tail)
+        m = read_map(s, robot_id, tail)
+    if tail is None:
+        state.recent_maps.put(m)
+    if version is not None and m.version != version:
+        held = [v for v in state.recent_maps.held(robot_id) if v != m.version]
+        raise ConflictError(
+            f"version {version} of robot {robot_id}'s map is not held here (the current is {m.version}"
+            + (f"; also held: {', '.join(map(str, held))}" if held else "")
+            + "): ask again without version, or with the current one",
+            current_version=m.version,
+        )
+    return m
+
+
+def _tail_of(m: MapOut, tail: int | None) -> MapOut:
+    if tail is None or tail >= len(m.trajectory):
+        return m
+    return m.model_copy(update={"trajectory": m.trajectory[len(m.trajectory) - tail :] if tail else []})
+
+
+#: ``?version=N``: one version of the map (the current one, or one this process served lately)
+VersionQuery = Annotated[
+    int | None,
+    Query(ge=0, le=DB_INT_MAX, description="This map version (409 with current_version if not held)."),
+]
 
 
 def _version(state: AppState, robot_id: int) -> int:
@@ -139,9 +170,11 @@ async def latest_map(
     trajectory: Annotated[
         int | None, Query(ge=0, le=DB_INT_MAX, description="Only the last N trajectory poses.")
     ] = None,
+    version: VersionQuery = None,
 ) -> MapOut:
-    """The whole current map (version 0 and empty before the first upload)."""
-    return await run_in_threadpool(_read, state, robot_id, trajectory)
+    """The whole current map (version 0 and empty before the first upload); with ``version``, that
+    version (409 with ``current_version`` when the server no longer holds it)."""
+    return await run_in_threadpool(_read, state, robot_id, trajectory, version)
 
 
 def _sse(event: str, data: Any, version: int) -> bytes:
@@ -312,11 +345,14 @@ async def export_map(
         Literal["refuse", "skip"],
         Query(description="Stored items outside the declared bounds: refuse (409) or skip them."),
     ] = "refuse",
+    version: VersionQuery = None,
 ) -> Response:
-    """The latest map as a file to download. 409 when an occupancy map is asked of a map without walls,
-    or when the stored map has items outside the declared bounds (unless ``out_of_bounds=skip``); 422
-    when the resolution would make a grid of more than 16 M cells."""
-    m = await run_in_threadpool(_read, state, robot_id, None)
+    """The latest map as a file to download (``version``: that version, e.g. the YAML of the PGM just
+    fetched, whose version the ``X-Map-Version`` header and the file name give). 409 when an occupancy
+    map is asked of a map without walls, when the stored map has items outside the declared bounds
+    (unless ``out_of_bounds=skip``), or when the version asked for is no longer held (with
+    ``current_version``); 422 when the resolution would make a grid of more than 16 M cells."""
+    m = await run_in_threadpool(_read, state, robot_id, None, version)
     extent_m = state.settings.world_extent_m
     body, skipped = await run_in_threadpool(_export, m, fmt, resolution, extent_m, out_of_bounds == "skip")
     headers = {

@@ -125,3 +125,4 @@ def delete_robot(robot_id: DbIdPath, who: OperatorDep, state: StateDep) -> None:
         record(s, who, "robot.delete", f"robot:{robot_id}", name=robot.name)
         s.delete(robot)
     state.forget_credentials()
+    state.recent_maps.forget(robot_id)

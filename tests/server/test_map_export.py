@@ -141,3 +141,41 @@ def test_bad_requests_are_json_errors(live: Live) -> None:
     assert nan.status_code == 422 and "resolution" in nan.json()["detail"]
     assert huge.status_code == 422 and "use a larger resolution" in huge.json()["detail"]
     assert nobody.status_code == 404 and nobody.json()["error"] == "not_found"
+
+
+def test_a_pgm_and_its_yaml_pair_up_though_the_map_moved_on(live: Live) -> None:
+    """The PGM of version 1, then the robot sends version 2 (a wall moved), then the YAML asked for with
+    ``version=1``: it names that PGM and its origin is version 1's; the current map is version 2. A
+    version never served here is refused with the current one named."""
+    rid, token = _upload(live)
+    with live.operator() as op:
+        pgm = op.get(f"/robots/{rid}/maps/export", params={"format": "pgm"})
+        assert pgm.status_code == 200 and pgm.headers["x-map-version"] == "1"
+        moved = [[4, -2.0, 3.0, -2.0, 0.0], [1, -2.0, 0.0, 4.0, 0.0], [3, 4.0, 3.0, -2.0, 3.0]]
+        delta = {
+            "version": 2,
+            "base_version": 1,
+            "stamp_s": 11.0,
+            "segments": moved,
+            "removed": [],
+            "centroids": [],
+            "pose": [2.0, 1.5, 0.5],
+            "trajectory": [[11.0, 2.0, 1.5, 0.5]],
+        }
+        with live.client(token) as robot:
+            r = robot.post(f"/robots/{rid}/maps", json=delta)
+            assert r.status_code == 200, r.text
+        yaml_now = op.get(f"/robots/{rid}/maps/export", params={"format": "yaml"})
+        assert yaml_now.headers["x-map-version"] == "2"
+        yaml_then = op.get(f"/robots/{rid}/maps/export", params={"format": "yaml", "version": 1})
+        assert yaml_then.status_code == 200, yaml_then.text
+        assert yaml_then.headers["x-map-version"] == "1"
+        assert f"image: {_filename(pgm.headers)}" in yaml_then.text
+        assert yaml_then.text != yaml_now.text  # version 2's origin moved 2 m west
+        latest_then = op.get(f"/robots/{rid}/maps/latest", params={"version": 1, "trajectory": 1})
+        assert latest_then.status_code == 200 and latest_then.json()["version"] == 1
+        assert latest_then.json()["trajectory"] == [TRAJECTORY[-1]]
+        gone = op.get(f"/robots/{rid}/maps/export", params={"format": "yaml", "version": 7})
+        assert gone.status_code == 409
+        assert gone.json()["current_version"] == 2
+        assert "version 7 of robot" in gone.text and "the current is 2" in gone.text
