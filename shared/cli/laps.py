@@ -13,6 +13,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from shared.cli.progress import case_progress
 from shared.cli.report import parse_seeds
 from shared.errors import LinemapError
 
@@ -34,8 +35,6 @@ def bench_laps_cmd(
     """Drive a loop of corridors (worn-wheel odometry) several laps and map it as the robot does, front end
     alone and under the pose graph: per lap the map's wall error, completeness, spurious share, wall count
     and trajectory error; the time of every pose-graph optimisation and map redraw."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from shared.bench.laps import run_laps_suite
     from shared.report.laps import (
         LAPS_COLUMNS,
@@ -55,13 +54,7 @@ def bench_laps_cmd(
         for target in (png, json_path):
             if target is not None and not target.resolve().parent.is_dir():
                 raise LinemapError(f"cannot write {target}: folder {target.parent} does not exist")
-        columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()]
-        with Progress(*columns, console=err, transient=True) as progress:
-            task = progress.add_task("simulating", total=None)
-
-            def note(label: str, done: int, total: int) -> None:
-                progress.update(task, description=f"mapping {label}", completed=done, total=total)
-
+        with case_progress(err) as note:
             runs = run_laps_suite(seed_list, laps, kind=world, progress=note)
         if png is not None:
             plot_position_error(runs, png)

@@ -14,6 +14,7 @@ from rich.console import Console
 from rich.table import Table
 
 from shared.bench.worlds import WorldResult, summarize
+from shared.cli.progress import case_progress
 from shared.cli.report import parse_seeds
 from shared.errors import LinemapError
 from shared.slam import LoopClosureSettings
@@ -162,8 +163,6 @@ def bench_worlds_cmd(
 ) -> None:
     """Map every world of the scenario suite (issue 19) offline and print, per world and seed, wall error,
     completeness, spurious share, wall count, trajectory error beside odometry's, and throughput."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from shared.bench.worlds import run_worlds
     from shared.sim.worlds import KINDS
 
@@ -182,13 +181,7 @@ def bench_worlds_cmd(
         seed_list = (0,) if quick and seeds == "0,1,2" else parse_seeds(seeds)
         if json_path is not None and not json_path.resolve().parent.is_dir():
             raise LinemapError(f"cannot write {json_path}: folder {json_path.parent} does not exist")
-        columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()]
-        with Progress(*columns, console=err, transient=True) as progress:
-            task = progress.add_task("simulating", total=None)
-
-            def note(label: str, done: int, total: int) -> None:
-                progress.update(task, description=f"mapping {label}", completed=done, total=total)
-
+        with case_progress(err) as note:
             results = run_worlds(
                 kinds,
                 seed_list,

@@ -88,3 +88,22 @@ def integrity(db: Path) -> str:
 def robot_state(client: httpx.Client, robot_id: int) -> dict[str, Any]:
     data: dict[str, Any] = client.get(f"/robots/{robot_id}").json()
     return data
+
+
+def send_message(op: httpx.Client, robot_id: int, body: str, timeout_s: float = 120.0) -> dict[str, Any]:
+    """Queue ``<xml><message>{body}</message></xml>`` for the robot and wait for its acknowledgement;
+    the message as the server then holds it (``status``, ``reason``)."""
+    r = op.post(
+        f"/robots/{robot_id}/messages",
+        content=f"<xml><message>{body}</message></xml>",
+        headers={"Content-Type": "application/xml"},
+    )
+    assert r.status_code == 201, r.text
+    seq = r.json()["seq"]
+    return dict(
+        wait_for(
+            f"acknowledgement of message {seq}",
+            lambda: (m := op.get(f"/robots/{robot_id}/messages/{seq}").json())["status"] != "queued" and m,
+            timeout_s,
+        )
+    )

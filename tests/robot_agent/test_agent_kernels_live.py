@@ -12,7 +12,7 @@ import httpx
 import pytest
 
 from shared.signing import KeyPair, generate_keypair, load_private_key, sha256_hex, sign_digest
-from tests.robot_agent.agentproc import AgentProcess, wait_for
+from tests.robot_agent.agentproc import AgentProcess, send_message, wait_for
 from tests.server.live import Live, start_live
 
 GOOD = b'''"""DBSCAN 1.1.0: the built-in algorithm under a new version (test artifact)."""
@@ -71,16 +71,7 @@ def _upload(op: httpx.Client, key: KeyPair, source: bytes, version: str) -> str:
 
 
 def _send(op: httpx.Client, rid: int, body: str) -> dict[str, Any]:
-    r = op.post(f"/robots/{rid}/messages", content=f"<xml><message>{body}</message></xml>", headers=XML)
-    assert r.status_code == 201, r.text
-    seq = r.json()["seq"]
-    return dict(
-        wait_for(
-            f"acknowledgement of message {seq}",
-            lambda: (m := op.get(f"/robots/{rid}/messages/{seq}").json())["status"] != "queued" and m,
-            120,
-        )
-    )
+    return send_message(op, rid, body)
 
 
 def _noise(op: httpx.Client, rid: int) -> str:

@@ -6,14 +6,13 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 
 from shared.metrics import line_accuracy
 from shared.sim.worlds import simulate_case
-from tests.robot_agent.agentproc import AgentProcess, integrity
+from tests.robot_agent.agentproc import AgentProcess, integrity, send_message
 from tests.server.live import Live, start_live
 
 
@@ -115,7 +114,7 @@ def test_the_operator_switches_loop_closure_on_while_the_robot_maps(live: Live, 
     )
     try:
         wait_for("first map", lambda: op.get(f"/robots/{rid}").json()["map_version"] > 0, 120)
-        on = _send(op, rid, '<loop-closure><search-radius unit="m">5</search-radius></loop-closure>')
+        on = send_message(op, rid, '<loop-closure><search-radius unit="m">5</search-radius></loop-closure>')
         assert on["status"] == "applied", on
         config = wait_for(
             "the robot's report of loop closure",
@@ -142,22 +141,3 @@ def test_the_operator_switches_loop_closure_on_while_the_robot_maps(live: Live, 
     walls = np.array([row[1:] for row in latest["segments"]], dtype=np.float64)
     acc = line_accuracy(walls.reshape(-1, 4), case.run.world.walls)
     assert acc.mean_distance_m < 0.03
-
-
-def _send(op: Any, rid: int, body: str) -> dict[str, Any]:
-    from tests.robot_agent.agentproc import wait_for
-
-    r = op.post(
-        f"/robots/{rid}/messages",
-        content=f"<xml><message>{body}</message></xml>",
-        headers={"Content-Type": "application/xml"},
-    )
-    assert r.status_code == 201, r.text
-    seq = r.json()["seq"]
-    return dict(
-        wait_for(
-            f"acknowledgement of message {seq}",
-            lambda: (m := op.get(f"/robots/{rid}/messages/{seq}").json())["status"] != "queued" and m,
-            120,
-        )
-    )

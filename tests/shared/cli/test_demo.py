@@ -8,6 +8,8 @@ import signal
 import socket
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
@@ -109,7 +111,9 @@ def test_children_do_not_outlive_a_killed_demo(tmp_path: Path) -> None:
         out.close()
 
 
-def _start(tmp_path: Path, port: int, *extra: str) -> tuple[subprocess.Popen[bytes], Path]:
+@contextmanager
+def _demo(tmp_path: Path, port: int, *extra: str) -> Iterator[tuple[subprocess.Popen[bytes], Path]]:
+    """``linemap demo`` in ``tmp_path/d``, stopped with Ctrl-C at the end of the block (exit code 0)."""
     log = tmp_path / f"demo-{len(list(tmp_path.glob('demo-*.out')))}.out"
     with log.open("wb") as out:
         proc = subprocess.Popen(
@@ -117,7 +121,14 @@ def _start(tmp_path: Path, port: int, *extra: str) -> tuple[subprocess.Popen[byt
             stdout=out,
             stderr=subprocess.STDOUT,
         )
-    return proc, log
+    try:
+        yield proc, log
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(90) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert "Traceback" not in log.read_text()
 
 
 def _operator(info: dict[str, object]) -> httpx.Client:
@@ -134,9 +145,8 @@ def _version(op: httpx.Client, robot_id: object) -> int:
 
 
 def test_a_killed_server_is_restarted_and_the_robot_carries_on(tmp_path: Path) -> None:
-    proc, log = _start(tmp_path, free_port())
-    try:
-        info_file = tmp_path / "d" / "demo.json"
+    info_file = tmp_path / "d" / "demo.json"
+    with _demo(tmp_path, free_port()) as (proc, log):
         wait_for("demo.json", info_file.is_file, 120)
         info = json.loads(info_file.read_text())
         with _operator(info) as op:
@@ -150,34 +160,20 @@ def test_a_killed_server_is_restarted_and_the_robot_carries_on(tmp_path: Path) -
             before = _version(op, info["robot_id"])
             wait_for("the map to go on", lambda: _version(op, info["robot_id"]) > max(before, 0) + 20, 120)
         assert proc.poll() is None, "the demo kept running"
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(90) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
     text = log.read_text()
     assert "the server stopped (code -9)" in text and "restarting it" in text
-    assert "Traceback" not in text
 
 
 def test_keep_resumes_the_last_robot_and_its_map(tmp_path: Path) -> None:
     port = free_port()
-    proc, _ = _start(tmp_path, port)
     info_file = tmp_path / "d" / "demo.json"
-    try:
+    with _demo(tmp_path, port):
         wait_for("demo.json", info_file.is_file, 120)
         first = json.loads(info_file.read_text())
         with _operator(first) as op:
             wait_for("the robot's map", lambda: _version(op, first["robot_id"]) > 20, 120)
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(90) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
     last = first["robot_id"]
-    kept_version = None
-    proc, log = _start(tmp_path, port, "--keep")
-    try:
+    with _demo(tmp_path, port, "--keep") as (_, log):
         wait_for(
             "the resumed demo",
             lambda: json.loads(info_file.read_text())["agent_pid"] != first["agent_pid"],
@@ -186,17 +182,11 @@ def test_keep_resumes_the_last_robot_and_its_map(tmp_path: Path) -> None:
         second = json.loads(info_file.read_text())
         assert second["robot_id"] == last
         with _operator(second) as op:
-            kept_version = _version(op, last)
-            assert kept_version > 20, "the server kept the map"
-            wait_for("the map to go on", lambda: _version(op, last) > kept_version + 20, 120)
+            kept = _version(op, last)
+            assert kept > 20, "the server kept the map"
+            wait_for("the map to go on", lambda: _version(op, last) > kept + 20, 120)
             assert [r["id"] for r in op.get("/robots").json()] == [last]
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(90) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    text = log.read_text()
-    assert f"resuming the last demo's robot (id {last})" in text and "Traceback" not in text
+    assert f"resuming the last demo's robot (id {last})" in log.read_text()
 
 
 def test_keep_refuses_another_world(tmp_path: Path) -> None:
