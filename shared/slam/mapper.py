@@ -24,7 +24,8 @@ pipeline (:meth:`shared.pipeline.Pipeline.step` with ``pose``), so walls drawn t
 closed come out once.
 
 Memory: every keyframe's returns (twice: robot and scanner frame) and every scan for the rebuild (8 bytes
-a beam): about 12 MB for ACES' 7,374 scans.
+a beam): about 12 MB for ACES' 7,374 scans; with ``redraw_spacing`` (the robot's online mapper) only the
+scans that far apart are kept for redraws.
 """
 
 from __future__ import annotations
@@ -122,6 +123,7 @@ class GraphMapper:
         settings: LoopClosureSettings | None = None,
         *,
         front: Pipeline | None = None,
+        redraw_spacing: tuple[float, float] | None = None,
     ) -> None:
         self._make = make_pipeline
         self.settings = settings or LoopClosureSettings()
@@ -138,7 +140,11 @@ class GraphMapper:
         self._steps: list[tuple[float, Pose2D, int]] = []  # stamp, front-end pose, keyframe index
         self._travelled = 0.0
         self._last: Pose2D | None = None
-        self._scans: list[tuple[Scan, Pose2D | None]] = []
+        # the scans a redraw maps again: every one, or (``redraw_spacing`` = (m, rad)) one each time the
+        # robot moved or turned that much since the last one kept, with its step index
+        self._scans: list[tuple[int, Scan, Pose2D | None]] = []
+        self._spacing = redraw_spacing
+        self._kept_at: Pose2D | None = None
         self._seq_cov: list[FloatArray] = []  # covariance of the sequential edge k -> k + 1
         #: search for loop closures in the step (offline); the online mapper searches on a worker instead
         self.search_inline = True
@@ -148,8 +154,9 @@ class GraphMapper:
         """One scan through the front end, then the graph; the result's pose is the corrected one."""
         result = self.front.step(scan, odometry)
         odom = odometry if odometry is not None else scan.odometry
-        self._scans.append((scan, odometry))
         pose = result.pose
+        if self._keep(pose):
+            self._scans.append((len(self._steps), scan, odometry))
         if self._last is not None:
             self._travelled += math.hypot(*self._last.between(pose).as_tuple()[:2])
         self._last = pose
@@ -157,6 +164,18 @@ class GraphMapper:
             self._add_keyframe(len(self._steps), pose, odom)
         self._steps.append((scan.stamp_s, pose, len(self.keyframes) - 1))
         return replace(result, pose=self.pose)
+
+    def _keep(self, pose: Pose2D) -> bool:
+        """Whether the scan at front-end pose ``pose`` is kept for redraws (``redraw_spacing``)."""
+        if self._spacing is None:
+            return True
+        if self._kept_at is not None:
+            moved = self._kept_at.between(pose)
+            far, turn = self._spacing
+            if math.hypot(moved.x_m, moved.y_m) < far and abs(moved.theta_rad) < turn:
+                return False
+        self._kept_at = pose
+        return True
 
     def _is_keyframe(self, pose: Pose2D) -> bool:
         if not self.keyframes:
@@ -398,11 +417,13 @@ class GraphMapper:
             return self.front.snapshot()
         rebuilt = self._make()
         corrected = self.trajectory()
-        for (scan, odometry), row in zip(self._scans, corrected, strict=True):
+        for step, scan, odometry in self._scans:
+            row = corrected[step]
             rebuilt.step(scan, odometry, pose=Pose2D(row[1], row[2], row[3]))
         rebuilt.flush()
         return rebuilt.snapshot()
 
-    def stepped(self) -> list[tuple[Scan, Pose2D | None]]:
-        """The scans stepped so far with the odometry each was given, in order (kept for the rebuild)."""
+    def stepped(self) -> list[tuple[int, Scan, Pose2D | None]]:
+        """The scans kept for a redraw, in order, each with its step index and the odometry it was given:
+        every scan stepped, or those ``redraw_spacing`` apart."""
         return self._scans

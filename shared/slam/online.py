@@ -8,16 +8,19 @@ about a millisecond). Off the step's path, on one worker thread:
 
 - the **loop search** of each new keyframe (correlative searches, tens of milliseconds), whose closures
   join the graph between two steps' graph updates, under the mapper's lock;
-- after closures, a **rebuild of the shown map**: every scan so far mapped again at its corrected pose by a
-  fresh pipeline (as :meth:`GraphMapper.finish` does offline). It is swapped in between two steps, the
-  scans stepped meanwhile are caught up at their corrected poses, and from then on each step feeds it at
-  the corrected pose. Walls drawn twice before the loop was closed come out once; the agent's next map
-  version carries the changed and removed walls.
+- after closures, a **rebuild of the shown map**: the scans kept so far (one each 10 cm or 5 degrees of
+  motion, :data:`REDRAW_SPACING`) mapped again at their corrected poses by a fresh pipeline (as
+  :meth:`GraphMapper.finish` does offline with every scan). It is swapped in between two steps, the scans
+  kept meanwhile are caught up at their corrected poses, and from then on each step feeds it at the
+  corrected pose. Walls drawn twice before the loop was closed come out once; the agent's next map version
+  carries the changed and removed walls.
 
-Until the first closure the shown map is the front end's own. A rebuild costs as much as mapping every scan
-again (about 2 ms a scan on the simulated world): after an hour at 10 Hz that is a minute of the worker's
-time, and closures arriving meanwhile are taken by the next rebuild. Keyframe-anchored wall observations,
-re-placed without mapping the scans again, are the way to bound it (docs/loopclosure.md, "Not yet").
+Until the first closure the shown map is the front end's own. A rebuild costs as much as mapping the kept
+scans again (about 2 ms a scan on the simulated world, one kept in four at 0.4 m/s): after an hour of
+driving about 15 s of the worker's time, and closures arriving meanwhile are taken by the next rebuild;
+memory grows with the distance driven (a robot standing still keeps nothing), not with time.
+Keyframe-anchored wall observations, re-placed without mapping the scans again, are the way to bound it
+further (docs/loopclosure.md, "Not yet").
 
 Thread safety: the step, the worker and the readers (``walls``, ``snapshot``) share the mapper under one
 lock; the worker holds it only to read the graph's poses and to add edges, never while it searches or
@@ -27,6 +30,7 @@ rebuilds.
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
@@ -52,6 +56,11 @@ _STOP = -2
 _CATCH_UP_IN_STEP = 3
 #: keyframes (0.5 m each by default) between the starts of two rebuilds of the shown map
 REBUILD_EVERY_KEYFRAMES = 20
+#: a redraw maps a scan each time the robot moved 10 cm or turned 5 degrees since the last one it kept (m,
+#: rad): a wall is seen from nearly the same place by the scans between, and a robot standing still adds
+#: nothing; on two-lap loop-block runs every 4th scan drew maps as good as every scan, in a quarter of the
+#: time (every 12th lost small walls)
+REDRAW_SPACING = (0.10, math.radians(5.0))
 
 
 class OnlineGraphMapper:
@@ -61,6 +70,8 @@ class OnlineGraphMapper:
     configuration; ``settings`` the loop closure's (default: ``config``'s, else the defaults).
     ``worker=False`` runs the search and the rebuild in the step (tests, replays that must be
     deterministic).
+
+    ``redraw_spacing``: the scans kept for redraws (:data:`REDRAW_SPACING`; None: every one).
 
     ``front``: a pipeline that has mapped already (loop closure switched on while the robot runs). It goes
     on as the front end, the graph starts at its pose, and its map so far is the base every rebuild
@@ -74,6 +85,7 @@ class OnlineGraphMapper:
         *,
         worker: bool = True,
         front: Pipeline | None = None,
+        redraw_spacing: tuple[float, float] | None = REDRAW_SPACING,
     ) -> None:
         self._make = make_pipeline
         self._config = config
@@ -82,7 +94,9 @@ class OnlineGraphMapper:
         if front is not None and front.version:
             front.flush()
             self._base = front.map_state()
-        self._mapper = GraphMapper(lambda: make_pipeline(self._config), settings, front=front)
+        self._mapper = GraphMapper(
+            lambda: make_pipeline(self._config), settings, front=front, redraw_spacing=redraw_spacing
+        )
         self._mapper.search_inline = False
         self._lock = threading.RLock()
         self._shown: Pipeline | None = None  # the rebuilt map, once a loop was closed
@@ -158,9 +172,7 @@ class OnlineGraphMapper:
             return
         rebuilt, covered = pending
         trajectory = self._mapper.trajectory()
-        scans = self._mapper.stepped()
-        for (scan, odometry), row in zip(scans[covered:], trajectory[covered:], strict=True):
-            rebuilt.step(scan, odometry, pose=Pose2D(row[1], row[2], row[3]))
+        _replay(rebuilt, self._mapper.stepped()[covered:], trajectory)
         self._shown = rebuilt
         self.rebuilds += 1
         log.info("loop closure: map rebuilt from %d corrected poses", len(trajectory))
@@ -217,8 +229,7 @@ class OnlineGraphMapper:
             rebuilt.seed_map(self._base)
         covered = 0
         while True:  # catch up here, not in the step: the robot went on while this ran
-            for (scan, odometry), row in zip(scans[covered:], trajectory[covered:], strict=True):
-                rebuilt.step(scan, odometry, pose=Pose2D(row[1], row[2], row[3]))
+            _replay(rebuilt, scans[covered:], trajectory)
             covered = len(scans)
             with self._lock:
                 if len(self._mapper.stepped()) - covered <= _CATCH_UP_IN_STEP:
@@ -335,3 +346,10 @@ class OnlineGraphMapper:
         if self._base is None or not self._base.trajectory:
             return corrected
         return np.vstack([np.asarray(self._base.trajectory, dtype=np.float64), corrected])
+
+
+def _replay(pipeline: Pipeline, scans: list[tuple[int, Scan, Pose2D | None]], trajectory: FloatArray) -> None:
+    """Map ``scans`` (step index, scan, odometry) at their corrected poses (``trajectory`` rows)."""
+    for step, scan, odometry in scans:
+        row = trajectory[step]
+        pipeline.step(scan, odometry, pose=Pose2D(row[1], row[2], row[3]))

@@ -167,3 +167,28 @@ def test_switched_off_the_search_stops_and_the_map_stays(loop_block) -> None:  #
     assert online.closures == closures
     assert online.rebuilds == rebuilds  # the map is not redrawn either
     assert len(online.snapshot().trajectory) == len(run.scans)
+
+
+def test_redraws_keep_a_scan_per_10_cm_and_none_standing_still(loop_block) -> None:  # type: ignore[no-untyped-def]
+    """The scans kept for redraws: one each REDRAW_SPACING of motion (a fraction of those at 0.4 m/s and
+    10 Hz), none more while the robot stands still (the same scan again and again)."""
+    from dataclasses import replace
+
+    from shared.slam.online import REDRAW_SPACING
+
+    run = loop_block.run
+    online = _mapper(run, worker=False)
+    for scan in run.scans[:300]:
+        online.step(scan)
+    kept = online._mapper.stepped()
+    steps = [k[0] for k in kept]
+    assert steps == sorted(steps) and steps[0] == 0
+    assert 300 // 6 < len(kept) < 300 // 2
+    poses = online._mapper.front.snapshot().trajectory
+    gaps = np.hypot(*np.diff(poses[steps, 1:3], axis=0).T)
+    turns = np.abs(np.diff(poses[steps, 3]))
+    assert ((gaps >= REDRAW_SPACING[0] - 1e-9) | (turns >= REDRAW_SPACING[1] - 1e-9)).all()
+    last = run.scans[299]
+    for i in range(50):  # standing still
+        online.step(replace(last, stamp_s=last.stamp_s + 0.1 * (i + 1)))
+    assert len(online._mapper.stepped()) <= len(kept) + 1
