@@ -24,7 +24,7 @@ from server import apidocs, dashboard
 from server.csrf import OriginGuard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState
-from server.errors import RateLimitedError, ServerError
+from server.errors import RateLimitedError, ServerError, StorageFullError
 from server.limiter import AuthFailureLimit, retry_after_header
 from server.mediatype import require_media_type
 from server.migrate import upgrade
@@ -57,7 +57,7 @@ ROUTERS: list[tuple[APIRouter, str]] = [
 def create_app(settings: Settings | None = None, *, migrate: bool = True) -> FastAPI:
     """The server application on ``settings.database_url`` (migrated to head first when ``migrate``)."""
     settings = settings or Settings()
-    db = Database(settings.database_url)
+    db = Database(settings.database_url, sqlite_max_mb=settings.sqlite_max_mb)
     if migrate:
         upgrade(db.engine)
     state = AppState(settings=settings, db=db, writer=WriteBatcher(db))
@@ -71,7 +71,10 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
         for task in tasks:
             task.cancel()
         await run_in_threadpool(state.credentials.stop)
-        await run_in_threadpool(state.flush_seen)
+        try:
+            await run_in_threadpool(state.flush_seen)
+        except StorageFullError as exc:  # the last-seen times are a convenience: stop anyway
+            log.warning("robots' last-seen times not recorded at shutdown: %s", exc)
         await run_in_threadpool(state.writer.close)
         await run_in_threadpool(parser.close)
         db.dispose()
@@ -119,6 +122,8 @@ async def _flush_seen(state: AppState, every_s: float = 10.0) -> None:
         await asyncio.sleep(every_s)
         try:
             await state.writer.submit(state.flush_seen)
+        except StorageFullError as exc:  # said once by the database; retried with the next round
+            log.debug("robots' last-seen times not recorded: %s", exc)
         except Exception:  # retried with the next round; never kill the task
             log.exception("could not record robots' last-seen times")
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 from collections.abc import Iterator
@@ -14,7 +15,8 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError
 from sqlalchemy.orm import Session, sessionmaker
 
-from server.errors import ServerError
+from server.errors import ServerError, StorageFullError
+from server.storage import StorageState, disk_full_reason
 
 __all__ = ["Database", "normalize_url"]
 
@@ -44,8 +46,9 @@ def normalize_url(url: str) -> str:
 class Database:
     """One engine and its session factory; a session is a unit of work: commit on success, else roll back."""
 
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, *, sqlite_max_mb: float | None = None) -> None:
         self.url = normalize_url(url)
+        self.storage = StorageState()  # whether the last write found space (server.storage)
         self.is_sqlite = self.url.startswith("sqlite")
         kwargs: dict[str, Any] = {}
         if self.is_sqlite:
@@ -62,30 +65,50 @@ class Database:
                 "postgresql://USER@HOST/DB"
             ) from None
         if self.is_sqlite:
-            event.listen(self.engine, "connect", _sqlite_pragmas)
+            event.listen(self.engine, "connect", functools.partial(_sqlite_pragmas, max_mb=sqlite_max_mb))
         self._factory = sessionmaker(self.engine, expire_on_commit=False)
         # SQLite has one writer at a time: queue writers of this process here instead of in busy-waits.
         self._write_lock = threading.Lock() if self.is_sqlite else None
         self._reset_misses = 0
 
     @contextmanager
+    def _space(self) -> Iterator[None]:
+        """A write's verdict on space (:mod:`server.storage`): refused for want of it, the error becomes
+        :class:`StorageFullError` naming the reason."""
+        try:
+            yield
+        except StorageFullError:
+            raise
+        except Exception as exc:
+            reason = disk_full_reason(exc)
+            if reason is None:
+                raise
+            self.storage.failed(reason)
+            log.error("database full: %s", reason)
+            raise StorageFullError(
+                f"the server's database has no space left ({reason}): nothing of this request was "
+                "stored; free space on its disk (or raise sqlite_max_mb) and send it again"
+            ) from None
+        self.storage.succeeded()
+
+    @contextmanager
     def session(self) -> Iterator[Session]:
         """A unit of work that may write."""
         if self._write_lock is None:
-            with self._factory() as session, session.begin():
+            with self._space(), self._factory() as session, session.begin():
                 yield session
             return
-        with self._write_lock, self._factory() as session, session.begin():
+        with self._space(), self._write_lock, self._factory() as session, session.begin():
             yield session
 
     @contextmanager
     def write_conn(self) -> Iterator[Connection]:
         """A Core connection in a transaction that may write (for the hot paths: no ORM overhead)."""
         if self._write_lock is None:
-            with self.engine.begin() as conn:
+            with self._space(), self.engine.begin() as conn:
                 yield conn
             return
-        with self._write_lock, self.engine.begin() as conn:
+        with self._space(), self._write_lock, self.engine.begin() as conn:
             yield conn
 
     @contextmanager
@@ -94,7 +117,7 @@ class Database:
         ``None`` (the caller, on the event loop, must not wait for another thread's long write). Other
         databases: like :meth:`write_conn`."""
         if self._write_lock is None:
-            with self.engine.begin() as conn:
+            with self._space(), self.engine.begin() as conn:
                 yield conn
             return
         lock = self._write_lock
@@ -102,7 +125,7 @@ class Database:
             yield None
             return
         try:
-            with self.engine.begin() as conn:
+            with self._space(), self.engine.begin() as conn:
                 yield conn
         finally:
             self._write_lock.release()
@@ -156,8 +179,11 @@ class Database:
         self.engine.dispose()
 
 
-def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
+def _sqlite_pragmas(dbapi_connection: Any, _record: Any, *, max_mb: float | None = None) -> None:
     cursor = dbapi_connection.cursor()
+    if max_mb is not None:  # a size limit: beyond it writes fail as on a full disk (SQLITE_FULL)
+        page = int(cursor.execute("PRAGMA page_size").fetchone()[0])
+        cursor.execute(f"PRAGMA max_page_count={max(1, int(max_mb * 1e6 / page))}")
     cursor.execute("PRAGMA journal_mode=WAL")
     cursor.execute("PRAGMA synchronous=NORMAL")
     cursor.execute("PRAGMA foreign_keys=ON")

@@ -96,6 +96,13 @@ class UnavailableError(ServerError):
     code = "unavailable"
 
 
+class StorageFullError(ServerError):
+    """The database has no space left for the write (507); nothing of the request was stored."""
+
+    status = 507
+    code = "storage_full"
+
+
 class RateLimitedError(ServerError):
     """Over a quota (429); ``retry_after_s`` becomes ``Retry-After`` (whole seconds, rounded up)."""
 

@@ -20,6 +20,12 @@ class Settings(BaseSettings):
 
     database_url: str = Field(DEFAULT_DATABASE_URL, description="SQLAlchemy URL of the server database.")
     max_body_bytes: int = Field(4 * 1024 * 1024, ge=1024, description="Largest request body (413 beyond).")
+    sqlite_max_mb: float | None = Field(
+        None,
+        gt=0,
+        description="A size limit on a SQLite database (MB): beyond it writes are refused as on a full disk "
+        "(507, /healthz fails until a write succeeds again). None: the disk's size.",
+    )
     max_kernel_bytes: int = Field(512 * 1024, ge=1024, description="Largest kernel module file.")
     long_poll_max_s: float = Field(60.0, gt=0, le=600, description="Longest long-poll wait a robot may ask.")
     poll_recheck_s: float = Field(

@@ -30,7 +30,7 @@ from sqlalchemy import Connection
 from sqlalchemy.exc import SQLAlchemyError
 
 from server.database import Database
-from server.errors import ServerError
+from server.errors import ServerError, StorageFullError
 
 __all__ = ["WriteBatcher"]
 
@@ -138,6 +138,10 @@ class WriteBatcher:
                         results.append((job, job.fn(conn), None))
                     except ServerError as exc:  # expected, raised before the job wrote anything
                         results.append((job, None, exc))
+        except StorageFullError as exc:  # no space: every job of the batch is refused with the reason
+            for job in batch:
+                _settle(job, None, exc)
+            return
         except SQLAlchemyError:
             if len(batch) == 1:
                 log.exception("write failed")

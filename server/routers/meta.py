@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 from fastapi import APIRouter, Response
 from sqlalchemy import text
 
@@ -16,7 +18,13 @@ api_router = APIRouter(tags=["meta"])
 
 @router.get("/healthz")
 def healthz(state: StateDep) -> dict[str, str]:
-    """``{"status": "ok"}`` when the database answers; 503 otherwise."""
+    """``{"status": "ok"}`` when the database answers and its last write found space; 503 otherwise, with
+    the reason (a full database fails the check until a write succeeds again)."""
+    full = state.db.storage.problem()
+    if full is not None:
+        reason, since = full
+        when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(since))
+        raise UnavailableError(f"the database has had no space left since {when}: {reason}")
     try:
         with state.db.read() as s:
             s.execute(text("SELECT 1"))
