@@ -123,7 +123,9 @@ class Pipeline:
         # shown. It is local: two maps restart in turn every `local_map_steps` steps or `local_map_m`
         # metres of travel, and the older one is matched against, so old, drifted walls of a loop never
         # pull the pose.
-        self._merge = replace(merge or MergeTolerances(), short_by_band=False, merge_sigmas=0.0)
+        self._merge = replace(
+            merge or MergeTolerances(), short_by_band=False, merge_sigmas=0.0, cross_margin_m=0.0
+        )
         self._loc_maps = [WallMap(self._merge), WallMap(self._merge)]
         self.local_map_restarts = 0
         self._since_steps = 0

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from shared.pipeline.crossings import crossing_walls
 from shared.pipeline.wallmerge import explained_by, insert_all
 from shared.types import BoolArray, FloatArray, IntArray
 
@@ -66,6 +67,11 @@ class MergeTolerances:
     #: pieces may join it within their end band) once its direction's standard deviation, from the
     #: information of the segments merged into it, is at most ``angle_tol_deg`` over this; 0 turns it off
     known_direction_sigmas: float = 3.0
+    #: of two shown walls crossing through both interiors at more than twice ``angle_tol_deg`` (the
+    #: longer reaching past the crossing by more than this, m, the shorter crossing near its middle),
+    #: the shorter is not shown (:mod:`shared.pipeline.crossings`); 0 turns it off (the
+    #: localisation maps: what they match against must not depend on it)
+    cross_margin_m: float = 0.2
 
 
 _STATE = ("_ids", "_obs", "_w", "_s1", "_s2", "_c", "_d", "_lo", "_hi", "_info")
@@ -91,13 +97,23 @@ class WallMap:
         self._info = np.zeros(cap)  # direction information (rad^-2) of the merged segments
         self._next_id = 0
         self.removed: list[int] = []
+        self._changes = 0  # counts the changes, for the shown walls' cache
+        self._shown_cache: tuple[int, IntArray] | None = None
 
     def __len__(self) -> int:
         return self._n
 
     # ------------------------------------------------------------------ queries
     def _shown(self) -> IntArray:
-        return np.flatnonzero(self._obs[: self._n] >= self.tol.min_observations)
+        if self._shown_cache is not None and self._shown_cache[0] == self._changes:
+            return self._shown_cache[1]
+        k = np.flatnonzero(self._obs[: self._n] >= self.tol.min_observations)
+        if self.tol.cross_margin_m > 0.0 and len(k) > 1:
+            c, d = self._c[k], self._d[k]
+            ends = np.hstack([c + d * self._lo[k, None], c + d * self._hi[k, None]])
+            k = k[~crossing_walls(ends, self.tol.cross_margin_m, 2.0 * self.tol.angle_tol_deg)]
+        self._shown_cache = (self._changes, k)
+        return k
 
     @property
     def ids(self) -> IntArray:
@@ -165,6 +181,7 @@ class WallMap:
         segment with the wall's mass per metre and its scatter across (the merge's ``merge_sigmas`` test reads
         it), so later merges refit it consistently; its direction information is the wall's times the cube of
         its share of the length (that of evenly spread points). O(walls)."""
+        self._changes += 1
         hit = np.flatnonzero(self._ids[: self._n] == wall_id)
         if len(hit) == 0:
             return []
@@ -235,6 +252,7 @@ class WallMap:
         segs = np.ascontiguousarray(np.asarray(segments, dtype=np.float64).reshape(-1, 4))
         if len(segs) == 0:
             return
+        self._changes += 1
         sig = _per_segment(sigmas_m, "sigmas_m", len(segs))
         dir_sd = _per_segment(direction_sds_rad, "direction_sds_rad", len(segs))
         create = (
