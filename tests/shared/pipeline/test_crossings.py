@@ -14,6 +14,7 @@ from shared.pipeline import Pipeline, PipelineConfig
 from shared.pipeline.crossings import crossing_walls
 from shared.pipeline.wallmap import WallMap
 from shared.sim import default_world, patrol_scans
+from shared.types import Pose2D
 
 MARGIN, ANGLE = 0.2, 10.0
 
@@ -84,7 +85,7 @@ def test_the_room_patrolled_half_an_hour_stays_as_accurate_as_after_one_lap() ->
     assert len(pipe.walls()[1]) <= 1.5 * len(world.walls)
 
 
-def _offset():  # type: ignore[no-untyped-def]
+def _offset() -> Pose2D:
     from shared.odometry import MINES_ROVER  # the simulated robot patrol_scans drives
 
     return MINES_ROVER.laser_offset
