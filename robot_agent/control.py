@@ -35,6 +35,7 @@ from typing import Any
 from shared.control import ControlMessage, KernelOperation, OperationKind, to_config
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Kernel, Stage
+from shared.kernels.stages import STAGES
 from shared.kernels.versions import parse_version
 from shared.pipeline import KernelChoice, PipelineConfig
 
@@ -59,14 +60,6 @@ __all__ = [
 #: ``(stage, name) -> version``: the highest version of each kernel the robot has put in force.
 Floors = Mapping[tuple[str, str], str]
 
-_FIELDS = {
-    Stage.SEGMENTATION: "segmentation",
-    Stage.NOISE_REMOVAL: "noise_removal",
-    Stage.CLUSTERING: "clustering",
-    Stage.STRAIGHT_LINE: "straight_line",
-    Stage.SCAN_MATCHING: "scan_matching",
-}
-
 
 @dataclass
 class Prepared:
@@ -81,12 +74,7 @@ class Prepared:
 
 def choices(config: PipelineConfig | None, stage: Stage) -> list[KernelChoice]:
     """The kernel choices ``config`` makes for ``stage`` (a chain for noise removal)."""
-    if config is None:
-        return []
-    value = getattr(config, _FIELDS[stage])
-    if value is None:
-        return []
-    return list(value) if isinstance(value, tuple) else [value]
+    return [] if config is None else config.choices(stage)
 
 
 def kernels_in_use(config: PipelineConfig) -> dict[str, str]:
@@ -249,11 +237,12 @@ def _key(version: str) -> tuple[int, int, int]:
 def _replace(
     config: PipelineConfig, stage: Stage, fix: Callable[[KernelChoice], KernelChoice]
 ) -> PipelineConfig:
-    value = getattr(config, _FIELDS[stage])
+    key = STAGES[stage].field
+    value = getattr(config, key)
     if value is None:
         return config
     new = tuple(fix(c) for c in value) if isinstance(value, tuple) else fix(value)
-    return config.model_copy(update={_FIELDS[stage]: new})
+    return config.model_copy(update={key: new})
 
 
 def swap_version(config: PipelineConfig, stage: Stage, name: str, old: str, new: str) -> PipelineConfig:

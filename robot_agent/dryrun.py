@@ -18,30 +18,18 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from robot_agent.errors import AgentError, KernelRejected
 from robot_agent.kernelproc import KernelWorker, WorkerError, remote_class
-from shared.kernels import REGISTRY, Kernel, Stage
-from shared.kernels.conformance import moved_copy
-from shared.types import FloatArray, IntArray, Pose2D, Scan
+from shared.kernels import Kernel, Stage
+from shared.types import Scan
 
 __all__ = [
-    "DEFAULT_INPUT_KERNELS",
     "STARTUP_ALLOWANCE_S",
     "DryRunReport",
     "dry_run",
     "load_in_worker",
-    "stage_inputs",
     "verify_in_worker",
 ]
-
-#: The default pipeline's kernels (``PipelineConfig()``) used to derive what each stage sees in a dry run.
-DEFAULT_INPUT_KERNELS: Mapping[Stage, str] = {
-    Stage.SEGMENTATION: "abd-iepf",
-    Stage.NOISE_REMOVAL: "dbscan",
-    Stage.CLUSTERING: "kmeans",
-}
 
 #: Seconds a worker may take to start: spawn a Python interpreter, import numpy and the kernels, warm the
 #: built-ins up (~1 s on a desktop, a few seconds on a small robot computer) and build the stage inputs with
@@ -137,9 +125,10 @@ def verify_in_worker(
 ) -> DryRunReport:
     """The dry run, then (with ``conformance_s``) the conformance battery, in one confined worker.
 
-    The dry run: import + construction + one ``apply`` per stage input (:func:`stage_inputs`) within
-    ``budget_s`` in all, each result checked; the battery within ``conformance_s``. The worker's address
-    space is its start-up footprint plus ``memory_limit_mb``; its CPU time after start-up is limited to
+    The dry run: import + construction + one ``apply`` per stage input
+    (:func:`shared.pipeline.probe.stage_inputs`) within ``budget_s`` in all, each result checked; the
+    battery within ``conformance_s``. The worker's address space is its start-up footprint plus
+    ``memory_limit_mb``; its CPU time after start-up is limited to
     the two budgets plus 2 s (RLIMIT_CPU: SIGXCPU, then SIGKILL). Raises :class:`KernelRejected`
     ("dry run: ..." or "conformance ...") naming what the kernel did; :class:`AgentError` when the worker
     cannot start or build its inputs. The worker is always killed before this returns. ``started``, if
@@ -267,67 +256,3 @@ def load_in_worker(
         worker.close()
         raise
     return remote_class(worker, want, name, version, meta, call_s)
-
-
-def stage_inputs(stage: Stage, scans: Sequence[Scan]) -> list[tuple[tuple[Any, ...], int]]:
-    """``(apply args, n_in)`` per scan for ``stage`` (straight-line: points form, then centroids form)."""
-    if not scans:
-        from shared.kernels.conformance import room_scan
-
-        scans = [room_scan()]
-    seg_k: Any = REGISTRY.create(Stage.SEGMENTATION, DEFAULT_INPUT_KERNELS[Stage.SEGMENTATION])
-    noise_k: Any = REGISTRY.create(Stage.NOISE_REMOVAL, DEFAULT_INPUT_KERNELS[Stage.NOISE_REMOVAL])
-    cluster_k: Any = REGISTRY.create(Stage.CLUSTERING, DEFAULT_INPUT_KERNELS[Stage.CLUSTERING])
-    out: list[tuple[tuple[Any, ...], int]] = []
-    previous: tuple[Scan, FloatArray] | None = None
-    for scan in scans:
-        if stage == Stage.SEGMENTATION:
-            out.append(((scan,), len(scan.ranges_m)))
-            continue
-        seg = seg_k.apply(scan)
-        pts = np.asarray(seg.points)
-        if stage == Stage.NOISE_REMOVAL:
-            out.append(((pts,), len(pts)))
-        elif stage == Stage.SCAN_MATCHING:
-            if previous is None:
-                if len(scans) == 1:
-                    out.append(((pts, moved_copy(pts), Pose2D()), len(pts)))
-            else:
-                prev_scan, prev_pts = previous
-                initial = Pose2D()
-                if prev_scan.odometry is not None and scan.odometry is not None:
-                    initial = prev_scan.odometry.between(scan.odometry)
-                out.append(((prev_pts, pts, initial), len(pts)))
-            previous = (scan, pts)
-        else:
-            clean = noise_k.apply(pts)
-            groups = np.asarray(seg.labels)[np.asarray(clean.keep)]
-            denoised = np.asarray(clean.points)
-            if len(denoised) > len(groups):  # a noise kernel that adds points: they join no segment
-                groups = np.concatenate([groups, np.full(len(denoised) - len(groups), -1, dtype=np.intp)])
-            if stage == Stage.CLUSTERING:
-                out.append(((denoised,), len(denoised)))
-            else:
-                out.append(((denoised, groups), len(denoised)))
-                cents, cgroups = _centroids(cluster_k, denoised, groups)
-                out.append(((cents, cgroups), len(cents)))
-    return out
-
-
-def _centroids(kernel: Any, points: FloatArray, groups: IntArray) -> tuple[FloatArray, IntArray]:
-    """k-means centroids per segment (about one per 15 points, at least 2), in order along the segment."""
-    cents: list[FloatArray] = []
-    cgroups: list[IntArray] = []
-    for g in np.unique(groups[groups >= 0]):
-        block = points[groups == g]
-        if len(block) < 2:
-            continue
-        k = min(len(block), max(2, len(block) // 15))
-        c = np.asarray(kernel.with_params(n_clusters=k).apply(block).centroids)
-        centred = c - c.mean(axis=0)
-        axis = np.linalg.svd(centred, full_matrices=False)[2][0] if len(c) > 1 else np.zeros(2)
-        cents.append(c[np.argsort(centred @ axis, kind="stable")])
-        cgroups.append(np.full(len(c), g, dtype=np.intp))
-    if not cents:
-        return np.zeros((0, 2)), np.zeros(0, dtype=np.intp)
-    return np.vstack(cents), np.concatenate(cgroups)

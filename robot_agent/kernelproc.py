@@ -37,29 +37,14 @@ import shared
 from robot_agent import wire
 from robot_agent.errors import AgentError
 from shared.errors import KernelParameterError
-from shared.kernels import (
-    ClusteringKernel,
-    Kernel,
-    KernelParams,
-    NoiseRemovalKernel,
-    ScanMatchingKernel,
-    SegmentationKernel,
-    Stage,
-    StraightLineKernel,
-)
+from shared.kernels import Kernel, KernelParams, Stage
+from shared.kernels.stages import STAGES
 
 __all__ = ["KernelCallError", "KernelWorker", "RemoteParams", "WorkerError", "remote_class"]
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
-STAGE_BASES: Mapping[Stage, type[Kernel[Any]]] = {
-    Stage.SEGMENTATION: SegmentationKernel,
-    Stage.NOISE_REMOVAL: NoiseRemovalKernel,
-    Stage.CLUSTERING: ClusteringKernel,
-    Stage.STRAIGHT_LINE: StraightLineKernel,
-    Stage.SCAN_MATCHING: ScanMatchingKernel,
-}
 
 _ROOT = Path(robot_agent.__file__).resolve().parent.parent
 _PACKAGES = [str(Path(robot_agent.__file__).resolve().parent), str(Path(shared.__file__).resolve().parent)]
@@ -298,7 +283,7 @@ def remote_class(
     cache: dict[str, tuple[int, dict[str, Any]]] = {}
     label = f"{name} {version}"
 
-    class Remote(STAGE_BASES[want]):  # type: ignore[valid-type,misc]
+    class Remote(STAGES[want].base):  # type: ignore[misc]
         Params = RemoteParams
         worker: KernelWorker
 

@@ -31,20 +31,15 @@ from robot_agent.errors import KernelRejected
 from shared.errors import LinemapError
 from shared.kernels import (
     REGISTRY,
-    ClusteringKernel,
     Kernel,
     KernelRegistry,
-    NoiseRemovalKernel,
-    ScanMatchingKernel,
-    SegmentationKernel,
     Stage,
-    StraightLineKernel,
 )
 from shared.kernels.conformance import check_kernel
+from shared.kernels.stages import STAGES
 from shared.signing import SignatureError, key_id, sha256_hex, verify_digest
 
 __all__ = [
-    "DEFAULT_INPUT_KERNELS",
     "STARTUP_ALLOWANCE_S",
     "DryRunReport",
     "check_conformance",
@@ -54,13 +49,6 @@ __all__ = [
     "verify_artifact",
 ]
 
-_STAGE_BASES: Mapping[Stage, type[Kernel[Any]]] = {
-    Stage.SEGMENTATION: SegmentationKernel,
-    Stage.NOISE_REMOVAL: NoiseRemovalKernel,
-    Stage.CLUSTERING: ClusteringKernel,
-    Stage.STRAIGHT_LINE: StraightLineKernel,
-    Stage.SCAN_MATCHING: ScanMatchingKernel,
-}
 
 #: Serialises module loads: the registry diff that undoes a module's self-registration needs it.
 _LOAD_LOCK = threading.Lock()
@@ -248,7 +236,7 @@ def _find_kernel(module: types.ModuleType, stage: Stage, name: str, version: str
         how = "no" if not matches else f"{len(matches)} classes for"
         raise KernelRejected(f"the module defines {how} kernel {wanted}: found {listed}")
     cls = matches[0]
-    base = _STAGE_BASES[stage]
+    base = STAGES[stage].base
     if not issubclass(cls, base):
         raise KernelRejected(f"kernel {wanted} ({cls.__name__}) must subclass {base.__name__}")
     try:
@@ -276,7 +264,6 @@ def check_conformance(cls: type[Kernel[Any]], params: Mapping[str, Any] | None =
 
 
 from robot_agent.dryrun import (  # noqa: E402  (kept importable from here)
-    DEFAULT_INPUT_KERNELS,
     STARTUP_ALLOWANCE_S,
     DryRunReport,
     dry_run,

@@ -16,17 +16,10 @@ from typing import Any
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Stage
 from shared.kernels.base import parse_version
+from shared.kernels.stages import STAGES
 from shared.pipeline import KernelChoice, PipelineConfig
 
 __all__ = ["repair_config"]
-
-_FIELDS = {
-    "segmentation": Stage.SEGMENTATION,
-    "noise_removal": Stage.NOISE_REMOVAL,
-    "clustering": Stage.CLUSTERING,
-    "straight_line": Stage.STRAIGHT_LINE,
-    "scan_matching": Stage.SCAN_MATCHING,
-}
 
 
 def _registered(stage: Stage, name: str, version: str) -> bool:
@@ -81,7 +74,8 @@ def repair_config(stored: Any, defaults: PipelineConfig) -> tuple[PipelineConfig
     data = copy.deepcopy(stored)
     base = defaults.model_dump(mode="json")
     notes: list[str] = []
-    for field, stage in _FIELDS.items():
+    for stage, spec in STAGES.items():
+        field = spec.field
         value = data.get(field)
         if isinstance(value, list):
             fixed = [c for c in (_fix_choice(stage, c, notes) for c in value) if c is not None]

@@ -179,8 +179,8 @@ def _conformance(st: _State, req: dict[str, Any]) -> dict[str, Any]:
 
 
 def _inputs(st: _State, req: dict[str, Any]) -> dict[str, Any]:
-    from robot_agent.dryrun import stage_inputs
     from shared.kernels import Stage
+    from shared.pipeline.probe import stage_inputs
 
     stage = Stage(str(req["stage"]))
     try:

@@ -9,7 +9,7 @@ ones) are left to the robot, which validates them on load.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter
 from pydantic import BaseModel, ConfigDict, Field
@@ -30,6 +30,7 @@ from shared.control import (
     to_config,
 )
 from shared.kernels import Stage
+from shared.kernels.stages import STAGES
 from shared.kernels.versions import VERSION_PATTERN
 from shared.pipeline.config import Mode, PipelineConfig
 
@@ -38,7 +39,6 @@ __all__ = ["ControlDraft", "KernelDraft", "LoopClosureDraft", "OperationDraft", 
 router = APIRouter(prefix="/control", tags=["control"])
 
 ParamScalar = bool | int | float | str | list[int]
-StageName = Literal["segmentation", "noise-removal", "clustering", "straight-line", "scan-matching"]
 
 
 class KernelDraft(BaseModel):
@@ -55,7 +55,7 @@ class OperationDraft(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     kind: Literal["install", "update", "delete", "rollback"]
-    stage: StageName
+    stage: Stage
     name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
     version: str = Field(pattern=f"^{VERSION_PATTERN}$")
     sha256: str | None = Field(None, pattern=r"^[0-9a-fA-F]{64}$")
@@ -116,26 +116,25 @@ def _loop_closure(draft: LoopClosureDraft) -> KernelSpec:
     return KernelSpec.of("loop-closure", params)
 
 
+def _stage_spec(given: Any, stage: Stage) -> Any:
+    """A stage's part of a draft as the message states it: absent, a chain, the "none" switch, or one
+    kernel (the stage's description says which it may be)."""
+    if given is None:
+        return None
+    if isinstance(given, list | tuple):
+        return tuple(_spec(d, stage) for d in given)
+    if given == NO_SCAN_MATCHING:
+        return NO_SCAN_MATCHING
+    return _spec(given, stage)
+
+
 def draft_message(draft: ControlDraft) -> ControlMessage:
     """The control message a draft describes (its values are checked by :func:`control_xml`)."""
-    scan: KernelSpec | Literal["none"] | None = None
-    if draft.scan_matching == NO_SCAN_MATCHING:
-        scan = NO_SCAN_MATCHING
-    elif isinstance(draft.scan_matching, KernelDraft):
-        scan = _spec(draft.scan_matching, Stage.SCAN_MATCHING)
     return ControlMessage(
         mode=Mode(draft.mode) if draft.mode else None,
         n_smax=draft.n_smax,
         heading_flush_deg=draft.heading_flush_deg,
-        segmentation=_spec(draft.segmentation, Stage.SEGMENTATION) if draft.segmentation else None,
-        noise_removal=(
-            tuple(_spec(d, Stage.NOISE_REMOVAL) for d in draft.noise_removal)
-            if draft.noise_removal is not None
-            else None
-        ),
-        clustering=_spec(draft.clustering, Stage.CLUSTERING) if draft.clustering else None,
-        straight_line=_spec(draft.straight_line, Stage.STRAIGHT_LINE) if draft.straight_line else None,
-        scan_matching=scan,
+        **{spec.field: _stage_spec(getattr(draft, spec.field), spec.stage) for spec in STAGES.values()},
         loop_closure=_loop_closure(draft.loop_closure) if draft.loop_closure else None,
         operations=tuple(
             KernelOperation(

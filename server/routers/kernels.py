@@ -261,6 +261,16 @@ def builtin_kernels(who: PrincipalDep) -> list[dict[str, Any]]:
     return REGISTRY.describe()
 
 
+@router.get("/stages")
+def stages(who: PrincipalDep) -> list[dict[str, Any]]:
+    """The pipeline's stages in processing order, as the stage descriptions state them
+    (``shared.kernels.stages``): name, paper section, configuration field, control-message element, result
+    type, and whether a stage chains several kernels, may be switched off, or follows the schedule."""
+    from shared.kernels.stages import STAGES
+
+    return [spec.as_dict() for spec in STAGES.values()]
+
+
 def _find(s: Session, name: str, version: str) -> KernelArtifact:
     art = s.scalars(
         select(KernelArtifact).where(KernelArtifact.name == name, KernelArtifact.version == version)

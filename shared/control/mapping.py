@@ -24,6 +24,7 @@ from shared.control.model import NO_SCAN_MATCHING, ControlMessage, KernelSpec, P
 from shared.control.vocabulary import LOOP_CLOSURE, is_length_param, kernel_element, param_element
 from shared.errors import KernelParameterError, UnknownKernelError
 from shared.kernels import Stage
+from shared.kernels.stages import STAGES, StageSpec
 from shared.pipeline.config import SCHEDULED, KernelChoice, Mode, PipelineConfig, StageSchedule
 from shared.slam.errors import LoopClosureSettingsError
 from shared.slam.settings import LoopClosureSettings
@@ -35,14 +36,6 @@ __all__ = ["Checkable", "from_config", "to_config"]
 #: here (a kernel only the robot will have: an uploaded version, validated when the robot loads it).
 Checkable = Callable[[Stage, str, str | None], bool]
 
-#: Display element of each stage's kernel container (for errors).
-_STAGE_ELEMENT = {
-    Stage.SEGMENTATION: "segmentation",
-    Stage.NOISE_REMOVAL: "noise-removal",
-    Stage.CLUSTERING: "clustering",
-    Stage.STRAIGHT_LINE: "straight-line-method",
-    Stage.SCAN_MATCHING: "scan-matching",
-}
 #: PipelineConfig field -> message element (for errors).
 _FIELD_ELEMENT = {
     "mode": "mode",
@@ -78,18 +71,16 @@ def to_config(
         updates["n_smax"] = msg.n_smax
     if msg.heading_flush_deg is not None:
         updates["heading_flush_deg"] = msg.heading_flush_deg
-    if msg.segmentation is not None:
-        updates["segmentation"] = _choice(msg.segmentation, Stage.SEGMENTATION)
-    if msg.noise_removal is not None:
-        updates["noise_removal"] = tuple(_choice(s, Stage.NOISE_REMOVAL) for s in msg.noise_removal)
-    if msg.clustering is not None:
-        updates["clustering"] = _choice(msg.clustering, Stage.CLUSTERING)
-    if msg.straight_line is not None:
-        updates["straight_line"] = _choice(msg.straight_line, Stage.STRAIGHT_LINE)
-    if msg.scan_matching == NO_SCAN_MATCHING:
-        updates["scan_matching"] = None
-    elif isinstance(msg.scan_matching, KernelSpec):
-        updates["scan_matching"] = _choice(msg.scan_matching, Stage.SCAN_MATCHING)
+    for stage, spec in STAGES.items():
+        given = getattr(msg, spec.field)
+        if given is None:
+            continue
+        if spec.optional and given == NO_SCAN_MATCHING:
+            updates[spec.field] = None
+        elif spec.chain:
+            updates[spec.field] = tuple(_choice(s, stage) for s in given)
+        else:
+            updates[spec.field] = _choice(given, stage)
     if msg.schedule is not None:
         updates["schedule"] = {e.stage: _stage_schedule(e) for e in msg.schedule}
     if msg.loop_closure is not None:
@@ -112,17 +103,18 @@ def to_config(
     return config.model_copy(update={k: merged[k] for k in _KERNEL_FIELDS}) if left else config
 
 
-_KERNEL_FIELDS = ("segmentation", "noise_removal", "clustering", "straight_line", "scan_matching")
+_KERNEL_FIELDS = tuple(spec.field for spec in STAGES.values())
 
 
 def _stand_ins(fields: dict[str, Any], left: list[KernelChoice]) -> dict[str, Any]:
     """``fields`` with every choice of ``left`` replaced by the default kernel of its stage (built in)."""
     default = PipelineConfig()
     out = dict(fields)
-    for name in _KERNEL_FIELDS:
-        value = out[name]
-        if name == "noise_removal":
-            out[name] = tuple(default.noise_removal[0] if any(c is v for v in left) else c for c in value)
+    for spec in STAGES.values():
+        name, value = spec.field, out[spec.field]
+        if spec.chain:
+            first = default.choices(spec.stage)[0]
+            out[name] = tuple(first if any(c is v for v in left) else c for c in value)
         elif any(value is v for v in left):
             out[name] = getattr(default, name)
     return out
@@ -145,21 +137,24 @@ def from_config(config: PipelineConfig, seq: int | None = None) -> ControlMessag
         mode=config.mode,
         n_smax=config.n_smax,
         heading_flush_deg=config.heading_flush_deg,
-        segmentation=_spec(config.segmentation, Stage.SEGMENTATION),
-        noise_removal=tuple(_spec(c, Stage.NOISE_REMOVAL) for c in config.noise_removal),
-        clustering=_spec(config.clustering, Stage.CLUSTERING),
-        straight_line=_spec(config.straight_line, Stage.STRAIGHT_LINE),
-        scan_matching=(
-            NO_SCAN_MATCHING
-            if config.scan_matching is None
-            else _spec(config.scan_matching, Stage.SCAN_MATCHING)
-        ),
+        **{spec.field: _stated(config, spec) for spec in STAGES.values()},
         schedule=tuple(schedule),
         loop_closure=KernelSpec(
             LOOP_CLOSURE.name,
             tuple((config.loop_closure or {"enabled": False}).items()),
         ),
     )
+
+
+def _stated(config: PipelineConfig, spec: StageSpec) -> Any:
+    """How a message states ``config``'s choice for a stage: a tuple for a chain, the "none" switch for an
+    optional stage that is off, one kernel element otherwise."""
+    chosen = [_spec(c, spec.stage) for c in config.choices(spec.stage)]
+    if spec.chain:
+        return tuple(chosen)
+    if not chosen and spec.optional:
+        return NO_SCAN_MATCHING
+    return chosen[0]
 
 
 def _built_choice(spec: KernelSpec, stage: Stage) -> KernelChoice:
@@ -180,7 +175,7 @@ def _built_choice(spec: KernelSpec, stage: Stage) -> KernelChoice:
 
 def _kernel_display(spec: KernelSpec, stage: Stage) -> str:
     if stage in (Stage.STRAIGHT_LINE, Stage.SCAN_MATCHING):
-        return f"<{_STAGE_ELEMENT[stage]}>"
+        return f"<{STAGES[stage].element}>"
     return f"<{spec.name}>"
 
 
@@ -220,7 +215,7 @@ def _spec(choice: KernelChoice, stage: Stage) -> KernelSpec:
     if kernel_element(stage, choice.name) is None:
         raise ControlMessageError(
             f"kernel {choice.name!r} of stage {stage.value} has no element in the control vocabulary",
-            element=f"<{_STAGE_ELEMENT[stage]}>",
+            element=f"<{STAGES[stage].element}>",
         )
     return KernelSpec(choice.name, tuple(_params(choice.name, choice.params).items()), choice.version)
 

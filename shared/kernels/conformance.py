@@ -17,11 +17,12 @@ check               what it feeds / asserts
 ``bad-params``      out-of-range, mistyped and unknown parameters raise a clear ``KernelParameterError``
 ==================  ===================================================================================
 
-Each stage has an adapter (:func:`stage_input` / :func:`run_stage`) that feeds a point set to the kernel in
-the stage's ``apply`` form, and a checker (:func:`check_result`) that validates the result's types, shapes
-and invariants. Nothing here asserts or does I/O: :func:`check_kernel` returns a list of problems, each
-``"<check>: <stage/name@version>: <what was wrong>"``, empty when the kernel conforms. A kernel that raises
-is a problem, never an exception out of this module.
+Each stage's description (:data:`shared.kernels.stages.STAGES`) says how a point set is fed to its
+kernels (:func:`stage_input` / :func:`run_stage`), what its results must satisfy (:func:`check_result`)
+and what ``nan-inf`` and ``line-1000`` expect of it; the probe inputs are :mod:`shared.kernels.probes`.
+Nothing here asserts or does I/O: :func:`check_kernel` returns a list of problems, each
+``"<check>: <stage/name@version>: <what was wrong>"``, empty when the kernel conforms. A kernel that
+raises is a problem, never an exception out of this module.
 
 Cost: the battery applies the kernel about 12 times on at most 1000 points (twice on a ~600-point room
 scan); for the built-ins that is tens of milliseconds once compiled.
@@ -33,15 +34,15 @@ import json
 import math
 import re
 from collections.abc import Callable, Iterable, Mapping
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from shared.errors import KernelParameterError
 from shared.kernels.base import Kernel, Stage
-from shared.kernels.results import Clusters, Lines, Match, NoiseResult, Segments
-from shared.types import URG04LX, FloatArray, Pose2D, Scan
+from shared.kernels.probes import MOTION, moved_copy, points_to_scan, readonly, room_scan, wall_points
+from shared.kernels.stages import spec_of
+from shared.types import FloatArray
 
 __all__ = [
     "CHECKS",
@@ -59,50 +60,14 @@ __all__ = [
     "wall_points",
 ]
 
-#: Motion between the reference and the current scan fed to scan matchers.
-MOTION = Pose2D(0.05, -0.03, 0.02)
-
-
-# ---------------------------------------------------------------------------------------------- inputs
-def points_to_scan(points: FloatArray) -> Scan:
-    """A URG-04LX scan whose returns are ``points`` (snapped to the nearest beam; non-finite rows -> inf).
-
-    O(N + beams).
-    """
-    ranges = np.full(URG04LX.beam_count, np.nan)
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    finite = np.all(np.isfinite(pts), axis=1)
-    r = np.hypot(pts[finite, 0], pts[finite, 1])
-    beam = np.rint(
-        (np.arctan2(pts[finite, 1], pts[finite, 0]) - URG04LX.angle_min_rad) / URG04LX.angle_increment_rad
-    ).astype(int)
-    ok = (beam >= 0) & (beam < URG04LX.beam_count)
-    ranges[beam[ok]] = r[ok]
-    if (~finite).any():
-        ranges[: int((~finite).sum())] = np.inf
-    return Scan.from_geometry(URG04LX, ranges)
-
-
-def moved_copy(points: FloatArray) -> FloatArray:
-    """The "current scan" for scan matchers: ``points`` seen after the robot moved by ``MOTION^-1``. O(N)."""
-    with np.errstate(invalid="ignore"):
-        return MOTION.transform_points(np.asarray(points, dtype=np.float64))
-
 
 def stage_input(stage: Stage | str, points: FloatArray) -> tuple[Any, ...]:
-    """The positional arguments of ``apply`` for ``stage`` built from one point set ``(N, 2)`` (metres).
-
-    segmentation: a scan of the points; straight-line: the points in one group; scan-matching: the points
-    as reference and their :func:`moved_copy` as current scan, from the identity; otherwise the points.
+    """The positional arguments of ``apply`` for ``stage`` built from one point set ``(N, 2)`` (metres):
+    the stage description's ``probe`` (:data:`shared.kernels.stages.STAGES`). Segmentation: a scan of the
+    points; straight-line: the points in one group; scan-matching: the points as reference and their
+    :func:`~shared.kernels.probes.moved_copy` as current scan, from the identity; otherwise the points.
     """
-    stage = Stage(stage)
-    if stage == Stage.SEGMENTATION:
-        return (points_to_scan(points),)
-    if stage == Stage.STRAIGHT_LINE:
-        return (points, np.zeros(len(points), dtype=np.intp))
-    if stage == Stage.SCAN_MATCHING:
-        return (points, moved_copy(points), Pose2D())
-    return (points,)
+    return spec_of(stage).probe(points)
 
 
 def run_stage(kernel: Kernel[Any], points: FloatArray) -> Any:
@@ -111,150 +76,21 @@ def run_stage(kernel: Kernel[Any], points: FloatArray) -> Any:
     return apply(*stage_input(kernel.stage, points))
 
 
-def wall_points(n: int = 1000, seed: int = 0) -> FloatArray:
-    """``n`` points along a wall 2 m in front of the scanner, y from -1.5 to 1.5 m, 2 mm noise (seeded)."""
-    rng = np.random.default_rng(seed)
-    y = np.linspace(-1.5, 1.5, n)
-    return np.column_stack([2.0 + rng.normal(0, 0.002, n), y])
-
-
-def readonly(arr: FloatArray) -> FloatArray:
-    """A read-only float64 copy of ``arr`` (kernels must accept read-only input)."""
-    out = np.array(arr, dtype=np.float64, copy=True)
-    out.setflags(write=False)
-    return out
-
-
-@lru_cache(maxsize=1)
-def room_scan() -> Scan:
-    """A URG-04LX scan in the default world with 5 % clutter returns (seeded, cached; scans are immutable)."""
-    from shared.sim import RangeNoise, default_world, simulate_scan
-
-    rng = np.random.default_rng(1)
-    return simulate_scan(default_world(), Pose2D(4.5, 2.0, np.pi), rng, RangeNoise(outlier_rate=0.05))
-
-
 # -------------------------------------------------------------------------------------------- results
 def check_result(stage: Stage | str, result: Any, n_in: int) -> list[str]:
-    """Problems with a stage's result: type, shapes, finiteness and invariants (empty when it is valid).
+    """Problems with a stage's result: type, shapes, finiteness and invariants (empty when it is valid),
+    as the stage description's ``check`` (:mod:`shared.kernels.checks`) says.
 
     ``n_in`` is the number of input points (rows of the ``(N, 2)`` array, non-finite rows included). Never
     raises: a result too broken to inspect is reported as such. O(N + L).
     """
-    stage = Stage(stage)
+    spec = spec_of(stage)
+    if not isinstance(result, spec.result):
+        return [f"returned {type(result).__name__}: expected {spec.result.__name__}"]
     try:
-        return _check_result(stage, result, n_in)
+        return spec.check(result, n_in)
     except Exception as exc:  # garbage inside a result of the right type (lists, None, wrong dtypes)
         return [f"result could not be checked: {type(exc).__name__}: {exc}"]
-
-
-def _check_result(stage: Stage, result: Any, n_in: int) -> list[str]:
-    out: list[str] = []
-    expected: dict[Stage, type[Any]] = {
-        Stage.SEGMENTATION: Segments,
-        Stage.NOISE_REMOVAL: NoiseResult,
-        Stage.CLUSTERING: Clusters,
-        Stage.STRAIGHT_LINE: Lines,
-        Stage.SCAN_MATCHING: Match,
-    }
-    if not isinstance(result, expected[stage]):
-        return [f"returned {type(result).__name__}: expected {expected[stage].__name__}"]
-
-    def need(ok: Any, what: str) -> None:
-        if not bool(ok):
-            out.append(what)
-
-    if stage == Stage.SEGMENTATION:
-        n = len(result.points)
-        need(
-            result.points.shape == (n, 2) and result.beam_index.shape == (n,) and result.labels.shape == (n,),
-            f"Segments shapes points {result.points.shape}, beam_index {result.beam_index.shape}, labels "
-            f"{result.labels.shape}: expected ({n}, 2), ({n},), ({n},)",
-        )
-        need(np.all(np.isfinite(result.points)), "Segments.points has non-finite values")
-        lab = result.labels[result.labels >= 0]
-        need(np.all(np.diff(lab) >= 0), "segment labels must increase along the scan")
-        need(np.all(result.labels >= -1), "Segments.labels has values below -1")
-    elif stage == Stage.NOISE_REMOVAL:
-        need(
-            result.keep.shape == (n_in,) and result.keep.dtype == np.bool_,
-            f"NoiseResult.keep is {result.keep.dtype} {result.keep.shape}: expected bool ({n_in},)",
-        )
-        need(
-            result.points.ndim == 2 and result.points.shape[1] == 2,
-            f"NoiseResult.points has shape {result.points.shape}: expected (M, 2)",
-        )
-        need(
-            result.points.shape[0] >= int(result.keep.sum()),
-            f"NoiseResult.points has {result.points.shape[0]} rows:"
-            f" fewer than the {int(result.keep.sum())} kept",
-        )
-        need(
-            result.labels.shape == (result.points.shape[0],),
-            f"NoiseResult.labels has shape {result.labels.shape}: expected ({result.points.shape[0]},)",
-        )
-        need(np.all(np.isfinite(result.points)), "NoiseResult.points has non-finite values")
-        need(np.all(result.labels >= 0), "NoiseResult.labels has negative values")
-    elif stage == Stage.CLUSTERING:
-        k = result.n_clusters
-        need(
-            result.centroids.shape == (k, 2) and np.all(np.isfinite(result.centroids)),
-            f"Clusters.centroids has shape {result.centroids.shape} or non-finite values:"
-            f" expected finite ({k}, 2)",
-        )
-        need(
-            result.labels.shape == (n_in,),
-            f"Clusters.labels has shape {result.labels.shape}: expected ({n_in},)",
-        )
-        need(
-            np.all((result.labels >= -1) & (result.labels < max(k, 1))),
-            f"Clusters.labels outside -1..{max(k, 1) - 1}",
-        )
-        need(
-            math.isfinite(result.objective) and result.objective >= 0.0,
-            f"Clusters.objective is {result.objective!r}: expected finite and >= 0",
-        )
-        if result.memberships is not None:
-            need(
-                result.memberships.shape == (n_in, k),
-                f"Clusters.memberships has shape {result.memberships.shape}: expected ({n_in}, {k})",
-            )
-    elif stage == Stage.STRAIGHT_LINE:
-        n = result.n_lines
-        need(
-            result.segments.shape == (n, 4) and np.all(np.isfinite(result.segments)),
-            f"Lines.segments has shape {result.segments.shape} or non-finite values:"
-            f" expected finite ({n}, 4)",
-        )
-        need(
-            result.rho_m.shape
-            == result.theta_rad.shape
-            == result.group.shape
-            == result.support.shape
-            == (n,),
-            f"Lines.rho_m/theta_rad/group/support shapes {result.rho_m.shape}/{result.theta_rad.shape}/"
-            f"{result.group.shape}/{result.support.shape}: expected ({n},) each",
-        )
-        need(
-            np.all((result.theta_rad >= 0.0) & (result.theta_rad < math.pi)),
-            "Lines.theta_rad outside [0, pi)",
-        )
-        if not out:  # end points lie on the reported line
-            for i, ((x0, y0, x1, y1), rho, th) in enumerate(
-                zip(result.segments, result.rho_m, result.theta_rad, strict=True)
-            ):
-                for x, y in ((x0, y0), (x1, y1)):
-                    off = abs(x * math.cos(th) + y * math.sin(th) - rho)
-                    if not off < 1e-6:
-                        out.append(f"line {i}: end point ({x}, {y}) is {off} m off its line (rho, theta)")
-    else:
-        need(isinstance(result.pose, Pose2D), f"Match.pose is {type(result.pose).__name__}: expected Pose2D")
-        need(
-            0.0 <= result.inlier_ratio <= 1.0 and result.n_iter >= 0,
-            f"Match.inlier_ratio {result.inlier_ratio!r} outside [0, 1] or n_iter {result.n_iter!r} < 0",
-        )
-        need(result.rmse_m >= 0.0, f"Match.rmse_m is {result.rmse_m!r}: expected >= 0")
-    return out
 
 
 def results_equal(a: Any, b: Any) -> bool:
@@ -316,10 +152,7 @@ def _nan_inf(kernel: Kernel[Any], cls: type[Kernel[Any]]) -> list[str]:
     result, out = _checked(kernel, bad)
     if out:
         return out
-    if kernel.stage == Stage.NOISE_REMOVAL and result.keep[rows].any():
-        out.append(f"kept non-finite rows {[r for r in rows if result.keep[r]]}")
-    if kernel.stage == Stage.CLUSTERING and not np.all(result.labels[rows] == -1):
-        out.append(f"non-finite rows {rows} labelled {result.labels[rows].tolist()}: expected -1")
+    out.extend(spec_of(kernel.stage).on_nonfinite(result, rows))
     return out
 
 
@@ -330,42 +163,12 @@ def _all_noise(kernel: Kernel[Any], cls: type[Kernel[Any]]) -> list[str]:
     return _checked(kernel, pts)[1]
 
 
-def _close(actual: Any, target: float, atol: float) -> bool:
-    """``np.testing.assert_allclose(actual, target, atol=atol)`` as a predicate (NaN is never close)."""
-    return bool(np.allclose(np.asarray(actual, dtype=np.float64), target, rtol=1e-7, atol=atol))
-
-
 def _line_1000(kernel: Kernel[Any], cls: type[Kernel[Any]]) -> list[str]:
     pts = wall_points(1000)
     result, out = _checked(kernel, pts)
     if out:
         return out
-    stage = kernel.stage
-    if stage == Stage.STRAIGHT_LINE:
-        if result.n_lines < 1:
-            return ["found no line in 1000 points on one wall"]
-        # every end point is on the wall x = 2 (centroid-join joins the noisy points themselves)
-        if not _close(result.segments[:, [0, 2]], 2.0, 0.03):
-            out.append("line end points are not on the wall x = 2 m (tolerance 0.03 m)")
-        if kernel.name != "centroid-join":
-            # a fitted line is the wall: normal along x, i.e. theta ~ 0 (rho ~ 2) or theta ~ pi (rho ~ -2)
-            near_pi = result.theta_rad > math.pi / 2
-            off_axis = np.where(near_pi, math.pi - result.theta_rad, result.theta_rad)
-            if not np.all(off_axis < math.radians(2.0)):
-                out.append("fitted line direction is more than 2 deg off the wall's")
-            if not _close(np.where(near_pi, -result.rho_m, result.rho_m), 2.0, 0.03):
-                out.append("fitted line distance rho is not the wall's 2 m (tolerance 0.03 m)")
-    if stage == Stage.CLUSTERING and not np.all(np.abs(result.centroids[:, 0] - 2.0) < 0.01):
-        out.append("centroids are not on the wall x = 2 m (tolerance 0.01 m)")
-    if stage == Stage.SEGMENTATION and result.n_segments < 1:
-        out.append("found no segment in 1000 points on one wall")
-    if stage == Stage.SCAN_MATCHING:
-        # along a single wall only the wall's normal offset and direction are observable:
-        # the matched current scan must land back on the wall x = 2
-        aligned = result.pose.transform_points(moved_copy(pts))
-        if not _close(aligned[:, 0], 2.0, 0.01):
-            out.append("the matched current scan does not land back on the wall x = 2 m (tolerance 0.01 m)")
-    return out
+    return spec_of(kernel.stage).on_wall(kernel, result, pts)
 
 
 def _room_scan(kernel: Kernel[Any], cls: type[Kernel[Any]]) -> list[str]:

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from shared.errors import KernelParameterError, LinemapError, UnknownKernelError
 from shared.kernels import REGISTRY, Kernel, Stage
+from shared.kernels.stages import SCHEDULED, STAGES
 from shared.slam.errors import LoopClosureSettingsError
 from shared.slam.settings import LoopClosureSettings
 
@@ -49,10 +50,6 @@ class StageSchedule(BaseModel):
 
     mode: Mode = Mode.ONLINE
     n_smax: int = Field(9, ge=1, le=10_000)
-
-
-# Stages whose schedule the modes govern (segmentation and scan matching always run per scan).
-SCHEDULED = (Stage.NOISE_REMOVAL, Stage.CLUSTERING, Stage.STRAIGHT_LINE)
 
 
 class PipelineConfig(BaseModel):
@@ -107,17 +104,17 @@ class PipelineConfig(BaseModel):
         return self
 
     def build(self) -> dict[Stage, list[Kernel[Any]]]:
-        """Instantiate every kernel (validated); noise removal may chain several."""
-        out: dict[Stage, list[Kernel[Any]]] = {
-            Stage.SEGMENTATION: [self.segmentation.build(Stage.SEGMENTATION)],
-            Stage.NOISE_REMOVAL: [c.build(Stage.NOISE_REMOVAL) for c in self.noise_removal],
-            Stage.CLUSTERING: [self.clustering.build(Stage.CLUSTERING)],
-            Stage.STRAIGHT_LINE: [self.straight_line.build(Stage.STRAIGHT_LINE)],
-            Stage.SCAN_MATCHING: [],
-        }
-        if self.scan_matching is not None:
-            out[Stage.SCAN_MATCHING] = [self.scan_matching.build(Stage.SCAN_MATCHING)]
-        return out
+        """Instantiate every kernel (validated), per stage in order; noise removal may chain several and
+        scan matching may be off (an empty list)."""
+        return {stage: [c.build(stage) for c in self.choices(stage)] for stage in STAGES}
+
+    def choices(self, stage: Stage) -> list[KernelChoice]:
+        """The kernel choices for ``stage``: the chain for a chained stage, none for a stage switched off
+        (the stage's field in :data:`~shared.kernels.stages.STAGES`)."""
+        value = getattr(self, STAGES[stage].field)
+        if value is None:
+            return []
+        return list(value) if isinstance(value, tuple) else [value]
 
     def loop_closure_settings(self) -> LoopClosureSettings | None:
         """The loop-closure settings in force, or None when loop closure is off."""

@@ -21,6 +21,7 @@ from shared.types import FloatArray, IntArray
 
 __all__ = [
     "Chunk",
+    "centroids_in_order",
     "cluster",
     "concat",
     "extract_lines",
@@ -208,6 +209,16 @@ def _order_along_groups(points: FloatArray, groups: IntArray) -> IntArray:
     return np.lexsort((keys, groups))
 
 
+def centroids_in_order(chunk: Chunk) -> tuple[FloatArray, IntArray]:
+    """The chunk's centroids that belong to a group ``(C, 2)`` and their groups ``(C,)``, ordered by group
+    and along each group's principal axis: what a straight-line kernel consuming centroids is given.
+    O(C log C)."""
+    keep = chunk.centroid_groups >= 0
+    cents, cgroups = chunk.centroids[keep], chunk.centroid_groups[keep]
+    order = _order_along_groups(cents, cgroups)
+    return cents[order], cgroups[order]
+
+
 def _respan(lines: Lines, points: FloatArray, groups: IntArray, within_m: float) -> FloatArray:
     """Stretch each line over the points of its group that lie within ``within_m`` of it."""
     segs = np.array(lines.segments, copy=True)
@@ -274,12 +285,10 @@ def extract_lines_grouped(
     centroids, so a wall reaches its corners. Kernels consuming points get the points and groups.
     """
     if getattr(kernel, "consumes", "points") == "centroids":
-        keep = chunk.centroid_groups >= 0
-        cents, cgroups = chunk.centroids[keep], chunk.centroid_groups[keep]
+        cents, cgroups = centroids_in_order(chunk)
         if len(cents) == 0:
             return np.zeros((0, 4)), np.zeros(0, dtype=np.intp)
-        order = _order_along_groups(cents, cgroups)
-        lines = kernel.apply(cents[order], cgroups[order])
+        lines = kernel.apply(cents, cgroups)
         if kernel.name == "centroid-join":
             return _extend_polylines(lines, chunk.points, chunk.groups, respan_within_m), lines.group
         return _respan(lines, chunk.points, chunk.groups, respan_within_m), lines.group

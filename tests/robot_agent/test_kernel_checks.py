@@ -16,10 +16,8 @@ import numpy as np
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
-from robot_agent.dryrun import stage_inputs as _stage_inputs
 from robot_agent.errors import AgentError, KernelRejected
 from robot_agent.kernels import (
-    DEFAULT_INPUT_KERNELS,
     DryRunReport,
     check_conformance,
     dry_run,
@@ -30,6 +28,7 @@ from robot_agent.kernels import (
 from shared.errors import LinemapError, UnknownKernelError
 from shared.kernels import REGISTRY, Lines, NoiseRemovalKernel, Stage
 from shared.kernels.conformance import check_result
+from shared.pipeline.probe import stage_inputs as _stage_inputs
 from shared.signing import (
     KeyPair,
     generate_keypair,
@@ -384,16 +383,13 @@ def test_non_conforming_kernel_is_refused_with_the_problems(body: str, expected:
 def test_stage_inputs_follow_the_default_pipeline(scans: list[Scan]) -> None:
     from shared.pipeline import PipelineConfig
 
-    config = PipelineConfig()
-    assert {
-        Stage.SEGMENTATION: config.segmentation.name,
-        Stage.NOISE_REMOVAL: config.noise_removal[0].name,
-        Stage.CLUSTERING: config.clustering.name,
-    } == DEFAULT_INPUT_KERNELS
+    segmenter = PipelineConfig().segmentation.build(Stage.SEGMENTATION)
     seg = _stage_inputs(Stage.SEGMENTATION, scans)
     assert [args[0] for args, _ in seg] == scans
     noise = _stage_inputs(Stage.NOISE_REMOVAL, scans)
     assert len(noise) == 3 and all(args[0].shape == (n, 2) and n > 100 for args, n in noise)
+    for scan, ((points,), _) in zip(scans, noise, strict=True):  # the default pipeline's segmentation
+        assert np.array_equal(points, segmenter.apply(scan).points)  # type: ignore[attr-defined]
     clusters = _stage_inputs(Stage.CLUSTERING, scans)
     assert all(n <= noise_n for (_, n), (_, noise_n) in zip(clusters, noise, strict=True))
     lines = _stage_inputs(Stage.STRAIGHT_LINE, scans)

@@ -129,3 +129,21 @@ def test_builtin_catalogue_lists_parameter_schemas(live: Live) -> None:
         cat = op.get("/kernels/builtin").json()
     names = {k["name"] for k in cat}
     assert {"dbscan", "kmeans", "icp"} <= names
+
+
+def test_stages_are_served_as_the_stage_descriptions_state_them(live: Live) -> None:
+    from shared.kernels import Stage
+    from shared.pipeline import PipelineConfig
+
+    with live.operator() as op:
+        stages = op.get("/kernels/stages").json()
+    assert [s["stage"] for s in stages] == [str(s) for s in Stage]
+    config = PipelineConfig().model_dump(mode="json")
+    for s in stages:
+        assert s["field"] in config  # the configuration field the dashboard reads and drafts
+    by = {s["stage"]: s for s in stages}
+    assert by["noise-removal"]["chain"] and not by["clustering"]["chain"]
+    assert by["scan-matching"]["optional"] and not by["segmentation"]["optional"]
+    assert by["straight-line"]["element"] == "straight-line-method"
+    with live.client() as anon:
+        assert anon.get("/kernels/stages").status_code == 401

@@ -116,6 +116,7 @@ export const api = {
   controlXml: (draft) => request("POST", "/control/xml", { json: draft }),
 
   builtinKernels: () => request("GET", "/kernels/builtin"),
+  stages: () => request("GET", "/kernels/stages"),
   kernels: (params = {}) => request("GET", `/kernels${q(params)}`),
   uploadKernel: (form) => request("POST", "/kernels", { body: form }),
   deleteKernel: (name, version) =>

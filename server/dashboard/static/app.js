@@ -3,6 +3,7 @@
 
 import { h, mount } from "./dom.js";
 import { api, onUnauthorized } from "./api.js";
+import { loadStages } from "./schema.js";
 import { stats } from "./mapview.js";
 import { renderRobots } from "./views/robots.js";
 import { renderRobot } from "./views/robot.js";
@@ -163,6 +164,13 @@ async function route() {
       return;
     }
   }
+  try {
+    await loadStages(api);
+  } catch (e) {
+    mount(main, h("div", { class: "error card" }, `Cannot load the pipeline's stages: ${e.detail}`));
+    return;
+  }
+  if (!c.alive) return;
   if (page === "robots" && path[1]) {
     renderTopbar("robots");
     renderRobot(main, c, path[1], path[2]);

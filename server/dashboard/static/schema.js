@@ -1,10 +1,26 @@
-// Stages, robot configuration and kernel parameter schemas (JSON Schema from GET /kernels/builtin).
+// Stages (GET /kernels/stages), robot configuration and kernel parameter schemas (JSON Schema from
+// GET /kernels/builtin).
 
-export const STAGES = ["segmentation", "noise-removal", "clustering", "straight-line", "scan-matching"];
+/** The pipeline's stages in order, and each stage's description {stage, paper, field, element, result,
+ * chain, optional, scheduled}, as the server states them; filled by loadStages() before any view renders. */
+export let STAGES = [];
+export let STAGE_INFO = {};
 export const MODES = ["online", "offline", "mixed"];
 
+/** Fetch the stage descriptions once (api.stages: GET /kernels/stages). */
+export async function loadStages(api) {
+  if (STAGES.length) return;
+  const list = await api.stages();
+  STAGE_INFO = Object.fromEntries(list.map((s) => [s.stage, s]));
+  STAGES = list.map((s) => s.stage);
+}
+
 /** Configuration / draft key of a stage: "noise-removal" -> "noise_removal". */
-export const stageKey = (stage) => stage.replaceAll("-", "_");
+export const stageKey = (stage) => STAGE_INFO[stage]?.field ?? stage.replaceAll("-", "_");
+
+/** Whether a stage runs a chain of kernels (noise removal), and whether it may be switched off. */
+export const isChain = (stage) => Boolean(STAGE_INFO[stage]?.chain);
+export const isOptional = (stage) => Boolean(STAGE_INFO[stage]?.optional);
 
 /** The kernel blocks of a stage in a robot config: a list (noise-removal may have several, others 0 or 1). */
 export function configBlocks(config, stage) {

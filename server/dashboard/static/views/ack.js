@@ -2,6 +2,7 @@
 
 import { h, mount, badge, when } from "../dom.js";
 import { api } from "../api.js";
+import { isChain, stageKey } from "../schema.js";
 
 const POLL_MS = 300;
 const GIVE_UP_MS = 60000;
@@ -109,14 +110,15 @@ export function installDraft(kernel, config, builtins = []) {
   const op = { kind: "install", stage: kernel.stage, name: kernel.name, version: kernel.version, sha256: kernel.sha256 };
   const choice = { name: kernel.name, version: kernel.version, params: {} };
   const draft = { operations: [op] };
-  if (kernel.stage === "noise-removal") {
-    const chain = Array.isArray(config?.noise_removal) ? config.noise_removal : [];
+  const key = stageKey(kernel.stage);
+  if (isChain(kernel.stage)) {
+    const chain = Array.isArray(config?.[key]) ? config[key] : [];
     const i = chain.findIndex((c) => c.name === kernel.name);
-    draft.noise_removal = i >= 0
-      ? chain.map((c, j) => (j === i ? choice : { name: c.name, version: draftVersion(builtins, "noise-removal", c), params: c.params || {} }))
+    draft[key] = i >= 0
+      ? chain.map((c, j) => (j === i ? choice : { name: c.name, version: draftVersion(builtins, kernel.stage, c), params: c.params || {} }))
       : [choice];
   } else {
-    draft[kernel.stage.replaceAll("-", "_")] = choice;
+    draft[key] = choice;
   }
   return draft;
 }

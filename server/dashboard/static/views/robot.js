@@ -3,7 +3,7 @@
 import { h, mount, ago, when, badge, num, trunc } from "../dom.js";
 import { api, builtinKernels } from "../api.js";
 import { MapView } from "../mapview.js";
-import { STAGES, configRows, showValue } from "../schema.js";
+import { STAGES, configRows, showValue, isChain } from "../schema.js";
 import { TuneTab } from "./tune.js";
 import { RobotKernelsTab } from "./robotkernels.js";
 
@@ -141,7 +141,7 @@ class StatusTab {
           const kernelText = row.kernel ? `${row.kernel}${row.version ? `@${row.version}` : ""}` : "none";
           out.push(h("tr", { class: "group", "data-stage": row.stage, "data-kernel": row.kernel || "", "data-index": row.index ?? null },
             h("td", { colspan: 3 }, h("span", { class: "stage-name" }, row.stage),
-              row.index !== undefined && row.stage === "noise-removal" ? h("span", { class: "muted" }, ` #${row.index + 1}`) : null,
+              row.index !== undefined && isChain(row.stage) ? h("span", { class: "muted" }, ` #${row.index + 1}`) : null,
               " ", h("b", null, kernelText))));
         }
         if (!row.param) continue;

@@ -4,7 +4,7 @@
 
 import { h, mount } from "../dom.js";
 import { api } from "../api.js";
-import { STAGES, MODES, stageKey, configBlocks } from "../schema.js";
+import { STAGES, MODES, stageKey, configBlocks, isChain, isOptional } from "../schema.js";
 import { KernelEditor, kernelOptions, NONE } from "./kernelform.js";
 import { AckPanel } from "./ack.js";
 import { uploadedKernels } from "./robot.js";
@@ -114,9 +114,9 @@ export class TuneTab {
     this.editors = {};
     const fieldsets = STAGES.map((stage) => {
       const blocks = configBlocks(cfg, stage);
-      if (stage === "noise-removal") return this.chainFieldset(blocks, builtins, uploaded, touch(stage));
+      if (isChain(stage)) return this.chainFieldset(stage, blocks, builtins, uploaded, touch(stage));
       const options = kernelOptions(stage, builtins, uploaded, blocks[0]);
-      const ed = new KernelEditor({ stage, options, choice: blocks[0] || null, allowNone: stage === "scan-matching",
+      const ed = new KernelEditor({ stage, options, choice: blocks[0] || null, allowNone: isOptional(stage),
         onTouch: touch(stage) });
       this.editors[stage] = ed;
       return h("fieldset", { class: "stage", "data-stage": stage }, h("legend", null, stage), ed.el);
@@ -165,11 +165,11 @@ export class TuneTab {
     return { block: { enabled: true, search_radius_m: radius, min_inlier_share: share, params } };
   }
 
-  chainFieldset(blocks, builtins, uploaded, onTouch) {
+  chainFieldset(stage, blocks, builtins, uploaded, onTouch) {
     const list = h("div", { class: "chain" });
     const chain = [];
     this.chain = chain;
-    const make = (choice) => new KernelEditor({ stage: "noise-removal", options: kernelOptions("noise-removal", builtins, uploaded, choice),
+    const make = (choice) => new KernelEditor({ stage, options: kernelOptions(stage, builtins, uploaded, choice),
       choice, index: chain.length, onTouch });
     const redraw = () => {
       chain.forEach((ed, i) => ed.setIndex(i));
@@ -186,8 +186,8 @@ export class TuneTab {
     };
     for (const b of blocks) chain.push(make(b));
     redraw();
-    return h("fieldset", { class: "stage", "data-stage": "noise-removal" },
-      h("legend", null, "noise-removal ", h("span", { class: "muted small" }, "(a chain, applied in order)")),
+    return h("fieldset", { class: "stage", "data-stage": stage },
+      h("legend", null, `${stage} `, h("span", { class: "muted small" }, "(a chain, applied in order)")),
       list,
       h("button", { type: "button", class: "small", "data-testid": "noise-add",
         onclick: () => { chain.push(make(null)); onTouch(); redraw(); } }, "+ Add kernel"));
@@ -212,18 +212,18 @@ export class TuneTab {
     }
     for (const stage of STAGES) {
       if (!this.touched.has(stage)) continue;
-      if (stage === "noise-removal") {
+      if (isChain(stage)) {
         const list = [];
         for (const ed of this.chain) {
           const r = ed.block(builtins);
           if (r.error) return r;
           list.push(r.block);
         }
-        d.noise_removal = list;
+        d[stageKey(stage)] = list;
       } else {
         const r = this.editors[stage].block(builtins);
         if (r.error) return r;
-        if (r.block === NONE && stage !== "scan-matching") return { error: `${stage}: choose a kernel` };
+        if (r.block === NONE && !isOptional(stage)) return { error: `${stage}: choose a kernel` };
         d[stageKey(stage)] = r.block;
       }
     }
