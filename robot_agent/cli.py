@@ -169,7 +169,7 @@ def agent_cmd(
     """Map from SOURCE and follow the server: apply control messages between steps, hot-swap verified
     kernels, upload every map version (kept in the Robot DB until the server has it)."""
     from robot_agent.agent import Agent, AgentSettings
-    from shared.cli.mapping import load_config
+    from shared.control import load_config
 
     f = _file_settings(file)
     src = source or f.get("source") or "sim"

@@ -1,5 +1,5 @@
-"""``linemap map``: turn a simulated world or a laser log into a line map (GeoJSON, SVG/PNG, DXF, ROS
-occupancy map, trajectory CSV).
+"""Offline mapping: turn a simulated world or a laser log into a line map (GeoJSON, SVG/PNG, DXF, ROS
+occupancy map, trajectory CSV): the work behind ``linemap map``, the benchmarks and the report.
 
 The work is split so it can be tested without a terminal: :func:`open_source` resolves ``INPUT`` into a
 stream of scans plus what is known about it (laser offset, ground truth), :func:`map_scans` runs the
@@ -8,10 +8,8 @@ pipeline over the stream, and :func:`write_outputs` writes the files.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
-import tomllib
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
@@ -30,7 +28,6 @@ __all__ = [
     "MapRun",
     "MappingStoppedError",
     "Source",
-    "load_config",
     "loop_settings",
     "map_scans",
     "no_scans",
@@ -122,37 +119,6 @@ def no_scans(source: Source, cause: LinemapError | None = None) -> NoScansError:
     expected = EXPECTED_SCANS.get(source.log_format or "", f"a {source.log_format} log with laser scans")
     why = f" (the first record failed: {cause})" if cause is not None else ""
     return NoScansError(f"no scans found in {source.log_path}: expected {expected}{why}")
-
-
-def load_config(path: Path | None) -> PipelineConfig:
-    """The pipeline configuration from an XML control message (paper Listing 1, SPEC §6) or a JSON or
-    TOML file of :class:`PipelineConfig` fields (``None``: the defaults). A control message sets what it
-    mentions on top of the defaults."""
-    if path is None:
-        return PipelineConfig()
-    suffix = path.suffix.lower()
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise LinemapError(f"cannot read configuration {path}: {exc.strerror or exc}") from None
-    if suffix == ".xml":
-        from shared.control import ControlMessageError, parse_message, to_config
-
-        try:
-            return to_config(parse_message(raw), PipelineConfig())
-        except ControlMessageError as exc:
-            raise LinemapError(f"{path}: {exc}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise LinemapError(f"{path}: not UTF-8 text") from None
-    try:
-        data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-        raise LinemapError(f"{path}: not valid {'TOML' if suffix == '.toml' else 'JSON'}: {exc}") from None
-    if not isinstance(data, dict):
-        raise LinemapError(f"{path}: expected an object of configuration fields, got {type(data).__name__}")
-    return PipelineConfig.parse(data)
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,7 +1,7 @@
 """``linemap bench worlds``: map every case of the scenario suite offline and measure it (SPEC §5).
 
 Each case (:func:`shared.sim.worlds.simulate_case`) is mapped by the same offline path as ``linemap map
-sim`` (:func:`shared.cli.mapping.map_scans` with the default :class:`PipelineConfig`), then measured:
+sim`` (:func:`shared.mapping.map_scans` with the default :class:`PipelineConfig`), then measured:
 
 - mean / p95 wall error and spurious share: the map against every true wall at the end of the run
   (:func:`shared.metrics.line_accuracy`);
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shared.cli.mapping import MapRun, Source, map_scans
+from shared.mapping import MapRun, Source, map_scans
 from shared.metrics import absolute_trajectory_error, line_accuracy
 from shared.pipeline import PipelineConfig
 from shared.sim.worlds import KINDS, QUICK_KINDS, CaseRun, simulate_case

@@ -231,15 +231,9 @@ def map_cmd(
     """Map a simulated world or a laser log into straight walls; print the accuracy when truth is known."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from shared.cli.mapping import (
-        MappingStoppedError,
-        load_config,
-        loop_settings,
-        map_scans,
-        open_source,
-        write_outputs,
-    )
     from shared.cli.render import accuracy_table, run_summary
+    from shared.control import load_config
+    from shared.mapping import MappingStoppedError, loop_settings, map_scans, open_source, write_outputs
 
     stopped: MappingStoppedError | None = None
     if pgm is not None and not (math.isfinite(resolution) and resolution > 0.0):

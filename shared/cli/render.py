@@ -8,8 +8,8 @@ import numpy as np
 from rich.table import Table
 
 from shared.bench.kernels import BenchReport
-from shared.cli.mapping import MapRun
 from shared.kernels import KernelInfo
+from shared.mapping import MapRun
 from shared.pipeline import MapSnapshot
 from shared.sim import World
 from shared.types import FloatArray

@@ -1,4 +1,5 @@
-"""``linemap bench worlds``: run the scenario suite (issue 19) and print its table, per world and seed."""
+"""``linemap bench worlds``: run the scenario suite (docs/worlds.md) and print its table, per world and
+seed."""
 
 from __future__ import annotations
 
@@ -13,76 +14,14 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from shared.bench.tables import WORLD_COLUMNS, worlds_markdown, worlds_rows
 from shared.bench.worlds import WorldResult, summarize
 from shared.cli.progress import case_progress
 from shared.cli.report import parse_seeds
 from shared.errors import LinemapError
 from shared.slam import LoopClosureSettings
 
-__all__ = ["COLUMNS", "bench_worlds_cmd", "worlds_markdown", "worlds_rows", "worlds_table"]
-
-#: The table's columns (header, right-aligned).
-COLUMNS = (
-    ("world", False),
-    ("seed", True),
-    ("odometry", False),
-    ("drive", False),
-    ("scans", True),
-    ("mean cm", True),
-    ("p95 cm", True),
-    ("complete %", True),
-    ("spurious %", True),
-    ("walls / seen", True),
-    ("ATE m", True),
-    ("odometry ATE m", True),
-    ("scans/s", True),
-)
-
-
-def _f(value: float, scale: float = 1.0, digits: int = 1) -> str:
-    return "n/a" if not math.isfinite(value) else f"{value * scale:.{digits}f}"
-
-
-def worlds_rows(results: Sequence[WorldResult]) -> list[list[str]]:
-    """The table's rows as text: one per case, then the summary row (means; walls as the mean ratio)."""
-    rows = [
-        [
-            r.kind,
-            str(r.seed),
-            r.odometry,
-            r.drive,
-            f"{r.scans:,}",
-            _f(r.mean_error_m, 100, 2),
-            _f(r.p95_error_m, 100, 2),
-            _f(r.completeness, 100),
-            _f(r.spurious_share, 100),
-            f"{r.walls_mapped} / {r.walls_seen}",
-            _f(r.ate_m, 1, 3),
-            _f(r.odometry_ate_m, 1, 3),
-            f"{r.scans_per_s:,.0f}",
-        ]
-        for r in results
-    ]
-    s = summarize(results)
-    if results:
-        rows.append(
-            [
-                f"summary ({s['cases']} cases, {s['cases_meeting_targets']} on target)",
-                "",
-                "",
-                "",
-                f"{s['scans']:,}",
-                _f(s["mean_error_m"], 100, 2),
-                _f(s["p95_error_m"], 100, 2),
-                _f(s["completeness"], 100),
-                _f(s["spurious_share"], 100),
-                f"{_f(s['wall_ratio'], 1, 2)}x",
-                _f(s["ate_m"], 1, 3),
-                _f(s["odometry_ate_m"], 1, 3),
-                f"{s['scans_per_s']:,.0f}",
-            ]
-        )
-    return rows
+__all__ = ["bench_worlds_cmd", "worlds_table"]
 
 
 def worlds_table(results: Sequence[WorldResult]) -> Table:
@@ -90,20 +29,12 @@ def worlds_table(results: Sequence[WorldResult]) -> Table:
     table = Table(
         title="scenario suite: map against ground truth (targets: <= 2 cm, >= 95 %, <= 3 %, <= 1.5x)"
     )
-    for name, right in COLUMNS:
+    for name, right in WORLD_COLUMNS:
         table.add_column(name, justify="right" if right else "left")
     rows = worlds_rows(results)
     for i, row in enumerate(rows):
         table.add_row(*row, end_section=i == len(rows) - 2)
     return table
-
-
-def worlds_markdown(results: Sequence[WorldResult]) -> str:
-    """The suite's figures as a Markdown table."""
-    head = "| " + " | ".join(name for name, _ in COLUMNS) + " |"
-    rule = "|" + "|".join("---:" if right else "---" for _, right in COLUMNS) + "|"
-    body = ["| " + " | ".join(row) + " |" for row in worlds_rows(results)]
-    return "\n".join([head, rule, *body]) + "\n"
 
 
 def _finite(value: object) -> object:

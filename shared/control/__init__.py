@@ -8,6 +8,7 @@ XSD and the mapping onto :class:`shared.pipeline.PipelineConfig`::
 
 from shared.control.build import build_message, xsd_schema, xsd_text
 from shared.control.errors import ControlMessageError
+from shared.control.files import load_config
 from shared.control.mapping import from_config, to_config
 from shared.control.model import (
     NO_SCAN_MATCHING,
@@ -32,6 +33,7 @@ __all__ = [
     "ScheduleEntry",
     "build_message",
     "from_config",
+    "load_config",
     "parse_message",
     "to_config",
     "xsd_schema",

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from shared.bench.laps import LapsRun
+from shared.bench.tables import markdown_table
 
 __all__ = [
     "LAPS_COLUMNS",
@@ -93,10 +94,7 @@ def laps_timing_line(runs: Sequence[LapsRun]) -> str:
 
 def laps_markdown(runs: Sequence[LapsRun], picture: str | None = None) -> str:
     """The table, the timing line and the picture's link as Markdown."""
-    head = "| " + " | ".join(name for name, _ in LAPS_COLUMNS) + " |"
-    rule = "|" + "|".join("---:" if right else "---" for _, right in LAPS_COLUMNS) + "|"
-    body = ["| " + " | ".join(row) + " |" for row in laps_rows(runs)]
-    lines = [head, rule, *body, "", laps_timing_line(runs) + "."]
+    lines = [markdown_table(LAPS_COLUMNS, laps_rows(runs)).rstrip("\n"), "", laps_timing_line(runs) + "."]
     if picture:
         lines += ["", f"![position error over time]({picture})"]
     return "\n".join(lines) + "\n"

@@ -112,7 +112,7 @@ def _cm(x: float) -> str:
 
 def suite_section(run: SuiteRun, grid: str | None = GRID_PNG) -> list[str]:
     """The section's Markdown lines: what ran, the summary in words, the table, the grid of maps."""
-    from shared.cli.worlds import worlds_markdown
+    from shared.bench.tables import worlds_markdown
 
     s = summarize(run.results)
     n = int(s.get("cases", 0))

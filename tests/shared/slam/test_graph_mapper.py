@@ -1,4 +1,4 @@
-"""Mapping under the pose graph, through ``linemap map``'s own path (:func:`shared.cli.mapping.map_scans`):
+"""Mapping under the pose graph, through ``linemap map``'s own path (:func:`shared.mapping.map_scans`):
 two laps round a block with worn wheels come out with the loop closed (walls and trajectory closer to the
 truth than the front end's alone); with loop closure off the map is the front end's, scan for scan."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from shared.bench.worlds import measure_map
-from shared.cli.mapping import Source, map_scans
+from shared.mapping import Source, map_scans
 from shared.pipeline import PipelineConfig
 from shared.sim import default_world, simulate_run
 from shared.sim.worlds import simulate_case
