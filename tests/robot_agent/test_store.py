@@ -1,4 +1,4 @@
-"""The Robot DB: migrations match the models, and a step's records commit together."""
+"""The Robot DB (robot_agent/store.py): migrations match the models, and a step's records commit together."""
 
 from __future__ import annotations
 
