@@ -1,7 +1,8 @@
-"""The link takes nothing the network says on trust (docs/reliability/agent.md): ``Retry-After`` is
-non-negative, finite and capped (seconds or an HTTP-date; garbage ignored); an answer that is not the API's
-(a portal's HTML page, a redirect, JSON of the wrong shape, a body that is not JSON) is a link fault
-(:class:`UnexpectedAnswerError`, retried), never a crash. Against a real HTTP server on 127.0.0.1."""
+"""The link (robot_agent/link.py) takes nothing the network says on trust (docs/reliability/agent.md):
+``Retry-After`` is non-negative, finite and capped (seconds or an HTTP-date; garbage ignored); an answer
+that is not the API's (a portal's HTML page, a redirect, JSON of the wrong shape, a body that is not JSON)
+is a link fault (:class:`UnexpectedAnswerError`, retried), never a crash. Against a real HTTP server on
+127.0.0.1."""
 
 from __future__ import annotations
 
