@@ -7,41 +7,22 @@ Distinct client addresses are real: each test's clients bind their own loopback 
 (127.0.0.0/8 all reaches the server on 127.0.0.1). Time is a stepped clock put into the running server's
 limiter, so "for a bounded time" is checked without sleeping. Forwarded headers, trusted proxies and
 several server processes: tests/reliability/test_rel_auth_processes.py. The oversize-body limit (413) is
-tested in tests/server/test_auth.py::test_oversize_body_is_413.
+tested in tests/server/test_auth.py::test_oversize_body_is_413; the limiter's memory and table bounds and its
+default settings in tests/server/test_limiter.py; the robot agent's link seeing this 429 in
+tests/robot_agent/test_link.py.
 """
 
 from __future__ import annotations
 
 import socket
 from collections.abc import Iterator
-from pathlib import Path
 
 import httpx
 import pytest
-from sqlalchemy import func, select
 
-from robot_agent.errors import LinkError
-from robot_agent.link import Backoff, ServerLink
-from server.database import Database
 from server.deps import SESSION_COOKIE
-from server.limiter import AuthLimiter
-from server.migrate import upgrade
-from server.models import AuthFailure
-from server.settings import Settings
-from tests.server.live import Live, start_live
-
-LIMIT, WINDOW_S, BLOCK_S = 5, 60.0, 30.0
-WRONG = "lmo_not-a-real-token-0000000000000000000000"
-
-
-class SteppedClock:
-    """A monotonic clock the test moves by hand (seconds)."""
-
-    def __init__(self) -> None:
-        self.now_s = 1000.0
-
-    def __call__(self) -> float:
-        return self.now_s
+from tests.server.authlimits import BLOCK_S, LIMIT, WINDOW_S, WRONG, SteppedClock, start_limited
+from tests.server.live import Live
 
 
 @pytest.fixture(scope="module")
@@ -51,16 +32,7 @@ def clock() -> SteppedClock:
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory: pytest.TempPathFactory, clock: SteppedClock) -> Iterator[Live]:
-    for server in start_live(
-        "sqlite",
-        tmp_path_factory.mktemp("auth-limit-server"),
-        auth_fail_limit=LIMIT,
-        auth_fail_window_s=WINDOW_S,
-        auth_block_s=BLOCK_S,
-        auth_fail_delay_s=0.01,
-    ):
-        server.state.limiter.clock = clock
-        yield server
+    yield from start_limited(tmp_path_factory.mktemp("auth-limit-server"), clock)
 
 
 _next_host = [10]
@@ -176,32 +148,6 @@ def test_fifty_bad_tokens_leave_valid_robot_and_operator_tokens_working(live: Li
     assert _whoami(live, host, "lmr_" + WRONG[4:]).status_code == 429
 
 
-def test_the_robot_agent_link_sees_retry_after(live: Live) -> None:
-    """The robot's own HTTP client (from 127.0.0.1) reports 429 with the server's Retry-After, which its
-    back-off never undercuts; the robot's real token from the same address works during the block."""
-    live.state.limiter.clear()
-    rid, token = live.new_robot()
-    link = ServerLink(live.base_url, rid, "lmr_stolen-or-mistyped")
-    try:
-        for _ in range(LIMIT):
-            with pytest.raises(LinkError) as exc:
-                link.poll(0, 0)
-            assert exc.value.status == 401
-        with pytest.raises(LinkError) as exc:
-            link.poll(0, 0)
-        assert exc.value.status == 429 and exc.value.retry_after_s == BLOCK_S
-        assert "too many failed authentications" in str(exc.value)
-        assert Backoff().next_delay(exc.value.retry_after_s) >= BLOCK_S
-    finally:
-        link.close()
-    good = ServerLink(live.base_url, rid, token)
-    try:
-        assert good.poll(0, 0) == []
-    finally:
-        good.close()
-        live.state.limiter.clear()
-
-
 def test_limit_zero_switches_it_off(live: Live) -> None:
     host = _address()
     limiter = live.state.limiter
@@ -211,33 +157,3 @@ def test_limit_zero_switches_it_off(live: Live) -> None:
         _fail(live, host, 4 * LIMIT)
     finally:
         limiter.limit = saved
-
-
-def test_memory_and_table_are_bounded(tmp_path: Path) -> None:
-    """In memory: at most ``max_cached`` remembered blocks; in the table: only the last window's sources."""
-    db = Database(f"sqlite:///{tmp_path / 'limits.db'}")
-    upgrade(db.engine)
-    t = SteppedClock()
-    limiter = AuthLimiter(db, 1, 60.0, 30.0, clock=t, max_cached=100)
-    try:
-        for i in range(1000):
-            limiter.failed(f"10.0.{i // 256}.{i % 256}")
-            assert limiter.cached_blocks() <= 100
-        assert limiter.failed("192.0.2.1") is None  # the limit-th failure starts the block...
-        assert limiter.failed("192.0.2.1") == 30.0  # ...the next is refused, newest address remembered
-        t.now_s += 61.0 + 30.0
-        limiter.failed("192.0.2.2")  # prunes the rows of sources whose window and block are over
-        with db.read() as s:
-            assert s.scalar(select(func.count()).select_from(AuthFailure)) == 1
-    finally:
-        db.dispose()
-
-
-def test_default_settings_limit_brute_force(tmp_path: Path) -> None:
-    s = Settings()
-    assert (s.auth_fail_limit, s.auth_fail_window_s, s.auth_block_s) == (50, 60.0, 60.0)
-    assert s.auth_fail_delay_s == 1.0 and 0 < s.credential_cache_s <= 1.0
-    assert s.trusted_proxies == "" and s.trusted_networks() == []
-    db = Database(f"sqlite:///{tmp_path / 'd.db'}")
-    assert AuthLimiter.from_settings(s, db).enabled
-    db.dispose()

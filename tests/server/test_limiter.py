@@ -1,18 +1,24 @@
-"""The limiter's source of a request (peer, trusted proxies, forwarded headers) and its settings, in
-process; the limiter through real servers is in tests/reliability/test_rel_auth_limits.py and
-tests/reliability/test_rel_auth_processes.py."""
+"""The limiter's source of a request (peer, trusted proxies, forwarded headers), its settings and its
+bounded memory and table, in process; the limiter through real servers is in
+tests/reliability/test_rel_auth_limits.py and tests/reliability/test_rel_auth_processes.py."""
 
 from __future__ import annotations
 
 import ipaddress
+from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import ValidationError
+from sqlalchemy import func, select
 
-from server.limiter import IPNetwork, client_source, source_key, via_https
+from server.database import Database
+from server.limiter import AuthLimiter, IPNetwork, client_source, source_key, via_https
+from server.migrate import upgrade
+from server.models import AuthFailure
 from server.settings import Settings
+from tests.server.authlimits import SteppedClock
 
 PROXY = [ipaddress.ip_network("10.0.0.0/8")]
 EVERYTHING: list[IPNetwork] = [ipaddress.ip_network("0.0.0.0/0"), ipaddress.ip_network("::/0")]
@@ -105,3 +111,33 @@ def test_https_is_believed_from_the_connection_or_a_trusted_proxy_only(
     networks = Settings(trusted_proxies=trusted).trusted_networks()
     scope = {"type": "http", "scheme": scheme, "client": (peer, 1234), "headers": headers}
     assert via_https(scope, networks) is expected
+
+
+def test_memory_and_table_are_bounded(tmp_path: Path) -> None:
+    """In memory: at most ``max_cached`` remembered blocks; in the table: only the last window's sources."""
+    db = Database(f"sqlite:///{tmp_path / 'limits.db'}")
+    upgrade(db.engine)
+    t = SteppedClock()
+    limiter = AuthLimiter(db, 1, 60.0, 30.0, clock=t, max_cached=100)
+    try:
+        for i in range(1000):
+            limiter.failed(f"10.0.{i // 256}.{i % 256}")
+            assert limiter.cached_blocks() <= 100
+        assert limiter.failed("192.0.2.1") is None  # the limit-th failure starts the block...
+        assert limiter.failed("192.0.2.1") == 30.0  # ...the next is refused, newest address remembered
+        t.now_s += 61.0 + 30.0
+        limiter.failed("192.0.2.2")  # prunes the rows of sources whose window and block are over
+        with db.read() as s:
+            assert s.scalar(select(func.count()).select_from(AuthFailure)) == 1
+    finally:
+        db.dispose()
+
+
+def test_default_settings_limit_brute_force(tmp_path: Path) -> None:
+    s = Settings()
+    assert (s.auth_fail_limit, s.auth_fail_window_s, s.auth_block_s) == (50, 60.0, 60.0)
+    assert s.auth_fail_delay_s == 1.0 and 0 < s.credential_cache_s <= 1.0
+    assert s.trusted_proxies == "" and s.trusted_networks() == []
+    db = Database(f"sqlite:///{tmp_path / 'd.db'}")
+    assert AuthLimiter.from_settings(s, db).enabled
+    db.dispose()

@@ -9,12 +9,16 @@ dict, and bad parameters rejected clearly. Here every registered kernel must pas
 
 from __future__ import annotations
 
+import importlib
+import inspect
+import pkgutil
 from typing import Any
 
 import numpy as np
 import pytest
 
-from shared.kernels import REGISTRY, KernelInfo, NoiseRemovalKernel, NoiseResult, Stage, conformance
+import shared.kernels
+from shared.kernels import REGISTRY, Kernel, KernelInfo, NoiseRemovalKernel, NoiseResult, Stage, conformance
 from shared.kernels.conformance import (
     CHECKS,
     check_kernel,
@@ -26,7 +30,9 @@ from shared.kernels.conformance import (
 from shared.kernels.noise import Dbscan
 from shared.types import Scan
 
-KERNELS = REGISTRY.list()
+KERNELS = REGISTRY.list()  # as collected: what test_conformance runs on
+# Written out so that a built-in kernel that disappears fails here by name; checked exactly against the
+# registry, and the registry exactly against the kernel classes under shared/kernels/.
 EXPECTED_BUILTINS = {
     ("segmentation", "abd-iepf"),
     ("noise-removal", "dbscan"),
@@ -40,6 +46,7 @@ EXPECTED_BUILTINS = {
     ("straight-line", "hough"),
     ("straight-line", "hough-cluster"),
     ("scan-matching", "icp"),
+    ("scan-matching", "icp-line"),
 }
 
 
@@ -47,9 +54,59 @@ def _ids(info: KernelInfo) -> str:
     return f"{info.stage}/{info.name}"
 
 
+def _kernel_classes_of_shared_kernels() -> set[type[Kernel[Any]]]:
+    """Every concrete, named kernel class defined in a module under shared/kernels/, each module imported."""
+
+    def fail(name: str) -> None:
+        raise ImportError(f"cannot import {name}")
+
+    found: set[type[Kernel[Any]]] = set()
+    for mod in pkgutil.walk_packages(shared.kernels.__path__, "shared.kernels.", onerror=fail):
+        module = importlib.import_module(mod.name)
+        for obj in vars(module).values():
+            if (
+                isinstance(obj, type)
+                and issubclass(obj, Kernel)
+                and obj.__module__ == module.__name__
+                and getattr(obj, "name", None)
+                and not inspect.isabstract(obj)
+            ):
+                found.add(obj)
+    return found
+
+
+def _builtins(infos: list[KernelInfo]) -> set[type[Kernel[Any]]]:
+    return {i.cls for i in infos if i.cls.__module__.startswith("shared.kernels.")}
+
+
+def _keys(classes: set[type[Kernel[Any]]]) -> set[tuple[str, str]]:
+    return {(str(c.stage), c.name) for c in classes}
+
+
 def test_every_builtin_is_registered() -> None:
-    got = {(str(i.stage), i.name) for i in KERNELS}
-    assert got >= EXPECTED_BUILTINS
+    """The registry's built-ins are exactly the expected ones: a new one must be added to the list above,
+    a removed one fails here by name."""
+    got = _keys(_builtins(REGISTRY.list()))
+    assert got == EXPECTED_BUILTINS, (
+        f"registered, not expected: {sorted(got - EXPECTED_BUILTINS)}; "
+        f"expected, not registered: {sorted(EXPECTED_BUILTINS - got)}"
+    )
+
+
+def test_every_kernel_class_under_shared_kernels_is_registered_and_conformance_tested() -> None:
+    """A kernel class defined under shared/kernels/ but not registered (a forgotten ``@register``, or a
+    module its package does not import) fails here, and so does a registered built-in that no module defines;
+    each of them is one of the kernels test_conformance was collected for."""
+    found = _kernel_classes_of_shared_kernels()
+    assert found, "no kernel class found under shared/kernels/"
+    registered = _keys(_builtins(REGISTRY.list()))
+    assert registered == _keys(found), (
+        f"defined, not registered: {sorted(_keys(found) - registered)}; "
+        f"registered, not defined under shared/kernels/: {sorted(registered - _keys(found))}"
+    )
+    assert _builtins(REGISTRY.list()) == found
+    missing = _keys(found - _builtins(KERNELS))
+    assert not missing, f"not registered when test_conformance was collected (not imported?): {missing}"
 
 
 @pytest.mark.parametrize("check", CHECKS)

@@ -1,7 +1,8 @@
-"""The link takes nothing the network says on trust (docs/reliability/agent.md): ``Retry-After`` is
-non-negative, finite and capped (seconds or an HTTP-date; garbage ignored); an answer that is not the API's
-(a portal's HTML page, a redirect, JSON of the wrong shape, a body that is not JSON) is a link fault
-(:class:`UnexpectedAnswerError`, retried), never a crash. Against a real HTTP server on 127.0.0.1."""
+"""The link (robot_agent/link.py) takes nothing the network says on trust (docs/reliability/agent.md):
+``Retry-After`` is non-negative, finite and capped (seconds or an HTTP-date; garbage ignored); an answer
+that is not the API's (a portal's HTML page, a redirect, JSON of the wrong shape, a body that is not JSON)
+is a link fault (:class:`UnexpectedAnswerError`, retried), never a crash. Against a real HTTP server on
+127.0.0.1."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import random
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
 from email.utils import format_datetime
+from pathlib import Path
 
 import httpx
 import pytest
@@ -20,6 +22,8 @@ from robot_agent.agent import _transient
 from robot_agent.errors import LinkError, UnexpectedAnswerError
 from robot_agent.link import DEFAULT_MAX_RETRY_AFTER_S, Backoff, ServerLink, parse_retry_after
 from tests.robot_agent.answerproxy import AnswerProxy
+from tests.server.authlimits import BLOCK_S, LIMIT, SteppedClock, start_limited
+from tests.server.live import Live
 
 NOW = datetime(2026, 12, 2, 10, 0, tzinfo=UTC)
 
@@ -155,3 +159,35 @@ def test_whatever_comes_back_the_link_returns_a_valid_answer_or_raises_a_link_er
             assert hint is None or 0.0 <= hint <= DEFAULT_MAX_RETRY_AFTER_S
     finally:
         link.close()
+
+
+@pytest.fixture
+def live(tmp_path: Path) -> Iterator[Live]:
+    """A real server on 127.0.0.1 that blocks a source after ``LIMIT`` failed authentications."""
+    yield from start_limited(tmp_path, SteppedClock())
+
+
+def test_the_robot_agent_link_sees_retry_after(live: Live) -> None:
+    """The robot's own HTTP client (from 127.0.0.1) reports 429 with the server's Retry-After, which its
+    back-off never undercuts; the robot's real token from the same address works during the block."""
+    live.state.limiter.clear()
+    rid, token = live.new_robot()
+    link = ServerLink(live.base_url, rid, "lmr_stolen-or-mistyped")
+    try:
+        for _ in range(LIMIT):
+            with pytest.raises(LinkError) as exc:
+                link.poll(0, 0)
+            assert exc.value.status == 401
+        with pytest.raises(LinkError) as exc:
+            link.poll(0, 0)
+        assert exc.value.status == 429 and exc.value.retry_after_s == BLOCK_S
+        assert "too many failed authentications" in str(exc.value)
+        assert Backoff().next_delay(exc.value.retry_after_s) >= BLOCK_S
+    finally:
+        link.close()
+    good = ServerLink(live.base_url, rid, token)
+    try:
+        assert good.poll(0, 0) == []
+    finally:
+        good.close()
+        live.state.limiter.clear()

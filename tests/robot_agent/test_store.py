@@ -1,15 +1,20 @@
-"""The Robot DB: migrations match the models, and a step's records commit together."""
+"""The Robot DB (robot_agent/store.py): migrations match the models, a step's records commit together, and
+the anti-rollback floors (the versions a robot has run) only rise, survive a reopen and are backfilled by
+the migration."""
 
 from __future__ import annotations
 
 import sqlite3
 from pathlib import Path
 
+from alembic import command
 from alembic.autogenerate import compare_metadata
+from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
+from sqlalchemy import create_engine
 
 from robot_agent.models import RobotBase
-from robot_agent.store import RobotDB, StepRecord
+from robot_agent.store import MIGRATIONS_DIR, RobotDB, StepRecord
 
 
 def test_migrated_schema_matches_the_models(tmp_path: Path) -> None:
@@ -124,3 +129,56 @@ def test_the_installing_message_of_a_kernel_survives_reopening_and_is_taken_once
         assert again.take_installed_by("noise-removal", "dbscan", "9.9.9") is None
     finally:
         again.close()
+
+
+def test_floors_only_rise_and_survive_reopening(tmp_path: Path) -> None:
+    path = tmp_path / "robot.db"
+    db = RobotDB(path)
+    try:
+        db.record_config({"mode": "online"}, "start-up", [("noise-removal", "dbscan", "1.0.0")])
+        db.record_message(3, "applied", None, {"mode": "online"}, ran=[("noise-removal", "dbscan", "1.10.0")])
+        db.record_message(4, "applied", None, {"mode": "online"}, ran=[("noise-removal", "dbscan", "1.9.0")])
+        db.record_message(5, "rejected", "why", None, ran=[("noise-removal", "dbscan", "9.0.0")])  # not run
+        db.record_config({"mode": "online"}, "automatic rollback", [("noise-removal", "dbscan", "1.0.0")])
+    finally:
+        db.close()
+    db = RobotDB(path)
+    try:
+        assert db.run_floors() == {("noise-removal", "dbscan"): "1.10.0"}  # numeric order, not text
+    finally:
+        db.close()
+    with sqlite3.connect(path) as conn:
+        assert conn.execute("SELECT seq FROM kernels_run").fetchall() == [(3,)]
+
+
+def test_the_migration_backfills_floors_from_the_configuration_history(tmp_path: Path) -> None:
+    path = tmp_path / "robot.db"
+    engine = create_engine(f"sqlite:///{path}")
+    cfg = Config()
+    cfg.set_main_option("script_location", str(MIGRATIONS_DIR))
+    with engine.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.upgrade(cfg, "r0001")  # a Robot DB from before the floors existed
+    engine.dispose()
+    history = [
+        '{"noise_removal": [{"name": "dbscan", "version": "1.1.0"}], "clustering": {"name": "kmeans"}}',
+        '{"noise_removal": [{"name": "dbscan", "version": "1.0.0"}, {"name": "erosion", "version": "1.0.0"}],'
+        ' "segmentation": {"name": "abd-iepf", "version": "1.0.0"}, "scan_matching": null}',
+        '"not a configuration"',
+        "{broken json",
+    ]
+    with sqlite3.connect(path) as conn:
+        conn.executemany(
+            "INSERT INTO config_history (at, seq, config, note) VALUES ('2026-01-01 00:00:00', NULL, ?, '')",
+            [(h,) for h in history],
+        )
+    db = RobotDB(path)  # migrates to head
+    try:
+        assert db.run_floors() == {
+            ("noise-removal", "dbscan"): "1.1.0",
+            ("noise-removal", "erosion"): "1.0.0",
+            ("segmentation", "abd-iepf"): "1.0.0",
+        }
+        assert db.integrity_ok()
+    finally:
+        db.close()

@@ -1,20 +1,16 @@
-"""Anti-rollback floors (SPEC §9: a robot never runs a version lower than one it has already run for the
-same name unless the operator overrides it with <kernel-rollback below-floor="allow">): the rule itself,
-its record in the Robot DB (kept across restarts, only ever raised, backfilled by the migration), without
-processes. The same rule against a real server and agent is in test_rel_supply_live.py."""
+"""Anti-rollback floors in robot_agent/control.py (SPEC §9: a robot never runs a version lower than one it
+has already run for the same name unless the operator overrides it with
+<kernel-rollback below-floor="allow">): the rule itself and apply_message refusing before it builds
+anything, without processes. The floors' record in the Robot DB (kept across restarts, only ever raised,
+backfilled by the migration) is in tests/robot_agent/test_store.py, more supply rules of control.py in
+tests/robot_agent/test_control_supply.py, the same rule against a real server and agent in
+tests/reliability/test_rel_supply_live.py."""
 
 from __future__ import annotations
 
-import sqlite3
-from pathlib import Path
-
 import pytest
-from alembic import command
-from alembic.config import Config
-from sqlalchemy import create_engine
 
 from robot_agent.control import Prepared, apply_message, kernels_run, pin_versions, refuse_downgrades
-from robot_agent.store import MIGRATIONS_DIR, RobotDB
 from shared.control import parse_message
 from shared.errors import LinemapError
 from shared.pipeline import KernelChoice, PipelineConfig
@@ -96,56 +92,3 @@ def test_apply_message_refuses_before_building_anything() -> None:
     rollback = Prepared(8, parse_message(msg(op("rollback", "1.0.0", True))))
     config = apply_message(rollback, current, lambda c: None, lambda *k: None, built.append, floors=FLOOR)
     assert built == [config] and ("noise-removal", "dbscan", "1.0.0") in kernels_run(config)
-
-
-def test_floors_only_rise_and_survive_reopening(tmp_path: Path) -> None:
-    path = tmp_path / "robot.db"
-    db = RobotDB(path)
-    try:
-        db.record_config({"mode": "online"}, "start-up", [("noise-removal", "dbscan", "1.0.0")])
-        db.record_message(3, "applied", None, {"mode": "online"}, ran=[("noise-removal", "dbscan", "1.10.0")])
-        db.record_message(4, "applied", None, {"mode": "online"}, ran=[("noise-removal", "dbscan", "1.9.0")])
-        db.record_message(5, "rejected", "why", None, ran=[("noise-removal", "dbscan", "9.0.0")])  # not run
-        db.record_config({"mode": "online"}, "automatic rollback", [("noise-removal", "dbscan", "1.0.0")])
-    finally:
-        db.close()
-    db = RobotDB(path)
-    try:
-        assert db.run_floors() == {("noise-removal", "dbscan"): "1.10.0"}  # numeric order, not text
-    finally:
-        db.close()
-    with sqlite3.connect(path) as conn:
-        assert conn.execute("SELECT seq FROM kernels_run").fetchall() == [(3,)]
-
-
-def test_the_migration_backfills_floors_from_the_configuration_history(tmp_path: Path) -> None:
-    path = tmp_path / "robot.db"
-    engine = create_engine(f"sqlite:///{path}")
-    cfg = Config()
-    cfg.set_main_option("script_location", str(MIGRATIONS_DIR))
-    with engine.begin() as conn:
-        cfg.attributes["connection"] = conn
-        command.upgrade(cfg, "r0001")  # a Robot DB from before the floors existed
-    engine.dispose()
-    history = [
-        '{"noise_removal": [{"name": "dbscan", "version": "1.1.0"}], "clustering": {"name": "kmeans"}}',
-        '{"noise_removal": [{"name": "dbscan", "version": "1.0.0"}, {"name": "erosion", "version": "1.0.0"}],'
-        ' "segmentation": {"name": "abd-iepf", "version": "1.0.0"}, "scan_matching": null}',
-        '"not a configuration"',
-        "{broken json",
-    ]
-    with sqlite3.connect(path) as conn:
-        conn.executemany(
-            "INSERT INTO config_history (at, seq, config, note) VALUES ('2026-01-01 00:00:00', NULL, ?, '')",
-            [(h,) for h in history],
-        )
-    db = RobotDB(path)  # migrates to head
-    try:
-        assert db.run_floors() == {
-            ("noise-removal", "dbscan"): "1.1.0",
-            ("noise-removal", "erosion"): "1.0.0",
-            ("segmentation", "abd-iepf"): "1.0.0",
-        }
-        assert db.integrity_ok()
-    finally:
-        db.close()
