@@ -20,29 +20,20 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from shared.errors import LinemapError
-from shared.kernels import REGISTRY, Stage
+from shared.kernels import Stage
 from shared.pipeline.censoring import censored_returns
 from shared.pipeline.config import SCHEDULED, Mode, PipelineConfig
 from shared.pipeline.freespace import FreeSpace
-from shared.pipeline.fusion import (
-    Reference,
-    fuse_gated,
-    hold_unseen_directions,
-    prepare_reference,
-    wheel_prior,
-)
 from shared.pipeline.gate import IcpGate
-from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.odonoise import OdometryNoise
 from shared.pipeline.rangenoise import NO_RANGE_NOISE, RangeNoise, range_noise_for
 from shared.pipeline.regroup import regroup
-from shared.pipeline.rematch import rematch
 from shared.pipeline.seenfree import SeenFree
 from shared.pipeline.snapshot import MapSnapshot
 from shared.pipeline.stages import (
@@ -54,6 +45,7 @@ from shared.pipeline.stages import (
     noise_floored_uncertainty,
     remove_noise,
 )
+from shared.pipeline.tracker import PoseTracker
 from shared.pipeline.wallmap import MergeTolerances, WallMap
 from shared.types import FloatArray, IntArray, Pose2D, Scan, wrap_angle
 
@@ -114,33 +106,14 @@ class Pipeline:
         # the scanner's range noise (None: read from each scan's range window, shared.pipeline.rangenoise)
         self._range_noise = range_noise
         self._noise = range_noise or NO_RANGE_NOISE
-        self.odometry_noise = OdometryNoise()  # learned from the believed matches (shared.pipeline.odonoise)
         self._map = WallMap(merge)
         self._freespace = FreeSpace()  # walls later seen through leave the map
         self._seen_free = SeenFree()  # points where earlier beams passed through stay out of the shown map
-        # Localisation keeps its own local line map, built every step whatever the schedule (offline
-        # batches would leave the pose uncorrected for N_smax steps); the configured stages make the map
-        # shown. It is local: two maps restart in turn every `local_map_steps` steps or `local_map_m`
-        # metres of travel, and the older one is matched against, so old, drifted walls of a loop never
-        # pull the pose.
-        self._merge = replace(
-            merge or MergeTolerances(), short_by_band=False, merge_sigmas=0.0, cross_margin_m=0.0
-        )
-        self._loc_maps = [WallMap(self._merge), WallMap(self._merge)]
-        self.local_map_restarts = 0
-        self._since_steps = 0
-        self._since_m = 0.0
-        self._loc_lines: Any = REGISTRY.create(Stage.STRAIGHT_LINE, "hough-cluster", {"min_points": 8})
+        # Localisation keeps local line maps of its own (shared.pipeline.tracker); the configured stages
+        # make the map shown.
+        self._tracker = PoseTracker(self._offset, self._gate, merge)
         self._centroids: list[FloatArray] = []
         self._trajectory: list[tuple[float, float, float, float]] = []
-        self._pose: Pose2D | None = None
-        self._prev_odom: Pose2D | None = None
-        self._last_motion = Pose2D()  # the last step's estimated robot motion (constant-velocity seed)
-        self._last_icp = False  # whether that motion came from a believed match
-        self._key_pose: Pose2D | None = None  # robot pose of the keyframe
-        self._key_points: FloatArray | None = None  # keyframe scan points, scanner frame
-        self._key_odom: Pose2D | None = None  # odometry at the keyframe
-        self._key_ref: Reference | None = None  # its lines and grid for the fusion, built when first needed
         self._points: FloatArray = np.zeros((0, 2))  # the last scan's returns the pose took (scanner frame)
         self._next_group = 0
         self._version = 0
@@ -148,9 +121,6 @@ class Pipeline:
         self._buffers: dict[Stage, _Buffer] = {s: _Buffer() for s in SCHEDULED}
         self._step_ms: deque[float] = deque(maxlen=timing_window)
         self._by_k: dict[int, Any] = {}
-        self.icp_rejections = 0
-        self.map_refinements = 0
-        self.rematches = 0
 
     # ------------------------------------------------------------------ configuration
     @property
@@ -186,19 +156,21 @@ class Pipeline:
         if censored.any():
             points, labels = points[~censored], labels[~censored]
         self._points = points
+        tracker = self._tracker
         if pose is None:
-            icp_used = self._estimate_pose(odom, points, noise)
+            matchers = self._kernels[Stage.SCAN_MATCHING]
+            icp_used = tracker.estimate(odom, points, noise, matchers, self._seen_free)
         else:
-            self._pose, self._prev_odom, icp_used = pose, odom, False
-        assert self._pose is not None
-        laser = self._pose @ self._offset
+            tracker.hold(pose, odom)
+            icp_used = False
+        now = tracker.pose
+        assert now is not None
+        laser = now @ self._offset
         world = laser.transform_points(points) if len(points) else np.zeros((0, 2))
         groups = np.where(labels >= 0, labels + self._next_group, -1).astype(np.intp)
         self._next_group += seg.n_segments
-        if self._gate.refine_to_map and len(world) and pose is None:
-            segments = self._loc_lines.apply(world, groups).segments
-            for local in self._loc_maps:
-                local.add_segments(segments)
+        if pose is None:
+            tracker.add_lines(world, groups)
         # each return's beam spacing (range x angular step): how far apart a wall's returns lie there,
         # which noise removal's neighbourhood follows on scanners coarser than the paper's URG-04LX
         spacing = np.hypot(points[:, 0], points[:, 1]) * abs(scan.angle_increment_rad)
@@ -210,14 +182,14 @@ class Pipeline:
         if not self.track_only:
             self._freespace.observe(self._map, laser, scan)
         self._stamp = scan.stamp_s
-        self._trajectory.append((scan.stamp_s, self._pose.x_m, self._pose.y_m, self._pose.theta_rad))
+        self._trajectory.append((scan.stamp_s, now.x_m, now.y_m, now.theta_rad))
         ran: tuple[Stage, ...] = ()
         if not self.track_only:
             ran = self._feed(Chunk.of(world, groups, (laser.x_m, laser.y_m), spacing), final=False)
         self._version += 1
         elapsed = (time.perf_counter() - t0) * 1e3
         self._step_ms.append(elapsed)
-        return StepResult(self._version, self._pose, icp_used, ran, elapsed)
+        return StepResult(self._version, now, icp_used, ran, elapsed)
 
     def flush(self) -> tuple[Stage, ...]:
         """Run every pending batch now (end of a log, or before a mode change)."""
@@ -225,143 +197,6 @@ class Pipeline:
         if ran:
             self._version += 1
         return ran
-
-    def _estimate_pose(self, odom: Pose2D | None, points: FloatArray, range_noise: RangeNoise) -> bool:
-        """Predict the pose from odometry, correct it by ICP against the keyframe scan (with a second chance
-        when the gate refuses the match, :mod:`shared.pipeline.rematch`), then refine it against the local
-        wall map."""
-        if self._pose is None:
-            self._pose = odom or Pose2D()
-            self._prev_odom = odom
-            self._key_pose, self._key_points, self._key_odom = self._pose, points, odom
-            self._key_ref = None
-            return False
-        delta = Pose2D()
-        if odom is not None and self._prev_odom is not None:
-            delta = self._prev_odom.between(odom)
-        predicted = self._pose @ delta
-        self._prev_odom = odom
-        icp_used = False
-        plain = odom is not None  # odometry not found wrong this step (no second-chance match)
-        matchers = self._kernels[Stage.SCAN_MATCHING]
-        key_pose, key_points = self._key_pose, self._key_points
-        if (
-            matchers
-            and key_pose is not None
-            and key_points is not None
-            and min(len(points), len(key_points)) >= 3
-        ):
-            # laser motion from the keyframe's scanner frame to the current one
-            guess = self._to_laser(key_pose, predicted)
-            match = matchers[0].apply(key_points, points, guess)
-            corr = guess.between(match.pose)
-            g = self._gate
-            trusted = match.inlier_ratio >= g.min_inlier_ratio and self._plausible(corr, delta)
-            if not trusted and g.strong_inlier_ratio <= 1.0:
-                # a large correction is believed when the match itself is excellent (a fast turn)
-                trusted = (
-                    match.converged
-                    and match.inlier_ratio >= g.strong_inlier_ratio
-                    and match.rmse_m <= g.strong_rmse_m
-                    and math.hypot(corr.x_m, corr.y_m) <= g.strong_max_m
-                    and abs(corr.theta_rad) <= g.strong_max_rad
-                )
-            second = None
-            if not trusted and g.rematch:
-                steady = self._last_icp and g.constant_velocity
-                starts = [self._to_laser(key_pose, self._pose @ self._last_motion)] if steady else []
-                second = rematch(matchers[0], key_points, points, guess, match, g, starts)
-                if second is not None:
-                    match, trusted, plain = second, True, False
-                    self.rematches += 1
-            if trusted and odom is not None and self._key_odom is not None:  # odometry where scans are blind
-                # a second-chance match too: odometry was found wrong where the scan fixes the motion,
-                # but along a corridor's axis the search's best pose is one of many equally good ones
-                # and odometry still knows better (shared.pipeline.fusion.hold_unseen_directions)
-                motion = self._offset.inverse() @ self._key_odom.between(odom) @ self._offset
-                if self._key_ref is None and g.fuse_odometry:
-                    self._key_ref = prepare_reference(key_points, range_noise=range_noise)
-                ref = self._key_ref if self._key_ref is not None else key_points
-                if second is None:
-                    fused = fuse_gated(g, ref, points, match.pose, motion, self.odometry_noise, range_noise)
-                else:
-                    fused = hold_unseen_directions(
-                        g, ref, points, match.pose, motion, self.odometry_noise, range_noise
-                    )
-                match = replace(match, pose=fused)
-            if trusted:
-                predicted = key_pose @ self._offset @ match.pose @ self._offset.inverse()
-                icp_used = True
-            else:
-                self.icp_rejections += 1
-        local = self._local_map(math.hypot(delta.x_m, delta.y_m))
-        if self._gate.refine_to_map and len(local):
-            g = self._gate
-            near = points[np.einsum("ij,ij->i", points, points) <= g.refine_range_m**2]
-            scanner = predicted @ self._offset
-            prior, info = (
-                wheel_prior(g, self._pose @ delta @ self._offset, delta, self.odometry_noise)
-                if plain
-                else (None, None)
-            )
-            # the refinement weighs every return alike: with the range noise's weights here too (as the
-            # fusion has them) the along-track error of a 5 m corridor rose from 2.1 to 7.4 cm, the end
-            # walls then counting for less than the side walls' slide
-            # walls of the local map whose place later beams saw through are the tracks of things that
-            # moved (a person walking across in front: the local map takes every scan's lines). Not for
-            # scanners without a range-noise model (the benchmark logs' SICK scanners): there the filter
-            # raised Freiburg 079's relation error from 0.047 to 0.066 m and MIT's from 0.085 to 0.092
-            walls = local.segments()
-            if range_noise.near_m > 0.0:
-                walls = walls[self._seen_free.free_share(walls) < 0.5]
-            fit = refine_to_walls(
-                near,
-                scanner,
-                walls,
-                degeneracy_ratio=g.refine_degeneracy,
-                prior=prior,
-                prior_information=info,
-            )
-            if fit is not None and fit.matched >= g.refine_min_share * len(near):
-                corr = scanner.between(fit.pose)
-                if self._plausible(corr, delta):
-                    predicted = fit.pose @ self._offset.inverse()
-                    self.map_refinements += 1
-        self._last_motion = self._pose.between(predicted)
-        self._last_icp = icp_used
-        self._pose = predicted
-        moved = self._key_pose.between(predicted) if self._key_pose is not None else Pose2D()
-        if (
-            not icp_used
-            or math.hypot(moved.x_m, moved.y_m) > self._gate.keyframe_m
-            or abs(moved.theta_rad) > self._gate.keyframe_rad
-        ):
-            self._key_pose, self._key_points, self._key_odom = predicted, points, odom
-            self._key_ref = None
-        return icp_used
-
-    def _local_map(self, travel_m: float) -> WallMap:
-        """Count a step of ``travel_m`` (odometry), restart the older local map when its span is over, and
-        return the one to match against (the one not restarted last)."""
-        if self._since_steps >= max(self._gate.local_map_steps, 1) or self._since_m >= self._gate.local_map_m:
-            self.local_map_restarts += 1
-            self._loc_maps[self.local_map_restarts % 2] = WallMap(self._merge)
-            self._since_steps, self._since_m = 0, 0.0
-        self._since_steps += 1
-        self._since_m += travel_m
-        return self._loc_maps[(self.local_map_restarts + 1) % 2]
-
-    def _to_laser(self, key_pose: Pose2D, robot: Pose2D) -> Pose2D:
-        """The scanner's motion from the keyframe's scanner frame to that of the robot pose ``robot``."""
-        return self._offset.inverse() @ key_pose.between(robot) @ self._offset
-
-    def _plausible(self, corr: Pose2D, motion: Pose2D) -> bool:
-        """Whether a correction of the odometry prediction is small enough to believe: within the fixed
-        gate plus ``correction_ratio`` of the step's own odometry motion (wheels slip most when turning)."""
-        g = self._gate
-        return math.hypot(corr.x_m, corr.y_m) <= g.max_correction_m + g.correction_ratio * math.hypot(
-            motion.x_m, motion.y_m
-        ) and abs(corr.theta_rad) <= g.max_correction_rad + g.correction_ratio * abs(motion.theta_rad)
 
     # ------------------------------------------------------------------ scheduled stages
     def _ready(self, stage: Stage, buf: _Buffer, final: bool) -> bool:
@@ -372,8 +207,7 @@ class Pipeline:
             return True
         if buf.steps >= sched.n_smax:
             return True
-        assert self._pose is not None
-        turned = abs(wrap_angle(self._pose.theta_rad - (buf.heading0 or 0.0)))
+        turned = abs(wrap_angle(self.pose.theta_rad - (buf.heading0 or 0.0)))
         return turned > math.radians(self._config.heading_flush_deg)
 
     def _feed(self, chunk: Chunk | None, final: bool) -> tuple[Stage, ...]:
@@ -383,7 +217,7 @@ class Pipeline:
             buf = self._buffers[stage]
             if chunk is not None:
                 if not buf.chunks:
-                    buf.heading0 = self._pose.theta_rad if self._pose is not None else 0.0
+                    buf.heading0 = self.pose.theta_rad
                 buf.chunks.append(chunk)
                 buf.steps += chunk.steps
             if not self._ready(stage, buf, final):
@@ -485,7 +319,32 @@ class Pipeline:
     @property
     def pose(self) -> Pose2D:
         """The current robot pose (world frame)."""
-        return self._pose or Pose2D()
+        return self._tracker.pose or Pose2D()
+
+    @property
+    def odometry_noise(self) -> OdometryNoise:
+        """How noisy the odometry is, learned from the believed scan matches."""
+        return self._tracker.odometry_noise
+
+    @property
+    def icp_rejections(self) -> int:
+        """Scan matches the gate refused (and no second chance saved)."""
+        return self._tracker.icp_rejections
+
+    @property
+    def map_refinements(self) -> int:
+        """Poses the refinement against the local wall map moved."""
+        return self._tracker.map_refinements
+
+    @property
+    def rematches(self) -> int:
+        """Refused scan matches a second chance saved."""
+        return self._tracker.rematches
+
+    @property
+    def local_map_restarts(self) -> int:
+        """How often a local wall map was restarted."""
+        return self._tracker.local_map_restarts
 
     def timing_ms(self) -> tuple[float, float]:
         """Median and 99th percentile of recent step times, in milliseconds."""

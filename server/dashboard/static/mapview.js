@@ -9,6 +9,7 @@ import { h } from "./dom.js";
 import { api } from "./api.js";
 import { COLORS, drawGrid, drawRobot, scaleBarLength } from "./mapdraw.js";
 import { FAR_M, WallLayer, clipSegment, drawable } from "./maplayer.js";
+import { clampScale, drawnBounds, fittedView, screenToWorld } from "./viewport.js";
 
 const TRAJECTORY_KEEP = 5000;
 const STATS_KEEP = 1000;
@@ -189,19 +190,7 @@ export class MapView {
 
   /** Bounds of everything drawn: [minX, minY, maxX, maxY] or null (items beyond ±FAR_M are not drawn). */
   bounds() {
-    let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
-    const add = (x, y) => {
-      if (!drawable(x, y)) return;
-      if (x < x0) x0 = x;
-      if (x > x1) x1 = x;
-      if (y < y0) y0 = y;
-      if (y > y1) y1 = y;
-    };
-    for (const s of this.segments.values()) { add(s[0], s[1]); add(s[2], s[3]); }
-    for (const t of this.trajectory) add(t[1], t[2]);
-    for (const c of this.centroids) add(c[0], c[1]);
-    if (this.pose) add(this.pose[0], this.pose[1]);
-    return x0 <= x1 ? [x0, y0, x1, y1] : null;
+    return drawnBounds(this.segments.values(), this.trajectory, this.centroids, this.pose);
   }
 
   /** Fit everything in view (computed at the next frame, when the canvas has its size). */
@@ -212,12 +201,9 @@ export class MapView {
 
   applyFit(w, hgt) {
     this.pendingFit = false;
-    const b = this.bounds();
-    if (!b) return;
-    const bw = Math.min(Math.max(b[2] - b[0], 4), 4 * FAR_M);
-    const bh = Math.min(Math.max(b[3] - b[1], 4), 4 * FAR_M);
-    const scale = Math.min((w - 60) / bw, (hgt - 60) / bh);
-    this.view = { cx: (b[0] + b[2]) / 2, cy: (b[1] + b[3]) / 2, scale: clampScale(scale) };
+    const view = fittedView(this.bounds(), w, hgt);
+    if (!view) return;
+    this.view = view;
     this.fitted = true;
   }
 
@@ -240,8 +226,7 @@ export class MapView {
 
   toWorld(sx, sy) {
     const { w, hgt } = this.size();
-    const v = this.view;
-    return [v.cx + (sx - w / 2) / v.scale, v.cy - (sy - hgt / 2) / v.scale];
+    return screenToWorld(this.view, w, hgt, sx, sy);
   }
 
   bindInput() {
@@ -406,8 +391,3 @@ export class MapView {
 function legendItem(kind, label) {
   return h("span", { class: `legend-item legend-${kind}` }, h("i"), label);
 }
-
-function clampScale(s) {
-  return Math.min(5000, Math.max(1e-6, Number.isFinite(s) ? s : 40));
-}
-
