@@ -40,7 +40,7 @@ import numpy as np
 
 from shared.kernels import REGISTRY, Stage
 from shared.pipeline import MapSnapshot, Pipeline
-from shared.pipeline.fusion import mahalanobis2, odometry_information
+from shared.pipeline.fusion_solve import mahalanobis2, odometry_information
 from shared.pipeline.pipeline import StepResult
 from shared.slam.closure import LoopMatch, candidates, chain_covariance, stacked, verify
 from shared.slam.errors import OptimisationError
