@@ -14,7 +14,8 @@ from alembic.config import Config
 from sqlalchemy import create_engine
 
 from robot_agent.control import Prepared, apply_message, kernels_run, pin_versions, refuse_downgrades
-from robot_agent.store import MIGRATIONS_DIR, RobotDB
+from robot_agent.store import RobotDB
+from robot_agent.store_db import MIGRATIONS_DIR
 from shared.control import parse_message
 from shared.errors import LinemapError
 from shared.pipeline import KernelChoice, PipelineConfig

@@ -9,7 +9,8 @@ from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 
 from robot_agent.models import RobotBase
-from robot_agent.store import RobotDB, StepRecord
+from robot_agent.store import RobotDB
+from robot_agent.store_map import StepRecord
 
 
 def test_migrated_schema_matches_the_models(tmp_path: Path) -> None:
