@@ -19,7 +19,8 @@ from robot_agent.sensors.errors import (
 )
 from robot_agent.sensors.pairing import PairingStats, paired_scans
 from robot_agent.sensors.scip_info import URG04LX_PARAMS, SensorParams, SensorState, VersionInfo
-from robot_agent.sensors.urg import ClockMapper, UrgDriver, UrgStats
+from robot_agent.sensors.urg import UrgDriver, UrgStats
+from robot_agent.sensors.urg_scans import ClockMapper
 
 __all__ = [
     "URG04LX_PARAMS",

@@ -24,13 +24,12 @@ import time
 import tty
 from collections.abc import Iterator, Sequence
 
+from robot_agent.sensors.encoder_decoder import EncoderDecoder, OdometryReading
 from robot_agent.sensors.encoder_protocol import (
     HELLO,
     BridgeInfo,
-    EncoderDecoder,
     EncoderLine,
     LineSplitter,
-    OdometryReading,
     format_line,
     wrap_int32,
 )

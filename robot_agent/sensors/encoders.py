@@ -60,18 +60,15 @@ from typing import Protocol, runtime_checkable
 
 import serial  # type: ignore[import-untyped]
 
+from robot_agent.sensors.encoder_decoder import ClockSync, EncoderDecoder, EncoderStats, OdometryReading
 from robot_agent.sensors.encoder_protocol import (
     HELLO,
     MAX_LINE_BYTES,
     BridgeInfo,
-    ClockSync,
-    EncoderDecoder,
     EncoderError,
     EncoderLine,
     EncoderProtocolError,
-    EncoderStats,
     LineSplitter,
-    OdometryReading,
     checksum,
     format_line,
     parse_line,

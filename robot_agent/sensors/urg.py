@@ -4,7 +4,7 @@
 SCIP 2.0, stops any scan stream left running and reads the sensor's parameters (PP). ``scans()`` streams MD
 frames as scans in metres (SPEC §3): angles from AMIN/AFRT/ARES (a cluster of steps at its middle step,
 the increment ``cluster`` steps), the range window DMIN..DMAX, error codes (< 20 mm) as NaN, and the
-sensor's 24-bit millisecond stamps mapped to host seconds (:class:`ClockMapper`).
+sensor's 24-bit millisecond stamps mapped to host seconds (:mod:`robot_agent.sensors.urg_scans`).
 
 Recovery: a frame with a bad checksum or truncated is dropped (counted in ``stats``, logged) and reading
 goes on at the next frame, including one that ran into the damaged one; a read timeout or a vanished device
@@ -13,6 +13,8 @@ goes on at the next frame, including one that ran into the damaged one; a read t
 does not retry: a wrong path fails at once, with the reason.
 
 One thread drives a driver; the other commands must not be called while a ``scans()`` iterator is live.
+This module is the device session only: the protocol is :mod:`~robot_agent.sensors.scip` (framing),
+:mod:`~robot_agent.sensors.scip_scan` (scan frames) and :mod:`~robot_agent.sensors.scip_info` (VV/PP/II).
 """
 
 from __future__ import annotations
@@ -34,18 +36,7 @@ from robot_agent.sensors.errors import (
     SensorError,
     SensorTimeoutError,
 )
-from robot_agent.sensors.scip import (
-    SWITCH_COMMAND,
-    TIMESTAMP_MODULUS,
-    Reply,
-    ScanFrame,
-    ScanRequest,
-    angle_of_value,
-    parse_reply,
-    parse_scan_reply,
-    recover_scan_frame,
-    unwrap_timestamp,
-)
+from robot_agent.sensors.scip import SWITCH_COMMAND, Reply, parse_reply
 from robot_agent.sensors.scip_info import (
     SensorParams,
     SensorState,
@@ -55,9 +46,16 @@ from robot_agent.sensors.scip_info import (
     parse_switch_reply,
     parse_versions,
 )
+from robot_agent.sensors.scip_scan import (
+    ScanFrame,
+    ScanRequest,
+    parse_scan_reply,
+    recover_scan_frame,
+)
+from robot_agent.sensors.urg_scans import ClockMapper, scan_from_frame
 from shared.types import Scan
 
-__all__ = ["ClockMapper", "UrgDriver", "UrgStats", "scan_from_frame"]
+__all__ = ["UrgDriver", "UrgStats"]
 
 log = logging.getLogger(__name__)
 
@@ -75,49 +73,6 @@ class UrgStats:
     last_error: str = ""
 
 
-class ClockMapper:
-    """Maps the sensor's 24-bit millisecond time stamps to host seconds, strictly increasing.
-
-    The offset host - sensor is the smallest seen so far (the frame that came with the least delay),
-    allowed to grow by at most ``drift_ratio`` of the host time elapsed (clock drift); the sensor time is
-    unwrapped against the previous stamp plus the host time elapsed, so a 24-bit wrap is seamless.
-    :meth:`restart` forgets the sensor's timeline (its timer restarts with a power cycle) but keeps the
-    stamps increasing. O(1) per stamp.
-    """
-
-    def __init__(self, drift_ratio: float = 1e-3) -> None:
-        self.drift_ratio = drift_ratio
-        self._sensor_ms: int | None = None
-        self._host_s = 0.0
-        self._offset_s = 0.0
-        self._last_s: float | None = None
-
-    def restart(self) -> None:
-        """Forget the sensor timeline (after a reconnect)."""
-        self._sensor_ms = None
-
-    def stamp(self, raw_ms: int, host_s: float) -> float:
-        """Host time (s) of the scan stamped ``raw_ms`` by the sensor, received at ``host_s``."""
-        if self._sensor_ms is None:
-            sensor_ms = raw_ms % TIMESTAMP_MODULUS
-            self._offset_s = host_s - sensor_ms / 1000.0
-        else:
-            expected = self._sensor_ms + (host_s - self._host_s) * 1000.0
-            sensor_ms = unwrap_timestamp(raw_ms % TIMESTAMP_MODULUS, expected)
-            candidate = host_s - sensor_ms / 1000.0
-            if candidate < self._offset_s:
-                self._offset_s = candidate
-            else:
-                grow = self.drift_ratio * max(host_s - self._host_s, 0.0)
-                self._offset_s += min(candidate - self._offset_s, grow)
-        self._sensor_ms, self._host_s = sensor_ms, host_s
-        stamp = sensor_ms / 1000.0 + self._offset_s
-        if self._last_s is not None and stamp <= self._last_s:
-            stamp = self._last_s + 1e-6
-        self._last_s = stamp
-        return stamp
-
-
 def _why(exc: BaseException) -> str:
     """The reason a port did not open, in words an operator can act on."""
     code = getattr(exc, "errno", None)
@@ -128,12 +83,6 @@ def _why(exc: BaseException) -> str:
     if code == errno.EBUSY:
         return "the device is busy (another program has it open)"
     return os.strerror(code) if isinstance(code, int) else str(exc)
-
-
-def scan_from_frame(frame: ScanFrame, params: SensorParams, stamp_s: float) -> Scan:
-    """A :class:`Scan` of ``frame``: metres, NaN for error codes, angles from PP (AFRT, ARES)."""
-    angle_min, increment = angle_of_value(frame.request, params.front_step, params.steps_per_turn)
-    return Scan(stamp_s, angle_min, increment, params.range_min_m, params.range_max_m, frame.ranges_m())
 
 
 class UrgDriver:

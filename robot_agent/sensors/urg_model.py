@@ -20,16 +20,9 @@ from typing import Literal
 import numpy as np
 
 from robot_agent.sensors.errors import SensorError
-from robot_agent.sensors.scip import (
-    ERROR_CODE_LIMIT_MM,
-    SWITCH_COMMAND,
-    TIMESTAMP_MODULUS,
-    ScanRequest,
-    encode_reply,
-    encode_scan_reply,
-    parse_scan_command,
-)
+from robot_agent.sensors.scip import ERROR_CODE_LIMIT_MM, SWITCH_COMMAND, TIMESTAMP_MODULUS, encode_reply
 from robot_agent.sensors.scip_info import URG04LX_PARAMS, SensorParams, encode_info_reply
+from robot_agent.sensors.scip_scan import ScanRequest, encode_scan_reply, parse_scan_command
 from shared.types import IntArray, Scan
 
 __all__ = ["FAULTS", "EmulatorFrame", "Fault", "UrgModel", "cluster_values", "sample_steps_mm"]

@@ -5,7 +5,8 @@
 (:func:`split_and_merge`). Pure numpy, no I/O.
 """
 
-from shared.baselines.ekf_lines import EkfLineSlam, EkfLineSlamParams
+from shared.baselines.ekf_lines import EkfLineSlam
+from shared.baselines.ekf_params import EkfLineSlamParams
 from shared.baselines.errors import BaselineError, BaselineParameterError
 from shared.baselines.line_model import line_difference, lines_to_world, normalise_lines, predict_lines
 from shared.baselines.split_merge import (

@@ -1,5 +1,8 @@
 """Line-segment EKF-SLAM: the classic baseline the paper compares its mapping with (§6.3, Fig. 24).
 
+This module is the filter (prediction, update, state augmentation, pruning); its settings are
+:class:`~shared.baselines.ekf_params.EkfLineSlamParams`.
+
 **State** ``x = [x, y, theta, rho_1, alpha_1, ..., rho_L, alpha_L]``: the robot pose (m, m, rad) and one
 infinite line per landmark in the world frame (Hesse normal form, ``rho >= 0``, ``alpha`` in ``(-pi, pi]``),
 with the full covariance ``P`` ``(n, n)``, ``n = 3 + 2 L``. The map frame is anchored at the initial pose
@@ -18,10 +21,11 @@ O(n) per step.
 (scanner frame, with a 2x2 covariance each), and the measurement model of
 :mod:`~shared.baselines.line_model` (scanner at ``pose @ laser_offset``).
 
-**Data association**, vectorised over the M observations x L landmarks: innovation ``v = z - h(x)`` with
-the angle wrapped and the rho sign flip handled (:func:`~shared.baselines.line_model.line_difference`),
-``S = H P H^T + R`` and the squared Mahalanobis distance ``v^T S^-1 v``; pairs within ``gate_chi2`` are
-assigned greedily, nearest first, each landmark and each observation at most once. O(M L + L).
+**Data association** (:mod:`~shared.baselines.ekf_associate`), vectorised over the M observations x L
+landmarks: innovation ``v = z - h(x)`` with the angle wrapped and the rho sign flip handled
+(:func:`~shared.baselines.line_model.line_difference`), ``S = H P H^T + R`` and the squared Mahalanobis
+distance ``v^T S^-1 v``; pairs within ``gate_chi2`` are assigned greedily, nearest first, each landmark and
+each observation at most once. O(M L + L).
 
 **Update** with all matched observations stacked at once: ``K = P H^T S^-1``, ``x += K v``,
 ``P -= K S K^T``, then ``P`` symmetrised. O(n^2 k) for k matches: the per-step cost grows with the number of
@@ -34,12 +38,13 @@ with each other make one landmark. An unmatched observation within the gate of a
 observation of the scan already used only extends that landmark's extent; one between the gates is
 ignored as ambiguous.
 
-**Extents**: the observed end points, put in the world with the corrected pose, are kept per landmark as
-world pieces; on each new sighting they are projected on the current line (coordinate ``t`` along
-``d = (-sin alpha, cos alpha)``, ``point = rho n + t d``) and intervals closer than ``extent_gap_m`` are
-joined, so an opening wider than that (a doorway between collinear walls) stays open. (Not stored as ``t``:
-the foot of the normal slides by ``rho * d_alpha`` as ``alpha`` is corrected.) :meth:`EkfLineSlam.walls`
-gives one segment per interval of every landmark observed at least ``min_observations`` times.
+**Extents** (:mod:`~shared.baselines.ekf_extents`): the observed end points, put in the world with the
+corrected pose, are kept per landmark as world pieces; on each new sighting they are projected on the
+current line (coordinate ``t`` along ``d = (-sin alpha, cos alpha)``, ``point = rho n + t d``) and intervals
+closer than ``extent_gap_m`` are joined, so an opening wider than that (a doorway between collinear walls)
+stays open. (Not stored as ``t``: the foot of the normal slides by ``rho * d_alpha`` as ``alpha`` is
+corrected.) :meth:`EkfLineSlam.walls` gives one segment per interval of every landmark observed at least
+``min_observations`` times.
 
 **Pruning** (classic landmark-quality bookkeeping, not sub-mapping): a landmark still seen in fewer than
 ``min_observations`` scans ``prune_after_steps`` steps after its creation (a one-off fit across a corner,
@@ -51,113 +56,17 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from shared.baselines.errors import BaselineParameterError, check_number
-from shared.baselines.line_model import line_difference, lines_to_world, predict_lines, wrap_angles
-from shared.baselines.split_merge import LineObservations, SplitMergeParams, extract_lines
+from shared.baselines.ekf_associate import associate
+from shared.baselines.ekf_extents import extent_intervals, join_extent
+from shared.baselines.ekf_params import EkfLineSlamParams
+from shared.baselines.line_model import line_difference, lines_to_world, wrap_angles
+from shared.baselines.split_merge import LineObservations, extract_lines
 from shared.types import FloatArray, IntArray, Pose2D, Scan, segments_from_hesse
 
-__all__ = ["EkfLineSlam", "EkfLineSlamParams"]
-
-
-@dataclass(frozen=True, slots=True)
-class EkfLineSlamParams:
-    """Settings of :class:`EkfLineSlam`, validated on construction (errors name the field).
-
-    Motion noise (standard deviations per step, module docstring): ``trans_noise_per_m`` (m per m driven),
-    ``trans_noise_per_rad`` (m per rad turned), ``rot_noise_per_m`` (rad per m), ``rot_noise_per_rad``
-    (rad per rad), plus floors ``min_trans_sigma_m`` / ``min_rot_sigma_rad``. Association:
-    ``gate_chi2`` (squared Mahalanobis distance to match; 9.21 = chi-square 2 dof 99 %) and
-    ``new_landmark_chi2`` (>= ``gate_chi2``; farther than this from every landmark makes a new one).
-    Measurement: the extractor's covariance is floored at ``min_rho_sigma_m`` / ``min_alpha_sigma_rad``
-    (added in quadrature: on simulated runs the fits' own covariances are ~1.7x optimistic, and a total
-    least squares fit of a wall seen obliquely is biased by range noise along the beams; without the floors
-    a long run past small boxes drifts worse than odometry). Map output: ``extent_gap_m``,
-    ``min_observations``. Pruning: a landmark seen in fewer than ``min_observations`` scans
-    ``prune_after_steps`` steps after its creation is deleted from the state (0 keeps every landmark).
-    """
-
-    extraction: SplitMergeParams = field(default_factory=SplitMergeParams)
-    trans_noise_per_m: float = 0.05
-    trans_noise_per_rad: float = 0.01
-    rot_noise_per_m: float = 0.1
-    rot_noise_per_rad: float = 0.05
-    min_trans_sigma_m: float = 0.001
-    min_rot_sigma_rad: float = 0.001
-    gate_chi2: float = 9.21
-    new_landmark_chi2: float = 50.0
-    min_rho_sigma_m: float = 0.03
-    min_alpha_sigma_rad: float = 0.02
-    extent_gap_m: float = 0.5
-    min_observations: int = 3
-    prune_after_steps: int = 20
-
-    def __post_init__(self) -> None:
-        owner = type(self).__name__
-        if not isinstance(self.extraction, SplitMergeParams):
-            raise BaselineParameterError(owner, "extraction", self.extraction, "a SplitMergeParams")
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name == "extraction":
-                continue
-            if f.name == "min_observations":
-                check_number(owner, f.name, value, minimum=1, inclusive=True, integer=True)
-            elif f.name == "prune_after_steps":
-                check_number(owner, f.name, value, inclusive=True, integer=True)
-            elif f.name in ("gate_chi2", "new_landmark_chi2", "extent_gap_m"):
-                check_number(owner, f.name, value)
-            else:
-                check_number(owner, f.name, value, inclusive=True)
-        if self.new_landmark_chi2 < self.gate_chi2:
-            raise BaselineParameterError(
-                owner, "new_landmark_chi2", self.new_landmark_chi2, f">= gate_chi2 ({self.gate_chi2:g})"
-            )
-
-
-def _inv2(S: FloatArray) -> FloatArray:
-    """Inverse of a stack of 2x2 matrices ``(..., 2, 2)`` (analytic). O(stack)."""
-    a, b, c, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 0], S[..., 1, 1]
-    det = a * d - b * c
-    det = np.where(np.abs(det) > 1e-300, det, 1e-300)
-    out = np.empty_like(S)
-    out[..., 0, 0] = d / det
-    out[..., 0, 1] = -b / det
-    out[..., 1, 0] = -c / det
-    out[..., 1, 1] = a / det
-    return out
-
-
-def _intervals(pieces: FloatArray, alpha: float) -> tuple[FloatArray, FloatArray]:
-    """Line coordinates ``t`` (start, end; sorted by start) of world pieces ``(K, 4)`` on a line of normal
-    angle ``alpha``: ``t = p . d``, ``d = (-sin alpha, cos alpha)``. O(K log K)."""
-    d = np.array([-math.sin(alpha), math.cos(alpha)])
-    t = pieces.reshape(-1, 2, 2) @ d
-    lo, hi = t.min(axis=1), t.max(axis=1)
-    order = np.argsort(lo, kind="stable")
-    return lo[order], hi[order]
-
-
-def _join(pieces: FloatArray, new: FloatArray, rho: float, alpha: float, gap: float) -> FloatArray:
-    """Add the world piece ``new`` ``[x0, y0, x1, y1]`` to a landmark's ``pieces`` ``(K, 4)``, projected on
-    the line ``(rho, alpha)``, joining intervals closer than ``gap``. Returns the pieces on that line.
-    O(K log K).
-
-    Pieces are kept as world points, not as line coordinates: ``t`` is measured from the foot of the normal,
-    which slides by ``rho * d_alpha`` when the estimate of ``alpha`` moves (metres, for far lines).
-    """
-    lo, hi = _intervals(np.vstack([pieces, new[None, :]]), alpha)
-    out_lo = [float(lo[0])]
-    out_hi = [float(hi[0])]
-    for a, b in zip(lo[1:].tolist(), hi[1:].tolist(), strict=True):
-        if a > out_hi[-1] + gap:
-            out_lo.append(a)
-            out_hi.append(b)
-        else:
-            out_hi[-1] = max(out_hi[-1], b)
-    return segments_from_hesse(np.full(len(out_lo), rho), np.full(len(out_lo), alpha), out_lo, out_hi)
+__all__ = ["EkfLineSlam"]
 
 
 class EkfLineSlam:
@@ -237,7 +146,7 @@ class EkfLineSlam:
         for j, pieces in enumerate(self._extents):
             if self._seen[j] < self.params.min_observations or not len(pieces):
                 continue
-            lo, hi = _intervals(pieces, float(lm[j, 1]))
+            lo, hi = extent_intervals(pieces, float(lm[j, 1]))
             rho.extend([float(lm[j, 0])] * len(lo))
             alpha.extend([float(lm[j, 1])] * len(lo))
             t0.extend(lo.tolist())
@@ -309,60 +218,11 @@ class EkfLineSlam:
         p = self.params
         R = self._measurement_cov(obs)
         m = len(obs)
-        L = self.n_landmarks
         z = np.stack([obs.rho_m, obs.alpha_rad], axis=1)
-        best = np.full(m, np.inf)
-        best_j = np.full(m, -1, dtype=np.intp)
-        pairs: list[tuple[int, int]] = []
-        v_sel: list[FloatArray] = []
-        Hr_sel: list[FloatArray] = []
-        Hl_sel: list[FloatArray] = []
-        if L:
-            lm = self._x[3:].reshape(L, 2)
-            h, H_r, H_l = predict_lines(self._x[:3], self.laser_offset, lm[:, 0], lm[:, 1])
-            P = self._P
-            idx = 3 + 2 * np.arange(L)
-            P_rr = P[:3, :3]
-            P_rl = P[:3, 3:].reshape(3, L, 2).transpose(1, 0, 2)  # (L, 3, 2)
-            P_ll = np.empty((L, 2, 2))
-            P_ll[:, 0, 0] = P[idx, idx]
-            P_ll[:, 0, 1] = P[idx, idx + 1]
-            P_ll[:, 1, 0] = P[idx + 1, idx]
-            P_ll[:, 1, 1] = P[idx + 1, idx + 1]
-            cross = H_r @ P_rl @ H_l.transpose(0, 2, 1)
-            S_base = H_r @ P_rr @ H_r.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1)
-            S_base += H_l @ P_ll @ H_l.transpose(0, 2, 1)
-            # innovations (M, L) with the sign flip: the rho row of h and H scales by `sign`
-            d_rho, d_alpha, sign = line_difference(z[:, 0:1], z[:, 1:2], h[None, :, 0], h[None, :, 1])
-            S = np.broadcast_to(S_base, (m, L, 2, 2)).copy()
-            S[..., 0, 1] *= sign
-            S[..., 1, 0] *= sign
-            S += R[:, None, :, :]
-            Si = _inv2(S)
-            d2 = (
-                d_rho * d_rho * Si[..., 0, 0]
-                + 2.0 * d_rho * d_alpha * Si[..., 0, 1]
-                + d_alpha * d_alpha * Si[..., 1, 1]
-            )
-            best_j = np.argmin(d2, axis=1).astype(np.intp)
-            best = d2[np.arange(m), best_j]
-            cand_i, cand_j = np.nonzero(d2 <= p.gate_chi2)
-            order = np.argsort(d2[cand_i, cand_j], kind="stable")
-            used_obs: set[int] = set()
-            used_lm: set[int] = set()
-            for k in order.tolist():
-                i, j = int(cand_i[k]), int(cand_j[k])
-                if i in used_obs or j in used_lm:
-                    continue
-                used_obs.add(i)
-                used_lm.add(j)
-                pairs.append((i, j))
-                v_sel.append(np.array([d_rho[i, j], d_alpha[i, j]]))
-                scale = np.array([[sign[i, j]], [1.0]])
-                Hr_sel.append(H_r[j] * scale)
-                Hl_sel.append(H_l[j] * scale)
-            if pairs:
-                self._update(pairs, np.stack(v_sel), np.stack(Hr_sel), np.stack(Hl_sel), R)
+        found = associate(self._x, self._P, self.laser_offset, z, R, p.gate_chi2)
+        pairs, best, best_j = found.pairs, found.best, found.best_j
+        if pairs:
+            self._update(pairs, found.v, found.Hr, found.Hl, R)
         matched_obs = {i for i, _ in pairs}
         self.matched += len(pairs)
         for _, j in pairs:
@@ -425,7 +285,7 @@ class EkfLineSlam:
         laser = self.pose @ self.laser_offset
         new = laser.transform_points(endpoints.reshape(2, 2)).reshape(4)
         rho, alpha = float(self._x[3 + 2 * j]), float(self._x[4 + 2 * j])
-        self._extents[j] = _join(self._extents[j], new, rho, alpha, self.params.extent_gap_m)
+        self._extents[j] = join_extent(self._extents[j], new, rho, alpha, self.params.extent_gap_m)
 
     def _add_landmarks(self, obs: LineObservations, R: FloatArray, candidates: list[int]) -> None:
         """Augment the state with the observations ``candidates`` (largest first), one landmark per line."""

@@ -15,27 +15,26 @@ Each scan gets ``stamp_s`` = its header stamp (``sec + nanosec``), ranges widene
 and inf kept: no return), and ``odometry`` = the odometry pose interpolated at that stamp between the
 bracketing odometry messages (:class:`~shared.io.rosbag_pose.OdometryTrack`); scans outside the odometry's
 time span get the nearest pose (counted in :attr:`RosbagReader.clamped_scans`). Messages stream in bag
-order: memory is O(beams) per scan plus a few pending scans and a short odometry buffer.
+order: memory is O(beams) per scan plus a few pending scans and a short odometry buffer. Opening the bag
+and reading its messages: :class:`~shared.io.rosbag_bag.BagFile`.
 """
 
 from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Generator, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
 import numpy as np
-from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
-from rosbags.rosbag2 import Reader as Rosbag2Reader
-from rosbags.typesys import Stores, get_typestore
 
 from shared.errors import InvalidInputError
-from shared.io.errors import LogNotFoundError, RosbagError, RosbagMessageError
+from shared.io.errors import LogNotFoundError, RosbagMessageError
 from shared.io.reader import LogInfo, LogReader
+from shared.io.rosbag_bag import BagFile
 from shared.io.rosbag_pose import OdometryTrack, Transform3D, chain_transform, yaw_from_quaternion
 from shared.io.rosbag_topics import LASER_SCAN_TYPE, ODOMETRY_TYPE, TF_TYPES, choose_topic
 from shared.types import BeamGeometry, Pose2D, Scan
@@ -94,52 +93,20 @@ class RosbagReader(LogReader):
         self.scans_read = 0
         self.lines_read = 0
         self.clamped_scans = 0
-        self._open = False
         if not self.path.exists():
             raise LogNotFoundError(f"log file not found: {self.path}")
         self._ros1 = self.path.suffix == ".bag" and self.path.is_file()
-        self._bag = self._open_bag()
+        self._bag = BagFile(self.path, ros1=self._ros1)
         try:
             self._setup(scan_topic, odom_topic, _frame(odom_frame), _frame(base_frame))
         except BaseException:
             self.close()
             raise
 
-    # -- opening ---------------------------------------------------------------------------------------
-
-    def _open_bag(self) -> AnyReader:
-        path = self.path
-        if path.is_dir() and not (path / "metadata.yaml").is_file():
-            raise RosbagError(f"{path} is a directory without metadata.yaml: expected a rosbag2 folder")
-        if not path.is_dir() and path.suffix not in (".bag", ".db3", ".mcap"):
-            raise RosbagError(
-                f"{path}: suffix {path.suffix!r}: a ROS bag file must end in .bag, .db3 or .mcap"
-            )
-        typestore = None if self._ros1 else get_typestore(Stores.ROS2_HUMBLE)
-        try:
-            bag = AnyReader([path], default_typestore=typestore)
-            bag.open()
-        except Exception as exc:
-            raise RosbagError(
-                f"{path.name}: cannot open it as a ROS bag: {self._describe(exc)} (truncated, corrupt, or "
-                "not a bag?)"
-            ) from exc
-        self._open = True
-        return bag
-
-    @staticmethod
-    def _describe(exc: BaseException) -> str:
-        """The library's message, with the exception's name unless it is one of rosbags' wrappers."""
-        text = " ".join(str(a) for a in exc.args) or str(exc)
-        name = type(exc).__name__
-        if name in ("AnyReaderError", "ReaderError"):
-            return text or name
-        return f"{name}: {text}" if text else name
-
     def _setup(
         self, scan_topic: str | None, odom_topic: str | None, odom_frame: str, base_frame: str
     ) -> None:
-        topics = {name: info.msgtype or "(mixed types)" for name, info in self._bag.topics.items()}
+        topics = self._bag.topics
         self.topics: dict[str, str] = topics
         name = self.path.name
         scan = choose_topic(
@@ -147,7 +114,7 @@ class RosbagReader(LogReader):
         )
         assert scan is not None
         self.scan_topic: str = scan
-        self._scan_conns = self._connections(scan)
+        self._scan_conns = self._bag.connections(scan)
         self.odom_topic = choose_topic(
             name, topics, odom_topic, (ODOMETRY_TYPE,), "--odom-topic (odom_topic)", required=False
         )
@@ -156,13 +123,13 @@ class RosbagReader(LogReader):
         static_topics = sorted(t for t, ty in topics.items() if ty in TF_TYPES and t.endswith("tf_static"))
         self._odom_conns: list[Connection] = []
         if self.odom_topic is not None:
-            self._odom_conns = self._connections(self.odom_topic)
-            first = self._first(self._odom_conns)
+            self._odom_conns = self._bag.connections(self.odom_topic)
+            first = self._bag.first(self._odom_conns)
             if first is not None and _frame(first.child_frame_id):
                 base_frame = _frame(first.child_frame_id)
             self.odometry_source = f"{self.odom_topic} ({ODOMETRY_TYPE})"
         elif tf_topics and self._tf_has_odometry(tf_topics):
-            self._odom_conns = [c for t in tf_topics for c in self._connections(t)]
+            self._odom_conns = [c for t in tf_topics for c in self._bag.connections(t)]
             self.odometry_source = f"tf {odom_frame} -> {base_frame}"
         else:
             self.odometry_source = "none"
@@ -170,7 +137,7 @@ class RosbagReader(LogReader):
                 "%s: no %s topic and no %s -> %s transforms on /tf: scans carry no odometry",
                 self.path.name, ODOMETRY_TYPE, odom_frame, base_frame,
             )  # fmt: skip
-        first_scan = self._first(self._scan_conns)
+        first_scan = self._bag.first(self._scan_conns)
         self.laser_frame = _frame(first_scan.header.frame_id) if first_scan is not None else ""
         offset = self._laser_offset(static_topics, tf_topics, base_frame)
         self._scans: Iterator[Scan] = self._read_scans()
@@ -181,11 +148,11 @@ class RosbagReader(LogReader):
             self._geometry(first_scan),
             offset,
             None,
-            self._is_compressed(),
+            self._bag.is_compressed(),
             MappingProxyType(
                 {
                     "ros_version": "1" if self._ros1 else "2",
-                    "storage": self._storage(),
+                    "storage": self._bag.storage(),
                     "scan_topic": self.scan_topic,
                     "odometry": self.odometry_source,
                     "laser_frame": self.laser_frame,
@@ -194,50 +161,9 @@ class RosbagReader(LogReader):
             ),
         )
 
-    def _connections(self, topic: str) -> list[Connection]:
-        return [c for c in self._bag.connections if c.topic == topic]
-
-    def _messages(self, conns: Sequence[Connection]) -> Generator[tuple[Connection, int, Any], None, None]:
-        """``(connection, number on its topic, message)`` in bag order; read errors become RosbagError."""
-        counts: dict[str, int] = {}
-        gen = self._bag.messages(connections=conns)
-        try:
-            while True:
-                try:
-                    item = next(gen, None)
-                except Exception as exc:
-                    done = sum(counts.values())
-                    raise RosbagError(
-                        f"{self.path.name}: cannot read the bag after {done} messages "
-                        f"({self._describe(exc)}): is it truncated or corrupt?"
-                    ) from exc
-                if item is None:
-                    return
-                conn, _, raw = item
-                n = counts[conn.topic] = counts.get(conn.topic, 0) + 1
-                try:
-                    msg = self._bag.deserialize(raw, conn.msgtype)
-                except Exception as exc:
-                    raise RosbagMessageError(
-                        f"{self.path.name}: {conn.topic} message {n} ({conn.msgtype}) cannot be decoded "
-                        f"({self._describe(exc)})"
-                    ) from exc
-                yield conn, n, msg
-        finally:
-            gen.close()
-
-    def _first(self, conns: Sequence[Connection]) -> Any:
-        """The first message on ``conns`` (or ``None``)."""
-        gen = self._messages(conns)
-        try:
-            item = next(gen, None)
-        finally:
-            gen.close()
-        return None if item is None else item[2]
-
     def _tf_has_odometry(self, tf_topics: Sequence[str]) -> bool:
-        conns = [c for t in tf_topics for c in self._connections(t)]
-        gen = self._messages(conns)
+        conns = [c for t in tf_topics for c in self._bag.connections(t)]
+        gen = self._bag.messages(conns)
         try:
             for count, (_, _, msg) in enumerate(gen):
                 if any(self._is_odometry_tf(tr) for tr in msg.transforms):
@@ -261,7 +187,7 @@ class RosbagReader(LogReader):
             if not topics:
                 continue
             parents: dict[str, tuple[str, Transform3D]] = {}
-            gen = self._messages([c for t in topics for c in self._connections(t)])
+            gen = self._bag.messages([c for t in topics for c in self._bag.connections(t)])
             try:
                 for count, (conn, n, msg) in enumerate(gen):
                     for tr in msg.transforms:
@@ -297,7 +223,7 @@ class RosbagReader(LogReader):
             rate_hz = round(1.0 / float(msg.scan_time), 6)  # scan_time is float32: 0.1 s -> 10.0 Hz
         else:
             count = sum(c.msgcount for c in self._scan_conns)
-            duration_s = self._bag.duration / _NS
+            duration_s = self._bag.duration_ns / _NS
             if count > 1 and duration_s > 0.0:
                 rate_hz = (count - 1) / duration_s
         scan = self._pending[0] if self._pending else None
@@ -311,16 +237,6 @@ class RosbagReader(LogReader):
             scan.range_max_m,
             rate_hz,
         )
-
-    def _storage(self) -> str:
-        if self._ros1:
-            return "rosbag1"
-        files = [self.path] if self.path.is_file() else sorted(self.path.iterdir())
-        return "mcap" if any(f.suffix == ".mcap" for f in files) else "sqlite3"
-
-    def _is_compressed(self) -> bool:
-        readers = self._bag.readers
-        return any(isinstance(r, Rosbag2Reader) and r.compression_mode for r in readers)
 
     # -- streaming -------------------------------------------------------------------------------------
 
@@ -385,7 +301,7 @@ class RosbagReader(LogReader):
         scan_topic = self.scan_topic
         with_odometry = bool(self._odom_conns)
         last_ns: int | None = None
-        for conn, n, msg in self._messages([*self._scan_conns, *self._odom_conns]):
+        for conn, n, msg in self._bag.messages([*self._scan_conns, *self._odom_conns]):
             if conn.topic == scan_topic:
                 pending.append(self._scan(conn, n, msg))
             else:
@@ -420,9 +336,6 @@ class RosbagReader(LogReader):
             close = getattr(scans, "close", None)
             if close is not None:
                 close()
-        if self._open:
-            self._open = False
-            try:
-                self._bag.close()
-            except Exception as exc:  # pragma: no cover - closing files rarely fails
-                logger.debug("%s: closing the bag failed: %s", self.path.name, exc)
+        bag = getattr(self, "_bag", None)
+        if bag is not None:
+            bag.close()

@@ -67,7 +67,7 @@ class IcpGate:
     Freiburg 079 0.060, MIT CSAIL 0.131 against 0.165, 0.048, 0.084 unfused, the learned factors 0.161,
     0.045, 0.086 (these figures swing by a third on float-level changes).
     A fused pose must agree with the linear fusion of the match and odometry (their information-weighted
-    mean, :func:`shared.pipeline.fusion.linear_fusion`) within ``fusion_chi2`` (the squared Mahalanobis
+    mean, :func:`shared.pipeline.fusion_solve.linear_fusion`) within ``fusion_chi2`` (the squared Mahalanobis
     distance under the posterior information; 11.34 is chi-square's 99 % point for 3 degrees of freedom);
     one farther off (Gauss-Newton's point-to-line associations pulled it beyond both, 4 cm short of the
     match and odometry alike in a simulated hall) is replaced by the linear fusion. Only for scanners with

@@ -4,7 +4,7 @@ Fusing a scan match with odometry (:mod:`shared.pipeline.fusion`) needs odometry
 model cannot fit every robot: the simulator's wheels are good to a centimetre over a metre, the benchmark
 logs' odometry is off by decimetres (Freiburg 079's raw odometry has a relation error of 6.5 m against the
 pipeline's 0.05 m), and fused under the simulator's figures it pulled the logs' poses off. So the model's
-standard deviations (:func:`shared.pipeline.fusion.odometry_information`) are scaled by factors learned
+standard deviations (:func:`shared.pipeline.fusion_solve.odometry_information`) are scaled by factors learned
 from the innovations ``e = match - odometry`` of the matches the pipeline believed, in the directions the
 scan fixes far better than odometry does (its posterior variance there below ``scan_share`` of the
 model's), where ``e`` is odometry's own error:

@@ -20,13 +20,8 @@ from typing import Any
 import numpy as np
 
 from shared.kernels import REGISTRY, Stage
-from shared.pipeline.fusion import (
-    Reference,
-    fuse_gated,
-    hold_unseen_directions,
-    prepare_reference,
-    wheel_prior,
-)
+from shared.pipeline.fusion import fuse_gated, hold_unseen_directions, wheel_prior
+from shared.pipeline.fusion_solve import Reference, prepare_reference
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.odonoise import OdometryNoise

@@ -98,7 +98,8 @@ def run_ekf(
     scans: Iterable[Scan], laser_offset: Pose2D | None = None, params: object | None = None
 ) -> MapRun:
     """The line-segment EKF-SLAM baseline (:mod:`shared.baselines.ekf_lines`), one ``step`` per scan."""
-    from shared.baselines.ekf_lines import EkfLineSlam, EkfLineSlamParams
+    from shared.baselines.ekf_lines import EkfLineSlam
+    from shared.baselines.ekf_params import EkfLineSlamParams
 
     offset = laser_offset or Pose2D()
     back = offset.inverse()

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from shared.pipeline.fusion import fuse_with_odometry
+from shared.pipeline.fusion_solve import fuse_with_odometry
 from shared.pipeline.rangenoise import NO_RANGE_NOISE, RangeNoise
 from shared.types import FloatArray, Pose2D
 
@@ -142,7 +142,8 @@ def scan_edge(
 ) -> tuple[Pose2D, FloatArray] | None:
     """A pose-graph edge from two scans (scanner frames, m, beam order): the robot ``motion`` from the
     reference to the current keyframe (robot frames) and its information ``(3, 3)`` in robot
-    coordinates, by the front end's own point-to-line model (:func:`shared.pipeline.fusion.fuse_with_odometry`
+    coordinates, by the front end's own point-to-line model
+    (:func:`shared.pipeline.fusion_solve.fuse_with_odometry`
     without odometry: local lines of the reference in beam order, each pair's variance ``sigma_m^2`` plus
     the range noise). ``refine``: first solve the point-to-line match from ``motion`` (a loop closure's
     final step), else take ``motion`` as it is (the front end's chain). ``None`` with too few pairs.

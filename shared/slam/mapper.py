@@ -9,8 +9,9 @@ odometry, the local wall refinement) one scan at a time and keeps, beside it,
 - **sequential edges** between consecutive keyframes: the front end's relative pose, with the point-to-line
   information of the two keyframes' scans (:func:`shared.slam.information.scan_edge`, the front end's own
   model: across walls, not along a featureless corridor) plus odometry's (its noise model scaled by the
-  factors the front end learned), and a covariance floor for what a match misses (``SEQ_FLOOR_*``: 2 mm +
-  0.5 % of the travel, 0.02 degrees + 0.03 degrees per metre + 0.5 % of the turn);
+  factors the front end learned), and a covariance floor for what a match misses
+  (:func:`shared.slam.edges.with_floor`: 2 mm + 0.5 % of the travel, 0.02 degrees + 0.03 degrees per metre
+  + 0.5 % of the turn);
 - **skip edges** from 4, 8 and 16 keyframes back where the scans overlap (the front end matches against a
   local wall map, so its error over metres is far below a random walk of its keyframe errors);
 - **loop-closure edges** (:mod:`shared.slam.closure`): verified matches of the current keyframe against
@@ -40,9 +41,10 @@ import numpy as np
 
 from shared.kernels import REGISTRY, Stage
 from shared.pipeline import MapSnapshot, Pipeline
-from shared.pipeline.fusion import mahalanobis2, odometry_information
+from shared.pipeline.fusion_solve import mahalanobis2, odometry_information
 from shared.pipeline.pipeline import StepResult
 from shared.slam.closure import LoopMatch, candidates, chain_covariance, stacked, verify
+from shared.slam.edges import AGREEMENT_CHI2, consistent, hold_unseen, with_floor
 from shared.slam.errors import OptimisationError
 from shared.slam.graph import PoseGraph
 from shared.slam.information import scan_edge
@@ -53,30 +55,9 @@ __all__ = ["GraphMapper", "Keyframe", "LoopClosure"]
 
 log = logging.getLogger(__name__)
 
-#: what a scan-to-scan edge misses beyond its point-to-line information (one sigma): m, per m of the
-#: edge's translation; rad, rad per m, rad per rad of its turn
-SEQ_FLOOR_M = 0.002
-SEQ_FLOOR_PER_M = 0.005
-SEQ_FLOOR_RAD = 0.0003
-SEQ_FLOOR_RAD_PER_M = 0.0005
-SEQ_FLOOR_RAD_PER_RAD = 0.005
-#: a loop closure's two estimates (ICP against the submap, point-to-line against the candidate keyframe's
-#: scan) must agree within chi-square's 99 % point for 3 degrees of freedom under the second's
-#: information: where they do not, one of them paired returns wrongly (clutter seen from another side)
-AGREEMENT_CHI2 = 11.34
-#: a loop closure must agree with the graph within chi-square's 99.9 % point for 3 degrees of freedom
-#: under its own covariance plus the chain's (GraphMapper._consistent), the chain's variance taken
-#: CHAIN_INFLATION times larger: the sequential edges' information is what the simulator's front end
-#: errs by (normalised errors 0.2-1.2), a real scanner's front end errs by more than its model says
-#: (timing, calibration, mixed pixels), and the gate is against gross errors only (a place that looks
-#: alike 1-2 m along a corridor), not against drift
-INNOVATION_CHI2 = 16.27
-CHAIN_INFLATION = 10.0
 #: skip edges (GraphMapper._add_skip_edges): from these many keyframes back, within SKIP_MAX_M of travel
 SKIP_KEYFRAMES = (4, 8, 16)
 SKIP_MAX_M = 10.0
-#: a loop closure's translation directions with a standard deviation above this hold the graph's estimate
-HOLD_SIGMA_M = 0.15
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,17 +81,6 @@ class LoopClosure:
     candidate: int
     pose: Pose2D
     inlier_share: float
-
-
-def _with_floor(information: FloatArray, motion: Pose2D) -> FloatArray:
-    """``(information^-1 + floor)^-1`` for an edge over ``motion``, the floor ``SEQ_FLOOR_*`` (computed
-    without inverting a singular ``information``: Woodbury). O(1)."""
-    dist = math.hypot(motion.x_m, motion.y_m)
-    s_xy = SEQ_FLOOR_M + SEQ_FLOOR_PER_M * dist
-    s_th = SEQ_FLOOR_RAD + SEQ_FLOOR_RAD_PER_M * dist + SEQ_FLOOR_RAD_PER_RAD * abs(motion.theta_rad)
-    f_inv = np.diag([1.0 / s_xy**2, 1.0 / s_xy**2, 1.0 / s_th**2])
-    out: FloatArray = f_inv - f_inv @ np.linalg.solve(np.asarray(information) + f_inv, f_inv)
-    return 0.5 * (out + out.T) + np.eye(3) * 1e-6
 
 
 class GraphMapper:
@@ -254,19 +224,9 @@ class GraphMapper:
 
     def _consistent(self, c: int, k: int, pose: Pose2D, info: FloatArray) -> bool:
         """Whether a loop closure ``pose`` (keyframe ``k`` in ``c``'s frame) agrees with the graph's
-        estimate of it within chi-square's 99.9 % point (3 dof) of the closure's covariance plus the
-        chain's (:meth:`chain_covariance`): a closure the front end's own uncertainty cannot explain is
-        a place that only looks alike."""
+        estimate of it (:func:`shared.slam.edges.consistent`, under :meth:`chain_covariance`)."""
         predicted = self.graph.pose(c).between(self.graph.pose(k))
-        e = np.array(
-            [
-                pose.x_m - predicted.x_m,
-                pose.y_m - predicted.y_m,
-                math.remainder(pose.theta_rad - predicted.theta_rad, math.tau),
-            ]
-        )
-        total = np.linalg.inv(info) + CHAIN_INFLATION * self.chain_covariance(c, k)
-        return float(e @ np.linalg.solve(total, e)) <= INNOVATION_CHI2
+        return consistent(predicted, pose, info, self.chain_covariance(c, k))
 
     def _add_skip_edges(self, k: int) -> None:
         """Edges from keyframes ``SKIP_KEYFRAMES`` back to ``k``, where their scans overlap: the front
@@ -283,7 +243,7 @@ class GraphMapper:
             edge = self._scan_edge(ref, key, motion, refine=False)
             if edge is None:
                 continue
-            self.graph.add_edge(k - j, k, motion, _with_floor(edge[1], motion), loop=False)
+            self.graph.add_edge(k - j, k, motion, with_floor(edge[1], motion), loop=False)
 
     def _scan_edge(
         self, ref: Keyframe, cur: Keyframe, motion: Pose2D, refine: bool
@@ -306,7 +266,7 @@ class GraphMapper:
         if refined is None:
             return None
         pose, info = refined
-        info = _with_floor(info, Pose2D(pose.x_m, pose.y_m, 0.0))  # a view, not a turn: no turn term
+        info = with_floor(info, Pose2D(pose.x_m, pose.y_m, 0.0))  # a view, not a turn: no turn term
         if mahalanobis2(match.pose, pose, info) > AGREEMENT_CHI2:
             return None
         # no more certain than the score surface says: its spread adds to the translation's covariance
@@ -315,24 +275,9 @@ class GraphMapper:
         return self._hold_unseen(match.candidate, k, pose, cov)
 
     def _hold_unseen(self, c: int, k: int, pose: Pose2D, cov: FloatArray) -> tuple[Pose2D, FloatArray]:
-        """A closure's translation along the directions its covariance leaves wider than
-        ``HOLD_SIGMA_M`` (along a corridor: the score surface is flat there) is the graph's own estimate,
-        with (next to) no information: a closure fixes what its scan sees and holds the rest, as the
-        front end's second-chance matches do. Many closures along one corridor would otherwise add up
-        their arbitrary along-track places into a pull. O(1)."""
-        out: FloatArray = np.asarray(np.linalg.inv(cov), dtype=np.float64)
-        eig, vec = np.linalg.eigh(cov[:2, :2])
-        blind = vec[:, eig > HOLD_SIGMA_M**2]
-        if blind.shape[1] == 0:
-            return pose, 0.5 * (out + out.T)
-        predicted = self.graph.pose(c).between(self.graph.pose(k))
-        d = np.array([predicted.x_m - pose.x_m, predicted.y_m - pose.y_m])
-        pose_xy = np.array([pose.x_m, pose.y_m]) + blind @ (blind.T @ d)
-        # the information: none along the blind directions (projected out of the translation block)
-        keep = np.eye(3)
-        keep[:2, :2] -= blind @ blind.T
-        held = keep.T @ out @ keep + np.eye(3) * 1e-6
-        return Pose2D(float(pose_xy[0]), float(pose_xy[1]), pose.theta_rad), 0.5 * (held + held.T)
+        """The closure held along its blind directions (:func:`shared.slam.edges.hold_unseen`) at the
+        graph's estimate of keyframe ``k`` in ``c``'s frame. O(1)."""
+        return hold_unseen(self.graph.pose(c).between(self.graph.pose(k)), pose, cov)
 
     def _sequential_information(self, prev: Keyframe, key: Keyframe, motion: Pose2D) -> FloatArray:
         """The front end's motion between two keyframes: scan information plus odometry's, then the floor."""
@@ -351,7 +296,7 @@ class GraphMapper:
             k = self.front.odometry_noise.scale
             d = 1.0 / np.sqrt([k.translation, k.translation, k.heading])
             info = info + model * np.outer(d, d)
-        return _with_floor(info, motion)
+        return with_floor(info, motion)
 
     def _loop_matches(self, k: int) -> list[LoopMatch]:
         """Verified loop closures of keyframe ``k`` against its candidates."""

@@ -14,15 +14,10 @@ from robot_agent.sensors.errors import ScipError, ScipStatusError
 from robot_agent.sensors.scip import (
     INFO_COMMANDS,
     SWITCH_COMMAND,
-    ScanRequest,
     decode,
     decode_values,
     encode_reply,
-    encode_scan_reply,
     parse_reply,
-    parse_scan_command,
-    parse_scan_reply,
-    recover_scan_frame,
 )
 from robot_agent.sensors.scip_info import (
     URG04LX_PARAMS,
@@ -32,7 +27,14 @@ from robot_agent.sensors.scip_info import (
     parse_switch_reply,
     parse_versions,
 )
-from robot_agent.sensors.urg import scan_from_frame
+from robot_agent.sensors.scip_scan import (
+    ScanRequest,
+    encode_scan_reply,
+    parse_scan_command,
+    parse_scan_reply,
+    recover_scan_frame,
+)
+from robot_agent.sensors.urg_scans import scan_from_frame
 from tests.reliability.hostiletools import assert_only, fast_examples, mutated_bytes, run_fuzz, soak_examples
 
 OWN = (ScipError, ScipStatusError)

@@ -14,7 +14,9 @@ from alembic.runtime.migration import MigrationContext
 from sqlalchemy import create_engine
 
 from robot_agent.models import RobotBase
-from robot_agent.store import MIGRATIONS_DIR, RobotDB, StepRecord
+from robot_agent.store import RobotDB
+from robot_agent.store_db import MIGRATIONS_DIR
+from robot_agent.store_map import StepRecord
 
 
 def test_migrated_schema_matches_the_models(tmp_path: Path) -> None:

@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from robot_agent.sensors.scip import TIMESTAMP_MODULUS
-from robot_agent.sensors.urg import ClockMapper
+from robot_agent.sensors.urg_scans import ClockMapper
 
 
 @given(

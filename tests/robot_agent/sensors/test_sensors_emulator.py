@@ -14,8 +14,9 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from robot_agent.sensors.scip import ScanRequest, parse_reply, parse_scan_reply
+from robot_agent.sensors.scip import parse_reply
 from robot_agent.sensors.scip_info import URG04LX_PARAMS, parse_state
+from robot_agent.sensors.scip_scan import ScanRequest, parse_scan_reply
 from robot_agent.sensors.urg import UrgDriver
 from robot_agent.sensors.urg_model import UrgModel, cluster_values, sample_steps_mm
 from shared.sim import SimRun

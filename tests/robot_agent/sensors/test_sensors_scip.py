@@ -13,19 +13,14 @@ from hypothesis import strategies as st
 from robot_agent.sensors.errors import ScipChecksumError, ScipError, ScipStatusError
 from robot_agent.sensors.scip import (
     TIMESTAMP_MODULUS,
-    ScanRequest,
     checksum,
     decode,
     decode_values,
     encode,
     encode_reply,
-    encode_scan_reply,
     encode_values,
     parse_reply,
-    parse_scan_command,
-    parse_scan_reply,
     ranges_mm_to_m,
-    recover_scan_frame,
     unwrap_timestamp,
 )
 from robot_agent.sensors.scip_info import (
@@ -35,6 +30,13 @@ from robot_agent.sensors.scip_info import (
     parse_state,
     parse_switch_reply,
     parse_versions,
+)
+from robot_agent.sensors.scip_scan import (
+    ScanRequest,
+    encode_scan_reply,
+    parse_scan_command,
+    parse_scan_reply,
+    recover_scan_frame,
 )
 
 # A URG-04LX's replies as published (Hokuyo's SCIP 2.0 notes): checksums computed by the sensor.

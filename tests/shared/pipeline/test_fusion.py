@@ -12,12 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared.pipeline import IcpGate, Pipeline
-from shared.pipeline.fusion import (
-    fuse_gated,
-    fuse_with_odometry,
-    hold_unseen_directions,
-    odometry_information,
-)
+from shared.pipeline.fusion import fuse_gated, hold_unseen_directions
+from shared.pipeline.fusion_solve import fuse_with_odometry, odometry_information
 from shared.pipeline.rangenoise import NO_RANGE_NOISE, URG04LX_RANGE_NOISE
 from shared.sim import NO_SLIP, RangeNoise, SlipNoise, World, plan_path, simulate_run, simulate_scan
 from shared.sim.world import polygon_walls

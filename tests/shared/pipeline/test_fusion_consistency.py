@@ -13,7 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared.pipeline import IcpGate
-from shared.pipeline.fusion import fuse_gated, linear_fusion, mahalanobis2
+from shared.pipeline.fusion import fuse_gated
+from shared.pipeline.fusion_solve import linear_fusion, mahalanobis2
 from shared.pipeline.rangenoise import NO_RANGE_NOISE, URG04LX_RANGE_NOISE
 from shared.sim import RangeNoise, World, simulate_scan
 from shared.sim.world import polygon_walls

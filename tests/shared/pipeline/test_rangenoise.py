@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared.errors import InvalidInputError
-from shared.pipeline.fusion import fuse_with_odometry
+from shared.pipeline.fusion_solve import fuse_with_odometry
 from shared.pipeline.localize import refine_to_walls
 from shared.pipeline.rangenoise import (
     NO_RANGE_NOISE,

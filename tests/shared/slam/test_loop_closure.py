@@ -15,8 +15,8 @@ from shared.sim import RangeNoise, World, simulate_scan
 from shared.sim.world import polygon_walls
 from shared.slam import LoopClosureSettings, candidates, verify
 from shared.slam.closure import chain_covariance
+from shared.slam.edges import HOLD_SIGMA_M
 from shared.slam.information import scan_edge
-from shared.slam.mapper import HOLD_SIGMA_M
 from shared.types import Pose2D
 
 SETTINGS = LoopClosureSettings()

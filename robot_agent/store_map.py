@@ -1,0 +1,191 @@
+"""The Robot DB's map tables as the agent uses them: each step's map version, walls, pose and outbox entry
+(recorded in one transaction), the current map and trajectory, and the outbox folded into uploads.
+
+Walls are ``[id, x0, y0, x1, y1]`` (m), poses ``[stamp_s, x_m, y_m, theta_rad]``. A step is O(walls
+changed); folding the outbox is O(versions x walls changed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import delete, func, select
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+
+from robot_agent.models import MapVersion, OutboxEntry, PoseRecord, Wall
+from robot_agent.store_db import RobotDBFile, put_meta
+
+__all__ = ["MapTables", "PendingUpload", "StepRecord"]
+
+
+@dataclass(frozen=True, slots=True)
+class StepRecord:
+    """What one step changed: new or changed walls ``[id, x0, y0, x1, y1]``, removed ids, the pose row
+    ``[stamp_s, x_m, y_m, theta_rad]``, the latest centroids, and the source position (scans consumed)."""
+
+    version: int
+    stamp_s: float
+    source_index: int
+    segments: list[list[float]]
+    removed: list[int]
+    pose: list[float]
+    centroids: list[list[float]]
+
+
+@dataclass(frozen=True, slots=True)
+class PendingUpload:
+    """Consecutive outbox versions folded into one delta."""
+
+    first_version: int
+    version: int
+    stamp_s: float
+    segments: list[list[float]]
+    removed: list[int]
+    centroids: list[list[float]]
+    pose: list[float]
+    trajectory: list[list[float]]
+
+
+class MapTables(RobotDBFile):
+    """The map and outbox methods of :class:`robot_agent.store.RobotDB`."""
+
+    def record_step(self, rec: StepRecord) -> None:
+        """Store one step's map version, walls, pose and outbox entry in one transaction."""
+        with self.tx() as s:
+            s.add(
+                MapVersion(
+                    version=rec.version,
+                    stamp_s=rec.stamp_s,
+                    source_index=rec.source_index,
+                    change={"segments": rec.segments, "removed": rec.removed, "centroids": rec.centroids},
+                )
+            )
+            if rec.removed:
+                s.execute(delete(Wall).where(Wall.segment_id.in_(rec.removed)))
+            if rec.segments:
+                stmt = sqlite_insert(Wall)
+                stmt = stmt.on_conflict_do_update(
+                    index_elements=["segment_id"],
+                    set_={c: getattr(stmt.excluded, c) for c in ("x0_m", "y0_m", "x1_m", "y1_m")},
+                )
+                s.execute(
+                    stmt,
+                    [
+                        {"segment_id": int(r[0]), "x0_m": r[1], "y0_m": r[2], "x1_m": r[3], "y1_m": r[4]}
+                        for r in rec.segments
+                    ],
+                )
+            s.add(
+                PoseRecord(
+                    version=rec.version,
+                    stamp_s=rec.pose[0],
+                    x_m=rec.pose[1],
+                    y_m=rec.pose[2],
+                    theta_rad=rec.pose[3],
+                )
+            )
+            s.add(OutboxEntry(version=rec.version))
+            put_meta(s, "map_version", rec.version)
+            put_meta(s, "source_index", rec.source_index)
+
+    def walls(self) -> list[list[float]]:
+        """The current map's walls ``[id, x0, y0, x1, y1]`` by id."""
+        with self._factory() as s:
+            rows = s.execute(
+                select(Wall.segment_id, Wall.x0_m, Wall.y0_m, Wall.x1_m, Wall.y1_m).order_by(Wall.segment_id)
+            )
+            return [[float(i), a, b, c, d] for i, a, b, c, d in rows]
+
+    def trajectory(self, after_version: int = 0) -> list[list[float]]:
+        with self._factory() as s:
+            rows = s.execute(
+                select(PoseRecord.stamp_s, PoseRecord.x_m, PoseRecord.y_m, PoseRecord.theta_rad)
+                .where(PoseRecord.version > after_version)
+                .order_by(PoseRecord.version)
+            )
+            return [list(r) for r in rows]
+
+    def snapshot(self) -> dict[str, Any] | None:
+        """The whole map at the latest recorded version (a snapshot upload), consistent with that version.
+
+        pysqlite runs SELECTs outside a transaction, so each statement here would see the newest commit:
+        a step recorded in between put its pose into a snapshot labelled one version earlier, and the next
+        delta sent that pose again (the server held one pose more than map versions). So the read holds the
+        writers' lock (this process is the Robot DB's only writer) and the trajectory stops at the
+        snapshot's version."""
+        with self._lock, self._factory() as s, s.begin():
+            latest = s.scalar(select(func.max(MapVersion.version)))
+            if latest is None:
+                return None
+            mv = s.get(MapVersion, latest)
+            pose = s.get(PoseRecord, latest)
+            assert mv is not None and pose is not None
+            walls = s.execute(
+                select(Wall.segment_id, Wall.x0_m, Wall.y0_m, Wall.x1_m, Wall.y1_m).order_by(Wall.segment_id)
+            )
+            traj = s.execute(
+                select(PoseRecord.stamp_s, PoseRecord.x_m, PoseRecord.y_m, PoseRecord.theta_rad)
+                .where(PoseRecord.version <= latest)
+                .order_by(PoseRecord.version)
+            )
+            return {
+                "version": int(latest),
+                "stamp_s": mv.stamp_s,
+                "segments": [[float(i), a, b, c, d] for i, a, b, c, d in walls],
+                "centroids": mv.change.get("centroids", []),
+                "pose": [pose.x_m, pose.y_m, pose.theta_rad],
+                "trajectory": [list(r) for r in traj],
+            }
+
+    def outbox_size(self) -> int:
+        with self._factory() as s:
+            return int(s.scalar(select(func.count()).select_from(OutboxEntry)) or 0)
+
+    def pending_upload(self, limit: int = 50) -> PendingUpload | None:
+        """The oldest ``limit`` outbox versions folded into one delta (later changes win), or ``None``."""
+        with self._factory() as s:
+            rows = list(
+                s.execute(
+                    select(MapVersion, PoseRecord)
+                    .join(OutboxEntry, OutboxEntry.version == MapVersion.version)
+                    .join(PoseRecord, PoseRecord.version == MapVersion.version)
+                    .order_by(MapVersion.version)
+                    .limit(limit)
+                )
+            )
+        if not rows:
+            return None
+        segments: dict[int, list[float]] = {}
+        removed: set[int] = set()
+        for mv, _pose in rows:
+            for sid in mv.change.get("removed", []):
+                segments.pop(int(sid), None)
+                removed.add(int(sid))
+            for row in mv.change.get("segments", []):
+                segments[int(row[0])] = row
+                removed.discard(int(row[0]))
+        last_mv, last_pose = rows[-1]
+        traj = [[p.stamp_s, p.x_m, p.y_m, p.theta_rad] for _, p in rows]
+        return PendingUpload(
+            first_version=rows[0][0].version,
+            version=last_mv.version,
+            stamp_s=last_mv.stamp_s,
+            segments=[segments[k] for k in sorted(segments)],
+            removed=sorted(removed),
+            centroids=last_mv.change.get("centroids", []),
+            pose=[last_pose.x_m, last_pose.y_m, last_pose.theta_rad],
+            trajectory=traj,
+        )
+
+    def mark_uploaded(self, up_to_version: int) -> None:
+        """The server holds every version up to ``up_to_version``: drop them from the outbox."""
+        with self.tx() as s:
+            s.execute(delete(OutboxEntry).where(OutboxEntry.version <= up_to_version))
+            put_meta(s, "uploaded_version", up_to_version)
+
+    def note_attempt(self, version: int) -> None:
+        with self.tx() as s:
+            row = s.get(OutboxEntry, version)
+            if row is not None:
+                row.attempts += 1
