@@ -1,5 +1,5 @@
-"""Agent figures of issue 5, with real processes: CPU and memory of ``linemap agent`` at 10 Hz, and a long
-server outage bridged with nothing lost and nothing twice.
+"""Agent figures (docs/reliability/agent.md), with real processes: CPU and memory of ``linemap agent`` at 10
+Hz, and a long server outage bridged with nothing lost and nothing twice.
 
     .venv/bin/python benchmarks/agent_outage.py [--source LOG] [--down-s 600] [--rate 10]
 

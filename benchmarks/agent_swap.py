@@ -1,4 +1,4 @@
-"""How long the robot stands still when its settings change (issue 5 target: the swap <= 5 ms; the paper's
+"""How long the robot stands still when its settings change (target: the swap <= 5 ms; the paper's
 robot stopped for 2-3 s).
 
     .venv/bin/python benchmarks/agent_swap.py [--swaps 200]

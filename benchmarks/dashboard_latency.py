@@ -1,4 +1,4 @@
-"""How fast the dashboard shows the robot, and how smoothly it draws a big map (issue 6 targets: a robot
+"""How fast the dashboard shows the robot, and how smoothly it draws a big map (targets: a robot
 step reaches the browser's canvas in <= 250 ms median; no frame over 50 ms drawing a 5,000-wall update).
 
     .venv/bin/python benchmarks/dashboard_latency.py [--seconds 60] [--json out.json]

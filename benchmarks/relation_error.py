@@ -56,9 +56,9 @@ LOGS: dict[str, LogSpec] = {
     ),
 }
 
-#: named pipeline set-ups: the defaults, the scan matching as it was before issue 3's rework, and the
-#: defaults with the scan match fused with odometry, or the wall refinement given an odometry prior (issue
-#: 19, :mod:`shared.pipeline.fusion`)
+#: named pipeline set-ups: the defaults, the scan matching as it was before its rework (IcpGate.legacy),
+#: and the defaults with the scan match fused with odometry, or the wall refinement given an odometry prior
+#: (:mod:`shared.pipeline.fusion`)
 VARIANTS: dict[str, Callable[[], tuple[PipelineConfig, IcpGate]]] = {
     "default": lambda: (PipelineConfig(), IcpGate()),
     "legacy": lambda: (PipelineConfig(), IcpGate.legacy()),

@@ -1,9 +1,9 @@
-"""Server load benchmark (issue 4 "Targets"): ``linemap server`` in its own process (SQLite temp file or
-``--db``); here, simulated robots long-poll and upload map deltas, the operator posts control messages to
-long-polling robots and follows robot 0's map stream. Exit 0 when it ran (figures, not pass/fail), 2 when
-the setup failed. Latencies: upload sent -> response; message POST sent -> the robot's poll returns it;
-upload sent -> its SSE event parsed. The server's RSS is sampled every ``sample_s`` during the load.
-``--help`` for the options. :func:`measure` is the reusable part (the reliability soak runs it for 10 min:
+"""Server load benchmark (docs/reliability/load.md): ``linemap server`` in its own process (SQLite temp file
+or ``--db``); here, simulated robots long-poll and upload map deltas, the operator posts control messages to
+long-polling robots and follows robot 0's map stream. Exit 0 when it ran (figures, not pass/fail), 2 when the
+setup failed. Latencies: upload sent -> response; message POST sent -> the robot's poll returns it; upload
+sent -> its SSE event parsed. The server's RSS is sampled every ``sample_s`` during the load. ``--help`` for
+the options. :func:`measure` is the reusable part (the reliability soak runs it for 10 min:
 tests/reliability/test_rel_soak_load.py)."""
 
 from __future__ import annotations

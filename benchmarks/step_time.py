@@ -1,11 +1,11 @@
 """Online step time on the default simulated world and whole-log replay throughput, against a baseline tree.
 
-Issue 19's speed targets: the online step median <= 3 ms on the default world, and a whole-log replay
-(reading and writing included, as ``linemap map`` does it) >= 300 scans/s. Each measurement runs in its
-own process (numba caches warm, the first step not counted); with ``--baseline DIR`` (an exported older
-tree, e.g. ``git archive <commit> | tar -x -C DIR``) the baseline and this tree alternate ``--repeats``
-times in the same session, and the medians and their ratio are printed, since the shared machine drifts
-by 20-40 % between runs.
+The speed targets (docs/worlds.md, "Speed"): the online step median <= 3 ms on the default world, and a
+whole-log replay (reading and writing included, as ``linemap map`` does it) >= 300 scans/s. Each measurement
+runs in its own process (numba caches warm, the first step not counted); with ``--baseline DIR`` (an exported
+older tree, e.g. ``git archive <commit> | tar -x -C DIR``) the baseline and this tree alternate ``--repeats``
+times in the same session, and the medians and their ratio are printed, since the shared machine drifts by
+20-40 % between runs.
 
     .venv/bin/python benchmarks/step_time.py [--baseline DIR] [--repeats 3] [--log mit-csail/mit-csail.clf.gz]
         [--loop-closure]

@@ -1,4 +1,4 @@
-"""Checks a downloaded kernel passes before the agent may run it (issue 5 item 4, SPEC §7, §9).
+"""Checks a downloaded kernel passes before the agent may run it (docs/design.md §7, §9).
 
 The agent installs a kernel only after every step below succeeded, cheapest first; each refusal raises
 :class:`~robot_agent.errors.KernelRejected` whose ``reason`` is what the server (and the operator) is told:

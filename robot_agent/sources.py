@@ -50,7 +50,7 @@ def laser_offset(spec: str) -> Pose2D:
 
     The pipeline needs it: odometry is the robot's motion, the scan the scanner's; with the scanner 0.145 m
     ahead of the axle and no offset, every turn in place moves the scanner along an arc the pose does not
-    follow, and the walls seen on the way out and on the way back land 10-30 cm apart (issue 19)."""
+    follow, and the walls seen on the way out and on the way back land 10-30 cm apart (docs/worlds.md)."""
     if spec == "sim" or spec.startswith("sim:"):
         from shared.odometry import MINES_ROVER
 

@@ -81,7 +81,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
 
     app = FastAPI(
         title="linemap server",
-        summary="Kernels, robots, control messages and live line maps (SPEC §7).",
+        summary="Kernels, robots, control messages and live line maps (docs/design.md §7).",
         version="1",
         lifespan=lifespan,
         dependencies=[Depends(require_media_type)],  # 415 on every route (server.mediatype)

@@ -1,4 +1,4 @@
-"""The server database (SPEC §7) as SQLAlchemy 2 declarative models.
+"""The server database (docs/design.md §7) as SQLAlchemy 2 declarative models.
 
 The schema itself is owned by the Alembic migrations in ``migrations/server``; these classes must match
 them (a test compares the migrated schema with this metadata). Times are UTC, lengths metres, angles

@@ -1,6 +1,6 @@
 """Differential-drive odometry (paper §2, eq. 1-11) from wheel displacements or encoder ticks.
 
-With left/right wheel displacements ``dD_l``, ``dD_r`` over one step and tread ``w`` (SPEC §3):
+With left/right wheel displacements ``dD_l``, ``dD_r`` over one step and tread ``w`` (docs/design.md §3):
 ``dtheta = (dD_r - dD_l) / w`` (eq. 9), forward ``ds = (dD_r + dD_l) / 2`` and
 ``dx = ds cos(theta0)``, ``dy = ds sin(theta0)`` (eq. 10-11) at the heading ``theta0`` of the step's start.
 The paper assumes ``dtheta`` small; :func:`integrate` can also integrate at the mid-step heading

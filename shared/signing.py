@@ -1,4 +1,5 @@
-"""Ed25519 signatures over kernel artifacts (SPEC §7, §9): the operator signs, server and robot verify.
+"""Ed25519 signatures over kernel artifacts (docs/design.md §7, §9): the operator signs, server and robot
+verify.
 
 A signature covers the artifact's SHA-256 digest (the 32 raw bytes, not the hex text), so a signature
 can be checked against the digest a control message names before the artifact is even downloaded.

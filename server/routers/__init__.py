@@ -1,1 +1,1 @@
-"""One router per resource of the REST API under ``/api/v1`` (SPEC §7)."""
+"""One router per resource of the REST API under ``/api/v1`` (docs/design.md §7)."""

@@ -137,7 +137,8 @@ def _queue(
 async def post_message(
     robot_id: DbIdPath, request: Request, who: OperatorDep, state: StateDep
 ) -> dict[str, object]:
-    """Queue a control message (XML body, SPEC §6); 422 names the element and the reason if it is rejected."""
+    """Queue a control message (XML body, docs/design.md §6); 422 names the element and the reason if it is
+    rejected."""
     body = await request.body()
     if len(body) > MAX_MESSAGE_BYTES:
         raise TooLargeError(f"control message of {len(body)} bytes; the limit is {MAX_MESSAGE_BYTES}")

@@ -39,7 +39,7 @@ def healthz(state: StateDep) -> dict[str, str]:
     "/schema/control.xsd", response_class=Response, responses={200: {"content": {"application/xml": {}}}}
 )
 def control_xsd() -> Response:
-    """The XML Schema of the control message (SPEC §6)."""
+    """The XML Schema of the control message (docs/design.md §6)."""
     from shared.control import xsd_text
 
     return Response(xsd_text(), media_type="application/xml")

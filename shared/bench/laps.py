@@ -53,7 +53,8 @@ class LapFigures:
         return self.walls_mapped / self.walls_seen if self.walls_seen else math.nan
 
     def meets_targets(self) -> bool:
-        """Issue 20's multi-lap targets: <= 2 cm, >= 95 % complete, <= 3 % spurious, <= 1.5x walls."""
+        """The multi-lap targets (docs/loopclosure.md): <= 2 cm, >= 95 % complete, <= 3 % spurious, <= 1.5x
+        walls."""
         return (
             self.mean_error_m <= 0.02
             and self.completeness >= 0.95

@@ -1,4 +1,4 @@
-"""``linemap bench worlds``: map every case of the scenario suite offline and measure it (SPEC §5).
+"""``linemap bench worlds``: map every case of the scenario suite offline and measure it (docs/design.md §5).
 
 Each case (:func:`shared.sim.worlds.simulate_case`) is mapped by the same offline path as ``linemap map
 sim`` (:func:`shared.mapping.map_scans` with the default :class:`PipelineConfig`), then measured:
@@ -162,7 +162,8 @@ def _nanmean(values: list[float]) -> float:
 
 def summarize(results: Sequence[WorldResult]) -> dict[str, float | int]:
     """The summary row: means over the cases, the worst case of each accuracy figure, and how many cases
-    meet issue 19's targets (mean error <= 2 cm, completeness >= 95 %, spurious <= 3 %, walls <= 1.5x)."""
+    meet the suite's targets (docs/worlds.md) (mean error <= 2 cm, completeness >= 95 %, spurious <= 3 %,
+    walls <= 1.5x)."""
     if not results:
         return {"cases": 0}
     rs = list(results)

@@ -1,4 +1,4 @@
-"""``linemap eval``: the SPEC §5 measures of a map written by ``linemap map``, as plain figures."""
+"""``linemap eval``: the docs/design.md §5 measures of a map written by ``linemap map``, as plain figures."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""``linemap keys``: make an Ed25519 signing key and sign kernel files (SPEC §7: signed kernels only)."""
+"""``linemap keys``: make an Ed25519 signing key and sign kernel files (docs/design.md §7: signed kernels
+only)."""
 
 from __future__ import annotations
 

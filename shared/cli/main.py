@@ -305,7 +305,7 @@ def eval_cmd(
     relations: Annotated[Path | None, typer.Option(help="Kümmerle et al. .relations file.")] = None,
     json_path: Annotated[Path | None, typer.Option("--json", help="Also write the figures as JSON.")] = None,
 ) -> None:
-    """Measure a map (SPEC §5): line accuracy and area error against true walls, relation error."""
+    """Measure a map (docs/design.md §5): line accuracy and area error against true walls, relation error."""
     from shared.cli.evaluate import evaluate
     from shared.cli.render import evaluation_table
 

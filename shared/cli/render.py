@@ -1,4 +1,4 @@
-"""Rich tables for the CLI: the kernel catalogue and the benchmark figures (with the targets of issue 2)."""
+"""Rich tables for the CLI: the kernel catalogue and the benchmark figures (with their targets)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,8 @@ __all__ = [
     "run_summary",
 ]
 
-#: Targets from issue 2: online step median/p99 (ms) and speed-up over the library chain; offline batch.
+#: The kernel benchmark's targets: online step median/p99 (ms), speed-up over the library chain, offline
+#: batch.
 TARGETS: dict[str, Any] = {
     "online_step": {"median_ms": 2.0, "p99_ms": 5.0, "ratio": 40.0},
     "offline_batch": {"median_ms": 50.0},
@@ -167,7 +168,7 @@ def run_summary(name: str, run: MapRun) -> Table:
 
 
 def accuracy_table(snapshot: MapSnapshot, world: World, true_trajectory: FloatArray | None) -> Table:
-    """Map accuracy against the simulated ground truth (SPEC §5)."""
+    """Map accuracy against the simulated ground truth (docs/design.md §5)."""
     from shared.metrics import line_accuracy
 
     acc = line_accuracy(snapshot.segments, world.walls)

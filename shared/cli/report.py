@@ -1,4 +1,4 @@
-"""``linemap report``: regenerate the reproduction report (issue 7) into a folder."""
+"""``linemap report``: regenerate the reproduction report into a folder."""
 
 from __future__ import annotations
 

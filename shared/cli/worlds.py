@@ -92,8 +92,8 @@ def bench_worlds_cmd(
         ),
     ] = False,
 ) -> None:
-    """Map every world of the scenario suite (issue 19) offline and print, per world and seed, wall error,
-    completeness, spurious share, wall count, trajectory error beside odometry's, and throughput."""
+    """Map every world of the scenario suite (docs/worlds.md) offline and print, per world and seed, wall
+    error, completeness, spurious share, wall count, trajectory error beside odometry's, and throughput."""
     from shared.bench.worlds import run_worlds
     from shared.sim.worlds import KINDS
 

@@ -1,5 +1,5 @@
-"""The XML control message from server to robot (SPEC §6, the paper's Listing 1): model, parser, builder,
-XSD and the mapping onto :class:`shared.pipeline.PipelineConfig`::
+"""The XML control message from server to robot (docs/design.md §6, the paper's Listing 1): model, parser,
+builder, XSD and the mapping onto :class:`shared.pipeline.PipelineConfig`::
 
     msg = parse_message(xml_bytes)             # hardened; ControlMessageError names element and line
     config = to_config(msg, current_config)    # validated whole; unmentioned settings kept

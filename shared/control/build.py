@@ -1,4 +1,5 @@
-"""Write a :class:`ControlMessage` as canonical XML (SPEC §6) and publish the schema (``control.xsd``).
+"""Write a :class:`ControlMessage` as canonical XML (docs/design.md §6) and publish the schema
+(``control.xsd``).
 
 The output is the paper's shape (``<?xml?>``, root ``<xml>``, one ``<message>``) in a fixed element order,
 lengths with an explicit ``unit="m"``, angles with ``unit="deg"``, the paper's spellings for the

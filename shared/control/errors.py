@@ -1,9 +1,9 @@
-"""The error of the control-message module (:mod:`shared.control`, SPEC §6).
+"""The error of the control-message module (:mod:`shared.control`, docs/design.md §6).
 
 A rejected message raises :class:`ControlMessageError`; its text names the element (with its 1-based line in
 the document when known) and the reason, e.g. ``line 9 <minpts>: 'fifteen' is not an integer``. The robot
-keeps running on the settings it had and reports ``reason`` in its acknowledgement (SPEC §9). A reason
-longer than :data:`MAX_REASON_CHARS` (a value quoted from a 64 KiB message) is cut in the middle, so an
+keeps running on the settings it had and reports ``reason`` in its acknowledgement (docs/design.md §9). A
+reason longer than :data:`MAX_REASON_CHARS` (a value quoted from a 64 KiB message) is cut in the middle, so an
 error never echoes a hostile document back into logs and acknowledgements.
 """
 

@@ -1,4 +1,4 @@
-"""Control message <-> :class:`shared.pipeline.PipelineConfig` (SPEC §4, §6).
+"""Control message <-> :class:`shared.pipeline.PipelineConfig` (docs/design.md §4, §6).
 
 :func:`to_config` applies a message to the configuration in force: what the message names replaces the base
 (a kernel element replaces that stage's kernel with exactly the parameters it gives, the rest at the kernel's

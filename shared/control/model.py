@@ -1,4 +1,4 @@
-"""What a control message says (SPEC §6), as frozen dataclasses independent of its XML spelling.
+"""What a control message says (docs/design.md §6), as frozen dataclasses independent of its XML spelling.
 
 Every field is optional: a message changes only what it mentions (``None`` = not mentioned). A kernel is
 given by its registry name (``"dbscan"``, ``"hough"``), its parameters under the kernel's own names in SI
@@ -84,7 +84,7 @@ class ScheduleEntry:
 
 
 class OperationKind(StrEnum):
-    """What a kernel operation does to the robot's kernel store (SPEC §7, §9)."""
+    """What a kernel operation does to the robot's kernel store (docs/design.md §7, §9)."""
 
     INSTALL = "install"
     UPDATE = "update"
@@ -98,7 +98,7 @@ class KernelOperation:
 
     ``sha256`` (64 lower-case hex digits) identifies the artifact's exact bytes; required for install and
     update, optional for delete and rollback. ``below_floor`` (``below-floor="allow"``, rollback only) is
-    the operator's explicit override of the robot's anti-rollback floor (SPEC §9,
+    the operator's explicit override of the robot's anti-rollback floor (docs/design.md §9,
     docs/reliability/supply-chain.md): without it no operation may take a kernel below a version the robot
     has run.
     """

@@ -1,4 +1,5 @@
-"""Parse a control message (SPEC §6, the paper's Listing 1) into a :class:`ControlMessage`, hardened.
+"""Parse a control message (docs/design.md §6, the paper's Listing 1) into a :class:`ControlMessage`,
+hardened.
 
 The document is loaded by :func:`shared.control.safe_xml.load_xml` (size limit, UTF-8, no DTD, no
 entities, no network); comments and processing instructions are ignored. The walk is strict: an unknown

@@ -1,4 +1,4 @@
-"""Load untrusted XML safely (SPEC §6): bounded size, UTF-8 only, no DTD, no entities, no network.
+"""Load untrusted XML safely (docs/design.md §6): bounded size, UTF-8 only, no DTD, no entities, no network.
 
 Checked in this order: input larger than :data:`MAX_MESSAGE_BYTES` is refused before anything else; the
 bytes must be UTF-8 without NUL (a declared encoding other than UTF-8/ASCII is refused; so is a NUL byte,

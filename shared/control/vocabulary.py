@@ -1,4 +1,5 @@
-"""The control message's vocabulary (SPEC §6): element names, kernel names, units and value spellings.
+"""The control message's vocabulary (docs/design.md §6): element names, kernel names, units and value
+spellings.
 
 Paper elements (Listing 1) and their kernels:
 

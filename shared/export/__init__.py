@@ -2,7 +2,7 @@
 drawings.
 
 Also DXF drawings (units metres) and ROS map_server occupancy maps (PGM + YAML), each with a reader.
-All coordinates are metres in the log's world frame, angles radians, stamps seconds (SPEC §3).
+All coordinates are metres in the log's world frame, angles radians, stamps seconds (docs/design.md §3).
 """
 
 from shared.export.dxf import DXFMap, encode_dxf, read_dxf, write_dxf

@@ -8,8 +8,8 @@ y in metres, z = 0; ezdxf writes floats with Python's shortest round-trip repr, 
 
 The reader takes any DXF: the ``LINE`` entities of layer ``walls`` (layer names are case-insensitive in
 DXF), scaled to metres from the file's ``$INSUNITS`` (unitless files are taken as metres). ezdxf is
-imported on first use. O(L + C + T). SPEC §1 (the operator exports the finished map), §3 (metres, REP 103
-frame); issue 8.
+imported on first use. O(L + C + T). docs/design.md §1 (the operator exports the finished map), §3 (metres,
+REP 103 frame).
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ YAML (the ``map_server`` map metadata): ``image`` (path of the image, relative t
 corner in the map frame), ``negate`` (0/1), ``occupied_thresh``, ``free_thresh`` and ``mode`` (trinary,
 scale or raw). The reader takes the flat ``key: value`` subset of YAML these files use (numbers, plain or
 quoted strings, flow lists ``[a, b, c]``, ``#`` comments); numbers are written in positional notation with
-the shortest digits that read back to the same float64. O(file size) throughout. SPEC §3 (ROS REP 103
-frames); issue 8.
+the shortest digits that read back to the same float64. O(file size) throughout. docs/design.md §3 (ROS REP
+103 frames).
 """
 
 from __future__ import annotations

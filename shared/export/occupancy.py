@@ -13,8 +13,8 @@ actually passes through between them is added. Walls are therefore 4-connected (
 could slip through) and every cell marked touches the segment. Free space: the region the map encloses
 around the trajectory (:func:`shared.metrics.area.enclosed_area`, on the same grid, gaps up to
 ``close_gaps_m`` bridged); everything else is unknown. A map that does not enclose its trajectory (or has
-no trajectory) gets walls and unknown only. O(cells + wall length / resolution). SPEC §1 (exporting the
-finished map), §3 (metres, REP 103 frames), §5 (the enclosed-area fill); issue 8.
+no trajectory) gets walls and unknown only. O(cells + wall length / resolution). docs/design.md §1 (exporting
+the finished map), §3 (metres, REP 103 frames), §5 (the enclosed-area fill).
 """
 
 from __future__ import annotations

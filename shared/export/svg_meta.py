@@ -8,8 +8,8 @@
 whose text is JSON: ``{"format": "linemap-map", "version": 1, "units": "m", "frame": "world",
 "segments": [[id, x0, y0, x1, y1], ...]}`` (metres in the log's world frame; floats written with Python's
 shortest round-trip repr, so reading back is exact). Renderers ignore ``<metadata>``: the picture is
-unchanged. :func:`read_svg_segments` reads it back. O(L). SPEC §1 (exporting the finished map), §3 (metres);
-issue 8.
+unchanged. :func:`read_svg_segments` reads it back. O(L). docs/design.md §1 (exporting the finished map), §3
+(metres).
 """
 
 from __future__ import annotations

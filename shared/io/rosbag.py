@@ -1,7 +1,7 @@
 """Streaming reader of ROS bags without ROS (via ``rosbags``): ROS 1 ``.bag``, rosbag2 folders (SQLite3 or
 MCAP storage) and bare ``.db3`` / ``.mcap`` files.
 
-Topics (SPEC §3's scan model is ROS's ``sensor_msgs/LaserScan``):
+Topics (docs/design.md §3's scan model is ROS's ``sensor_msgs/LaserScan``):
 
 - scans: the bag's only ``sensor_msgs/LaserScan`` topic, or the one named by ``scan_topic``;
 - odometry: the ``nav_msgs/Odometry`` topic (``odom_topic``; among several, ``/odom``), else the

@@ -1,4 +1,4 @@
-"""The pipeline's kernels (SPEC §4): the contract, the registry and every built-in kernel.
+"""The pipeline's kernels (docs/design.md §4): the contract, the registry and every built-in kernel.
 
 Importing this package registers the built-ins in :data:`REGISTRY`::
 

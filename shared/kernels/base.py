@@ -1,4 +1,5 @@
-"""The kernel contract (SPEC §4): one swappable, validated, pure implementation of one pipeline stage.
+"""The kernel contract (docs/design.md §4): one swappable, validated, pure implementation of one pipeline
+stage.
 
 Like a scikit-learn estimator, a kernel separates its *settings* (a frozen :class:`KernelParams` model,
 validated on construction) from its *results* (returned by :meth:`apply`, never stored on the kernel).
@@ -52,7 +53,7 @@ P = TypeVar("P", bound=KernelParams)
 
 
 class Stage(StrEnum):
-    """Pipeline stages in processing order (SPEC §4)."""
+    """Pipeline stages in processing order (docs/design.md §4)."""
 
     SEGMENTATION = "segmentation"
     NOISE_REMOVAL = "noise-removal"

@@ -1,4 +1,5 @@
-"""The kernel conformance battery (issue 2 §5, issue 5 item 4) as functions that return problems.
+"""The kernel conformance battery (docs/architecture.md, "How to add a kernel") as functions that return
+problems.
 
 Every kernel, built-in or downloaded, must pass the same checks before it may run in the pipeline:
 

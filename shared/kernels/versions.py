@@ -1,4 +1,4 @@
-"""The one spelling of a kernel version, and how versions compare (SPEC §9: versions are immutable).
+"""The one spelling of a kernel version, and how versions compare (docs/design.md §9: versions are immutable).
 
 A version is ``MAJOR.MINOR.PATCH``: three decimal numbers of ASCII digits, each ``0`` or a number without a
 leading zero, at most :data:`MAX_COMPONENT_DIGITS` digits (so ``1.0.0`` and ``10.20.300``, never ``01.0.0``,

@@ -1,4 +1,4 @@
-"""Measuring a map (SPEC §5): area error, line accuracy against true walls, and relation error.
+"""Measuring a map (docs/design.md §5): area error, line accuracy against true walls, and relation error.
 
 Pure functions on arrays; the only file I/O is :func:`read_relations` (module ``relations_io``).
 """

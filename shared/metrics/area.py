@@ -1,6 +1,6 @@
 """Area enclosed by a line map, and the area error against the true floor area (paper Table 3, Fig. 19).
 
-Method (SPEC §5, "Area error"):
+Method (docs/design.md §5, "Area error"):
 
 1. **Close gaps** up to ``close_gaps_m`` with straight bridges (:func:`shared.metrics.gaps.gap_bridges`):
    the same gaps a dilation by ``close_gaps_m / 2`` closes, but with no dilation to undo (dilating the

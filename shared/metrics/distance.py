@@ -1,4 +1,5 @@
-"""Segment sampling and exact point-to-segment distances, vectorised (the geometry under SPEC §5's metrics).
+"""Segment sampling and exact point-to-segment distances, vectorised (the geometry under docs/design.md §5's
+metrics).
 
 Segments are ``(L, 4)`` float64 rows ``[x0, y0, x1, y1]`` in metres; points are ``(N, 2)``.
 """

@@ -1,4 +1,4 @@
-"""Errors raised by the map metrics (SPEC §5)."""
+"""Errors raised by the map metrics (docs/design.md §5)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Line accuracy of a map against ground-truth walls (SPEC §5, "Line accuracy").
+"""Line accuracy of a map against ground-truth walls (docs/design.md §5, "Line accuracy").
 
 All shares and means are length-weighted: map segments and walls are cut into pieces of at most
 ``sample_m`` and each piece's midpoint stands for its length (midpoint rule), so a result does not depend

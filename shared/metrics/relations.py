@@ -2,8 +2,8 @@
 
 For every ground-truth relation ``rel_gt`` between times ``t1`` and ``t2``, the estimate's relation is
 ``rel_est = pose(t1)^-1 * pose(t2)`` and the error ``err = rel_gt^-1 * rel_est``; the metric is the mean and
-standard deviation of ``|translation(err)|`` (m) and ``|yaw(err)|`` (deg) over the relations (SPEC §5,
-``data/README.md`` "Benchmark metric"). Squared variants are reported too, as the benchmark does.
+standard deviation of ``|translation(err)|`` (m) and ``|yaw(err)|`` (deg) over the relations (docs/design.md
+§5, ``data/README.md`` "Benchmark metric"). Squared variants are reported too, as the benchmark does.
 """
 
 from __future__ import annotations

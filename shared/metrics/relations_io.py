@@ -1,4 +1,5 @@
-"""Reading Kümmerle et al. (2009) ``.relations`` files: the SLAM benchmark's ground truth (SPEC §5, §8).
+"""Reading Kümmerle et al. (2009) ``.relations`` files: the SLAM benchmark's ground truth (docs/design.md §5,
+§8).
 
 A line is ``t1 t2 x y z roll pitch yaw``: the true pose of the robot at time ``t2`` expressed in its frame
 at ``t1`` (metres, radians, seconds; ``data/README.md``). Only ``x``, ``y`` and ``yaw`` are used in 2D.

@@ -1,4 +1,5 @@
-"""The mapping pipeline (SPEC §2-§4): one ``step(scan)`` at a time, from scans and odometry to a line map."""
+"""The mapping pipeline (docs/design.md §2-§4): one ``step(scan)`` at a time, from scans and odometry to a
+line map."""
 
 from shared.pipeline.config import KernelChoice, Mode, PipelineConfig, StageSchedule
 from shared.pipeline.gate import IcpGate

@@ -1,6 +1,6 @@
-"""The pipeline's configuration: mode, kernel per stage and their parameters (SPEC §4, §6).
+"""The pipeline's configuration: mode, kernel per stage and their parameters (docs/design.md §4, §6).
 
-This is the object the XML control message sets (issue 4): a message is parsed into a new
+This is the object the XML control message sets (docs/design.md §6): a message is parsed into a new
 :class:`PipelineConfig`, validated whole (kernel names, parameters), and only then swapped in, so a bad
 message never leaves the robot half-configured. It round-trips through a plain dict / JSON.
 """

@@ -1,6 +1,6 @@
-"""A scan match fused with odometry under the ICP gate's noise figures (issue 19): the pipeline's policies
-over the solver of :mod:`shared.pipeline.fusion_solve` (Gauss-Newton on the point-to-line residuals plus
-odometry's information, its objective and units there).
+"""A scan match fused with odometry under the ICP gate's noise figures (docs/worlds.md): the pipeline's
+policies over the solver of :mod:`shared.pipeline.fusion_solve` (Gauss-Newton on the point-to-line residuals
+plus odometry's information, its objective and units there).
 
 - :func:`fuse_gated`: the match fused with odometry, odometry's term robust (Huber) and scaled by the
   learned noise factors (:mod:`shared.pipeline.odonoise`), refused when it leaves the match's heading basin;

@@ -1,5 +1,5 @@
-"""A scan match fused with odometry by their information (issue 19), the solver: the scan decides where it
-can, odometry where it cannot.
+"""A scan match fused with odometry by their information (docs/worlds.md), the solver: the scan decides where
+it can, odometry where it cannot.
 
 A scan match is exact across walls and blind along them: in a corridor whose ends are out of range nothing
 in the scan fixes the motion along it, and point-to-point ICP there under-estimates the motion (each point

@@ -1,7 +1,7 @@
 """When the pipeline believes a scan match over odometry, and how it localises against its own map.
 
 Measured on the three SLAM benchmark logs with ``benchmarks/relation_error.py`` (relation error, Kümmerle
-et al. 2009, translational mean +- std in m; issue 3). Before the rework (:meth:`IcpGate.legacy`:
+et al. 2009, translational mean +- std in m). Before the rework (:meth:`IcpGate.legacy`:
 scan-to-scan matching, a plain gate, a 100-step local map) ACES 0.680 +- 2.518, FR079 3.166 +- 6.256, MIT
 CSAIL 0.288 +- 0.795; with these defaults 0.165 +- 0.559, 0.048 +- 0.052 and 0.084 +- 0.212 (published
 incremental scan matching: 0.173, 0.258, 0.106). The mean is dominated by the long loop relations, so a
@@ -47,7 +47,7 @@ class IcpGate:
     stands. ``correction_ratio`` widens the gate by that share of the step's own odometry motion; the
     ``strong_*`` options accept a larger correction when the match is excellent (converged, inlier share >=
     ``strong_inlier_ratio``, RMS <= ``strong_rmse_m``, within ``strong_max_m``/``strong_max_rad``); both
-    are off by default (before issue 3 they moved single logs a lot in either direction).
+    are off by default (before the scan-matching rework they moved single logs a lot in either direction).
 
     With ``refine_to_map`` the pose is then refined against a local wall map (points within
     ``refine_range_m``; kept when at least ``refine_min_share`` of them found a wall and the correction
@@ -63,7 +63,7 @@ class IcpGate:
     residual. Where the scan fixes a direction far better than odometry and the two disagree by more than
     ``odom_huber`` learned standard deviations, odometry counts less (Huber). Along a corridor whose ends
     are out of range the pose then follows the wheels (a simulated 19 m corridor: 0.79 m short without the
-    fusion, 4 cm with it); on the benchmark logs (issue 19, same session) the fixed model gave ACES 0.168,
+    fusion, 4 cm with it); on the benchmark logs (the same session) the fixed model gave ACES 0.168,
     Freiburg 079 0.060, MIT CSAIL 0.131 against 0.165, 0.048, 0.084 unfused, the learned factors 0.161,
     0.045, 0.086 (these figures swing by a third on float-level changes).
     A fused pose must agree with the linear fusion of the match and odometry (their information-weighted
@@ -115,7 +115,8 @@ class IcpGate:
 
     @classmethod
     def legacy(cls) -> IcpGate:
-        """The behaviour before issue 3 (scan-to-scan, no second chance, 100-step local map), to compare."""
+        """The behaviour before the scan-matching rework (scan-to-scan, no second chance, 100-step local map),
+        to compare."""
         return cls(
             keyframe_m=0.0,
             keyframe_rad=0.0,

@@ -1,4 +1,4 @@
-"""How noisy this robot's odometry really is, learned online from the scan matches (issue 19).
+"""How noisy this robot's odometry really is, learned online from the scan matches (docs/worlds.md).
 
 Fusing a scan match with odometry (:mod:`shared.pipeline.fusion`) needs odometry's covariance. A fixed
 model cannot fit every robot: the simulator's wheels are good to a centimetre over a metre, the benchmark

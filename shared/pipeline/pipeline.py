@@ -1,4 +1,5 @@
-"""The step loop (SPEC §2-§4): one ``step(scan)`` at a time, from a scan and odometry to the line map.
+"""The step loop (docs/design.md §2-§4): one ``step(scan)`` at a time, from a scan and odometry to the line
+map.
 
 Per step: pose prediction from odometry (paper §2, eq. 9-11), ICP correction against a recent keyframe
 scan (§6.2.2; :class:`~shared.pipeline.gate.IcpGate` says when it is believed, :mod:`shared.pipeline.rematch`
@@ -259,7 +260,7 @@ class Pipeline:
             # a noisy piece that a wall of the map explains within the range noise (tilted past the
             # merge's angle test, but not past three standard deviations of its own direction) may join
             # a wall but not start one: such pieces started the short walls crossing the demo's at
-            # 10-35 degrees (issue 19 item 4, "hatching")
+            # 10-35 degrees ("hatching", docs/worlds.md)
             scatter, honest = noise_floored_uncertainty(segments, batch, sigmas, direction_sds, self._noise)
             band = np.maximum(self._map.tol.offset_tol_m, 3.0 * scatter)
             explained = self._map.explained(segments, honest, band, viewpoint=batch.viewpoint)

@@ -1,4 +1,4 @@
-"""A second chance for a scan match the gate refused (issue 3): more starts, then the best good match.
+"""A second chance for a scan match the gate refused: more starts, then the best good match.
 
 ICP converges to the local minimum nearest its start. When the start (the odometry prediction) is several
 degrees off, as in fast turns with slipping wheels or when the odometry stream stalls and then jumps, the

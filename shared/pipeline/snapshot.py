@@ -1,4 +1,4 @@
-"""The temporary map a pipeline exposes after each step (SPEC §9's "temporary map", in SI units)."""
+"""The temporary map a pipeline exposes after each step (docs/design.md §9's "temporary map", in SI units)."""
 
 from __future__ import annotations
 

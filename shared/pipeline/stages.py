@@ -280,9 +280,9 @@ def extract_lines_grouped(
     from.
 
     Kernels consuming centroids get them ordered along their group; their infinite lines are then spanned
-    over the group's points (SPEC §4: "a map segment is its span over the points it came from"); centroid
-    joining keeps its polyline but stretches the polyline's two end pieces over the points beyond the end
-    centroids, so a wall reaches its corners. Kernels consuming points get the points and groups.
+    over the group's points (docs/design.md §4: "a map segment is its span over the points it came from");
+    centroid joining keeps its polyline but stretches the polyline's two end pieces over the points beyond the
+    end centroids, so a wall reaches its corners. Kernels consuming points get the points and groups.
     """
     if getattr(kernel, "consumes", "points") == "centroids":
         cents, cgroups = centroids_in_order(chunk)

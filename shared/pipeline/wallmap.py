@@ -1,4 +1,4 @@
-"""The line map: walls merged from the segments of successive steps (SPEC §4 "map assembly").
+"""The line map: walls merged from the segments of successive steps (docs/design.md §4 "map assembly").
 
 Each wall keeps the length-weighted second moments of every segment merged into it, so merging is O(1)
 and order-independent: a segment from ``a`` to ``b`` of length ``L`` counts as a uniform distribution of

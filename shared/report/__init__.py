@@ -1,4 +1,4 @@
-"""The reproduction report (issue 7): the paper's Table 3, Fig. 19 and Fig. 24, and linemap against a
+"""The reproduction report: the paper's Table 3, Fig. 19 and Fig. 24, and linemap against a
 line-segment EKF-SLAM baseline on simulated worlds and the SLAM benchmark logs (``linemap report``)."""
 
 from shared.report.build import ReportResults, ReportSettings, run_report, run_worlds_report

@@ -1,4 +1,4 @@
-"""The report's experiments (issue 7), each a function from settings to a frozen result; no I/O but the
+"""The report's experiments, each a function from settings to a frozen result; no I/O but the
 benchmark logs they read. Seeds are explicit, so a rerun gives the same maps (times differ).
 
 - :func:`area_sweep`: Table 3 and Fig. 19 (area error against cluster count, offline, §6.2.1);

@@ -1,6 +1,6 @@
-"""The report's scenario-suite section (issue 19): every kind of world and seed of :mod:`shared.sim.worlds`
-mapped and measured exactly as ``linemap bench worlds`` does (:func:`shared.bench.worlds.run_case`), its
-table and summary, and a grid of small maps, one per kind.
+"""The report's scenario-suite section (docs/worlds.md): every kind of world and seed of
+:mod:`shared.sim.worlds` mapped and measured exactly as ``linemap bench worlds`` does
+(:func:`shared.bench.worlds.run_case`), its table and summary, and a grid of small maps, one per kind.
 
 The quick report takes the suite's ``--quick`` path (:data:`QUICK_KINDS`, the first seed, at most
 :data:`QUICK_MAX_SCANS` scans per case). :func:`suite_document` is the section as a file of its own
@@ -117,14 +117,14 @@ def suite_section(run: SuiteRun, grid: str | None = GRID_PNG) -> list[str]:
     s = summarize(run.results)
     n = int(s.get("cases", 0))
     out = [
-        "## Scenario suite (issue 19)",
+        "## Scenario suite",
         "",
         f"Every kind of world of the scenario suite ({len({r.kind for r in run.results})} kinds x "
         f"{'seed' if len(run.seeds) == 1 else 'seeds'} {', '.join(map(str, run.seeds))}"
         + (f", at most {QUICK_MAX_SCANS} scans each: the suite's --quick subset" if run.quick else "")
         + "), each with its own odometry error model and driving pattern, mapped offline with the default "
         f"`PipelineConfig` as `{suite_command(run)}` maps it (docs/worlds.md says what the worlds hold "
-        "and how the figures are measured). Targets of issue 19 (single pass): mean wall error <= 2 cm, "
+        "and how the figures are measured). The suite's targets (single pass): mean wall error <= 2 cm, "
         "completeness of the seen walls >= 95 %, spurious share <= 3 %, walls mapped <= 1.5 x true walls "
         "seen; trajectory error (ATE) no worse than odometry's.",
         "",

@@ -48,7 +48,7 @@ def as_points(points: ArrayLike, *, name: str = "points") -> FloatArray:
 def canonical_hesse(rho: ArrayLike, theta: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Map ``(rho, theta)`` to the equivalent line with ``theta`` in ``[0, pi)``.
 
-    ``(rho, theta)`` and ``(-rho, theta + pi)`` are the same line (SPEC §4, the Hough seam). O(N).
+    ``(rho, theta)`` and ``(-rho, theta + pi)`` are the same line (docs/design.md §4, the Hough seam). O(N).
     """
     r = np.asarray(rho, dtype=np.float64)
     t = np.asarray(theta, dtype=np.float64)

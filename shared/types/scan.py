@@ -1,4 +1,4 @@
-"""A LaserScan-like record (SPEC §3) and the Hokuyo URG-04LX beam geometry."""
+"""A LaserScan-like record (docs/design.md §3) and the Hokuyo URG-04LX beam geometry."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ __all__ = ["URG04LX", "BeamGeometry", "Scan"]
 class BeamGeometry:
     """Beam layout of a scanner: first beam angle, spacing and count, plus its valid range window.
 
-    The URG-04LX speaks in *steps* of 360/1024 deg with the front at step 384 (SPEC §3).
+    The URG-04LX speaks in *steps* of 360/1024 deg with the front at step 384 (docs/design.md §3).
     """
 
     angle_min_rad: float
@@ -63,7 +63,7 @@ URG04LX = BeamGeometry.from_steps(44, 725, 384, 1024, range_min_m=0.02, range_ma
 
 @dataclass(frozen=True, slots=True)
 class Scan:
-    """One laser scan in SI units (SPEC §3).
+    """One laser scan in SI units (docs/design.md §3).
 
     ``ranges_m`` holds one value per beam; NaN or inf mean "no return", as does any value outside
     ``[range_min_m, range_max_m]``. Arrays are copied and made read-only, so a scan is immutable.

@@ -1,4 +1,4 @@
-"""Shared parts of the crash and network-fault tests (issue 9, items 1 and 2): a real server with one robot
+"""Shared parts of the crash and network-fault tests (docs/reliability.md): a real server with one robot
 and a signing key, a real ``linemap agent`` process, a power cut (SIGKILL to the agent and every process
 it started), and the checks of the Robot DB and the server: after every kill and at the end.
 

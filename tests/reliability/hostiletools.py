@@ -1,4 +1,4 @@
-"""Tools of the hostile-input suite (issue 9, item 3): a file-open watch, a loopback listener that counts
+"""Tools of the hostile-input suite (docs/reliability.md): a file-open watch, a loopback listener that counts
 connections, a memory probe, byte/text mutations for fuzzing and the fast/soak example counts.
 
 Everything here is real: the watch is Linux inotify (kernel events for every open or read of the secret

@@ -1,4 +1,4 @@
-"""A fault-injecting HTTP/1.1 proxy on 127.0.0.1 for the reliability suite (issue 9, item 2).
+"""A fault-injecting HTTP/1.1 proxy on 127.0.0.1 for the reliability suite (docs/reliability.md).
 
 It sits between the robot agent and the server and, per request, seeded, may:
 

@@ -1,4 +1,4 @@
-"""The load soak's figures and verdict (issue 9, item 6; docs/reliability/soak.md).
+"""The load soak's figures and verdict (docs/reliability.md; docs/reliability/soak.md).
 
 ``benchmarks/server_load.py`` (:func:`benchmarks.server_load.measure`) loads one real ``linemap server``
 process from this one; here its raw results become the soak's figures: server RSS (sampled from

@@ -1,4 +1,4 @@
-"""Kernel supply-chain helpers for the reliability suite (issue 9 item 4): artifacts with a built-in
+"""Kernel supply-chain helpers for the reliability suite (docs/reliability.md): artifacts with a built-in
 behaviour or a planted fault, and white-box tampering with what the server stores.
 
 Uploading, sending messages and reading kernel states reuse tests/robot_agent/test_agent_kernels_live.py's

@@ -1,4 +1,4 @@
-"""Crash safety (issue 9, item 1): a real ``linemap agent`` is killed with SIGKILL, again and again, at
+"""Crash safety (docs/reliability.md): a real ``linemap agent`` is killed with SIGKILL, again and again, at
 moments chosen by its progress (while mapping, just after an upload reached the server but before the
 robot recorded it, while a kernel install is downloaded, dry-run, verified or applied, in the middle of
 an upload burst after an outage, during start-up) against a real server. After every kill the Robot DB

@@ -1,4 +1,4 @@
-"""schemathesis against the server's own OpenAPI document (issue 9, item 3): every operation of a real
+"""schemathesis against the server's own OpenAPI document (docs/reliability.md): every operation of a real
 uvicorn server (:func:`tests.server.live.start_live`) gets schema-valid and schema-violating requests with a
 valid credential (the operator token; the robot's own token on robot-only routes), and none may answer
 5xx. Fast part: ``LINEMAP_API_EXAMPLES`` (default 15) examples per operation and generation mode; soak:

@@ -1,5 +1,5 @@
-"""Fuzzed laser logs (issue 9, item 3): CARMEN and BreezySLAM text logs (plain and gzip) and ROS bags (ROS 1,
-rosbag2 SQLite3 and MCAP) built from valid seeds and mutated (truncation, byte flips, garbage lines, huge
+"""Fuzzed laser logs (docs/reliability.md): CARMEN and BreezySLAM text logs (plain and gzip) and ROS bags (ROS
+1, rosbag2 SQLite3 and MCAP) built from valid seeds and mutated (truncation, byte flips, garbage lines, huge
 numbers, NaN/inf text, non-ASCII digits, corrupt gzip): reading them may fail only with the readers' own
 :class:`shared.io.LogError` family, whose message says what is wrong; never IndexError, ValueError & co.
 """

@@ -1,4 +1,4 @@
-"""Fuzzed SCIP 2.0 input (issue 9, item 3): what a broken or hostile serial line can send the URG-04LX
+"""Fuzzed SCIP 2.0 input (docs/reliability.md): what a broken or hostile serial line can send the URG-04LX
 driver's parser. Valid replies (scan frames MD/MS/GD/GS, VV/PP/II information, the SCIP2.0 switch) built
 with the module's own encoders are mutated (truncation, byte flips, inserted/duplicated runs, non-ASCII
 bytes, spliced tokens) and decoded all the way (reply, scan frame, information fields, a Scan): only

@@ -1,6 +1,7 @@
-"""Hostile control messages (issue 9, item 3; SPEC §6): the hardened parser and the server's messages
-endpoint against XXE (file, network, parameter entities), entity bombs, deep nesting, huge text, wrong
-encodings, NUL bytes, PIs, CDATA, comments and namespaces, plus hypothesis-built valid and mutated messages.
+"""Hostile control messages (docs/reliability.md; docs/design.md §6): the hardened parser and the server's
+messages endpoint against XXE (file, network, parameter entities), entity bombs, deep nesting, huge text,
+wrong encodings, NUL bytes, PIs, CDATA, comments and namespaces, plus hypothesis-built valid and mutated
+messages.
 
 Measured for every document: the outcome (a :class:`ControlMessageError` whose text names the problem, or
 acceptance for benign ones), kernel-level opens/reads of a secret file (inotify), connections to a loopback

@@ -1,4 +1,4 @@
-"""Network faults (issue 9, item 2): the agent talks to the server through :class:`FaultProxy`, which
+"""Network faults (docs/reliability.md): the agent talks to the server through :class:`FaultProxy`, which
 drops, delays, duplicates and cuts 30 % of requests and responses (seeded). The agent maps a simulated
 patrol at a steady pace (one small upload per step while the link keeps up); control messages, one of them
 a kernel install, are queued during the run. At the end (faults off, the agent caught up and stopped) the

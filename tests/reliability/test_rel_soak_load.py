@@ -1,7 +1,7 @@
-"""Load soak (issue 9, item 6): the server benchmark (100 robots x 2 uploads/s, long-polls, control messages
-and an SSE subscriber, from this process) against one real ``linemap server`` process on a fresh SQLite
-file, with the server's RSS and the upload latency sampled throughout: 0 errors, no growth trend in memory
-or latency (the criteria: tests/reliability/soaktools.py). The figures go to
+"""Load soak (docs/reliability.md): the server benchmark (100 robots x 2 uploads/s, long-polls, control
+messages and an SSE subscriber, from this process) against one real ``linemap server`` process on a fresh
+SQLite file, with the server's RSS and the upload latency sampled throughout: 0 errors, no growth trend in
+memory or latency (the criteria: tests/reliability/soaktools.py). The figures go to
 ``test-artifacts/reliability/soak-load-{short,soak}.{json,md}`` and are printed.
 
 The short run (25 s) is part of ``make test``; the soak (``-m soak``, ``make soak``) runs

@@ -1,4 +1,5 @@
-"""Kernel supply chain through a real server and a real agent process (issue 9 item 4, SPEC §9).
+"""Kernel supply chain through a real server and a real agent process (docs/reliability/supply.md,
+docs/design.md §9).
 
 Each attack or faulty kernel is sent to a mapping robot as an operator would: it must be refused
 (``rejected`` acknowledgement with the reason) or, when the fault only shows in service, rolled back

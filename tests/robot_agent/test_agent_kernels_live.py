@@ -1,6 +1,6 @@
 """Kernel hot-swap through a real server and a real agent process: a signed kernel is uploaded, installed,
 used and rolled back; a kernel that raises is rolled back automatically while mapping goes on; an artifact
-signed by a key the robot does not trust is refused with the reason (SPEC §7, §9)."""
+signed by a key the robot does not trust is refused with the reason (docs/design.md §7, §9)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
-"""Anti-rollback floors in robot_agent/control.py (SPEC §9: a robot never runs a version lower than one it
-has already run for the same name unless the operator overrides it with
-<kernel-rollback below-floor="allow">): the rule itself and apply_message refusing before it builds
-anything, without processes. The floors' record in the Robot DB (kept across restarts, only ever raised,
-backfilled by the migration) is in tests/robot_agent/test_store.py, more supply rules of control.py in
+"""Anti-rollback floors in robot_agent/control.py (docs/design.md §9: a robot never runs a version lower than
+one it has already run for the same name unless the operator overrides it with <kernel-rollback
+below-floor="allow">): the rule itself and apply_message refusing before it builds anything, without
+processes. The floors' record in the Robot DB (kept across restarts, only ever raised, backfilled by the
+migration) is in tests/robot_agent/test_store.py, more supply rules of control.py in
 tests/robot_agent/test_control_supply.py, the same rule against a real server and agent in
 tests/reliability/test_rel_supply_live.py."""
 

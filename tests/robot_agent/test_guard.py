@@ -1,7 +1,7 @@
-"""Run-time guard of hot-swapped kernels against garbage (robot_agent/guard.py; issue 9 item 4): a kernel
-that passed every check before it ran and then returns a bad result in service (non-finite values, wrong
-shapes, wrong type), hangs or allocates without bound is answered by the kernel it replaced, and the agent
-is told, so the garbage never reaches the map and the step completes. The same through a real agent and
+"""Run-time guard of hot-swapped kernels against garbage (robot_agent/guard.py; docs/reliability/supply.md): a
+kernel that passed every check before it ran and then returns a bad result in service (non-finite values,
+wrong shapes, wrong type), hangs or allocates without bound is answered by the kernel it replaced, and the
+agent is told, so the garbage never reaches the map and the step completes. The same through a real agent and
 server: tests/reliability/test_rel_supply_live.py::test_supply_chain_matrix[nan-in-service].
 """
 

@@ -1,4 +1,4 @@
-"""Verified kernel loading for the robot agent (issue 5 item 4): digest, signature, import, dry run.
+"""Verified kernel loading for the robot agent: digest, signature, import, dry run.
 
 Each kernel here is a small module source written as a string, signed with :mod:`shared.signing` like an
 operator would, and checked to be accepted or refused with the right reason. After every test the global

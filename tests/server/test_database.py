@@ -1,5 +1,5 @@
-"""The SQLite write-ahead log is reset, not only checkpointed (issue 9 item 6: under steady load a PASSIVE
-checkpoint alone let the log grow without end, ~25 MB/s under the server benchmark, and the server's
+"""The SQLite write-ahead log is reset, not only checkpointed (docs/reliability/soak.md: under steady load a
+PASSIVE checkpoint alone let the log grow without end, ~25 MB/s under the server benchmark, and the server's
 memory with it). Real SQLite files on disk."""
 
 from __future__ import annotations

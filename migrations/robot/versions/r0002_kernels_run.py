@@ -1,4 +1,5 @@
-"""robot db: kernels_run, the highest version of each kernel ever put in force (anti-rollback, SPEC §9)
+"""robot db: kernels_run, the highest version of each kernel ever put in force (anti-rollback, docs/design.md
+§9)
 
 Backfilled from ``config_history``: every configuration a robot has put in force names the kernel versions
 it ran, so a robot upgraded in the field keeps the floor its history already implies.

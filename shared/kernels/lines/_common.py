@@ -183,7 +183,7 @@ def build_lines(
     line_group: IntArray,
     tolerance_m: float | None = None,
 ) -> Lines:
-    """Turn proposed infinite lines into a frozen :class:`Lines` with their spans (SPEC §4).
+    """Turn proposed infinite lines into a frozen :class:`Lines` with their spans (docs/design.md §4).
 
     ``rho``/``theta`` ``(L,)`` are the lines (any theta; made canonical with :func:`canonical_hesse`),
     ``line_group`` ``(L,)`` their group index (``0..G-1``). Sorted point ``point_idx[m]`` supports line

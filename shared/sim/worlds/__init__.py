@@ -1,4 +1,4 @@
-"""The scenario suite (issue 19): kinds of world generated from a seed, with ground truth, driven with
+"""The scenario suite (docs/worlds.md): kinds of world generated from a seed, with ground truth, driven with
 odometry error models and driving patterns. See ``docs/worlds.md``."""
 
 from shared.sim.worlds.suite import (

@@ -1,7 +1,7 @@
 """ROS bags without ROS: bags are written here with rosbags' own writers (rosbag2 SQLite3 and MCAP, ROS 1),
 from simulated scans and a cut of a real CARMEN log, then read back through ``open_log``.
 
-Acceptance (issue 8): a bag maps like the equivalent CARMEN log.
+Acceptance: a bag maps like the equivalent CARMEN log.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The conformance test every registered kernel passes (issue 2 §5).
+"""The conformance test every registered kernel passes.
 
 The battery lives in :mod:`shared.kernels.conformance` (the robot agent runs it on downloaded kernels):
 empty input, one point, duplicates, NaN/inf rows, all-noise input, a thousand points on one line, a room

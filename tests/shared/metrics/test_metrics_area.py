@@ -1,4 +1,5 @@
-"""Area enclosed by a map and the area error (SPEC §5, paper Table 3): known answers and properties."""
+"""Area enclosed by a map and the area error (docs/design.md §5, paper Table 3): known answers and
+properties."""
 
 from __future__ import annotations
 

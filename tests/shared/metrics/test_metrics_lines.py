@@ -1,4 +1,4 @@
-"""Line accuracy against ground-truth walls (SPEC §5): known answers and properties."""
+"""Line accuracy against ground-truth walls (docs/design.md §5): known answers and properties."""
 
 from __future__ import annotations
 

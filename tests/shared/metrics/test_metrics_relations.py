@@ -1,4 +1,5 @@
-"""Relations files and the Kümmerle et al. relation error (SPEC §5, data/README.md "Benchmark metric")."""
+"""Relations files and the Kümmerle et al. relation error (docs/design.md §5, data/README.md "Benchmark
+metric")."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Scan matches fused with odometry by their information: the scan decides across walls, odometry along a
 corridor whose ends are out of range, and a pipeline tracks a short corridor exactly and a long one with
-no shrinking (issue 19)."""
+no shrinking (docs/worlds.md)."""
 
 from __future__ import annotations
 

@@ -80,7 +80,7 @@ def test_nearly_parallel_walls_do_not_slide_the_pose_along_the_corridor(
     tilt_deg: float, shift_m: float
 ) -> None:
     """Walls a few degrees off parallel barely fix the along-track position: a small inconsistency between
-    scan and map (``shift_m`` across one wall) must not become a large along-track move (issue 3)."""
+    scan and map (``shift_m`` across one wall) must not become a large along-track move."""
     t = math.tan(math.radians(tilt_deg))
     x = np.linspace(-6, 6, 240)
     pts = np.vstack([np.column_stack([x, np.full_like(x, -1.0)]), np.column_stack([x, 1.0 + t * x])])

@@ -192,8 +192,8 @@ def heading_error_deg(gate: IcpGate, scans: list[Scan]) -> float:
 
 
 def test_fast_turn_with_slipping_wheels_keeps_its_heading() -> None:
-    """Odometry under-reports the turn by 4 deg per scan: beyond the gate, so before issue 3 every (right)
-    correction was refused and the heading error summed up; the second chance takes them."""
+    """Odometry under-reports the turn by 4 deg per scan: beyond the gate, so before the scan-matching rework
+    every (right) correction was refused and the heading error summed up; the second chance takes them."""
     scans = turning_run([math.radians(6.0) * i for i in range(10)])
     assert heading_error_deg(IcpGate(), scans) < 1.0
     assert heading_error_deg(IcpGate.legacy(), scans) > 20.0

@@ -1,4 +1,4 @@
-"""Wall map: segments' point scatter and the side they were seen from (issue 19 item 4).
+"""Wall map: segments' point scatter and the side they were seen from (docs/worlds.md).
 
 Two overlapping copies of one face within a few standard deviations of their combined scatter are one
 wall; the two faces of a thin wall, seen from opposite sides, stay two; a noisy short piece across a wall

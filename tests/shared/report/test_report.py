@@ -53,7 +53,7 @@ def test_quick_report_writes_every_section_and_figure(tmp_path: Path) -> None:
         "## Fig. 19",
         "## Fig. 24",
         "## Accuracy on simulated worlds",
-        "## Scenario suite (issue 19)",
+        "## Scenario suite",
         "## Relation error on the SLAM benchmark logs",
         "## Multi-lap worlds: loop closure over time",
         "## Noise removal kernels",
@@ -77,7 +77,7 @@ def test_quick_report_writes_every_section_and_figure(tmp_path: Path) -> None:
         assert "Not run: the data folder was not found." in text
     assert "ekf-slam" in text and "cluttered" in text
     assert "`linemap bench worlds --quick`" in text  # the suite's quick path
-    assert "## Scenario suite (issue 19)" in (out / "worlds.md").read_text()
+    assert "## Scenario suite" in (out / "worlds.md").read_text()
     # the multi-lap section: both ways of mapping at each lap's end, and the optimisations' times
     assert "| loop-block | 0 | front end | 2 |" in text and "| loop-block | 0 | loop closure | 2 |" in text
     assert "pose-graph optimisations" in text and "map redraws" in text

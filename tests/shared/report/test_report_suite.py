@@ -44,7 +44,7 @@ def _result(kind: str, seed: int, mean_m: float, complete: float, walls: int) ->
 def test_the_section_states_the_summary_of_its_own_table() -> None:
     good, bad = _result("corridor-long", 0, 0.01, 0.97, 12), _result("office-l", 0, 0.12, 0.5, 30)
     text = "\n".join(suite_section(SuiteRun((0,), False, [good, bad])))
-    assert "## Scenario suite (issue 19)" in text
+    assert "## Scenario suite" in text
     assert "**1 of 2 cases** meet all four map targets" in text
     assert "mean wall error 6.50 cm (worst case 12.00 cm)" in text
     assert "ATE 0.050 m against odometry's 0.080 m on average, no worse than odometry's in 2 of 2" in text
@@ -101,7 +101,7 @@ def test_worlds_only_writes_the_section_and_its_maps_alone(tmp_path: Path) -> No
     )
     assert r.returncode == 0, r.stderr[-2000:]
     text = (tmp_path / "worlds.md").read_text()
-    assert "## Scenario suite (issue 19)" in text and "](worlds_maps.png)" in text
+    assert "## Scenario suite" in text and "](worlds_maps.png)" in text
     assert all(f"| {kind} | 0 |" in text for kind in QUICK_KINDS)
     png = (tmp_path / "worlds_maps.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000

@@ -1,4 +1,4 @@
-"""Scan record and URG-04LX geometry (SPEC §3)."""
+"""Scan record and URG-04LX geometry (docs/design.md §3)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The correlative coarse pose search that seeds ICP when the prediction is far off (issue 3)."""
+"""The correlative coarse pose search that seeds ICP when the prediction is far off."""
 
 from __future__ import annotations
 
