@@ -1,4 +1,4 @@
-"""Applying a control message to the running pipeline, between two steps (SPEC §6, §9).
+"""Applying a control message to the running pipeline, between two steps (docs/design.md §6, §9).
 
 The slow part (download, verification, conformance, dry run of kernels) happens before, on the network
 thread (:class:`Prepared`); what runs between two steps is only registering verified classes, computing the
@@ -10,15 +10,15 @@ use of that kernel name in its stage to it; ``rollback`` switches every use to t
 ``delete`` forgets a version that is not in use. Unpinned kernel choices are pinned to the version in use (or
 the highest registered), so installing never changes what runs by accident.
 
-Anti-rollback (SPEC §9, docs/reliability/supply-chain.md): the robot never runs a version lower than one it
-has already run for the same kernel unless the operator overrides that explicitly. The agent keeps the
+Anti-rollback (docs/design.md §9, docs/reliability/supply-chain.md): the robot never runs a version lower than
+one it has already run for the same kernel unless the operator overrides that explicitly. The agent keeps the
 highest version put in force per ``(stage, name)`` (its *floor*, in the Robot DB). :func:`refuse_downgrades`
 applies one rule to every way a message could put a version below its floor (``<kernel-install>``,
 ``<kernel-update>``, ``<kernel-rollback>``, a stage element selecting a version, and any combination in one
 message): it is refused unless the same message carries ``<kernel-rollback ... below-floor="allow"/>`` to
 exactly that version. That attribute is the override; the server records who queued it in its audit log
-(``kernel.below_floor``). A replayed, validly signed old artifact is therefore refused in every form: a
-fixed kernel ships as a new, higher version.
+(``kernel.below_floor``). A replayed, validly signed old artifact is therefore refused in every form: a fixed
+kernel ships as a new, higher version.
 
 Fallbacks (:func:`refuse_deletions`, :func:`fallback_choice`): built-in kernels ship with the agent and are
 the last fallback of every downloaded kernel, so ``<kernel-delete>`` of a built-in version is refused, and so
@@ -114,7 +114,7 @@ def refuse_downgrades(
     current: PipelineConfig | None = None,
     config: PipelineConfig | None = None,
 ) -> str | None:
-    """Why ``msg`` would take a kernel below its floor, or ``None`` when it does not (SPEC §9).
+    """Why ``msg`` would take a kernel below its floor, or ``None`` when it does not (docs/design.md §9).
 
     One rule for every path: an install, update or rollback operation naming a version below the floor, and
     (given the configuration in force, ``current``, and the one the message leads to, ``config``, versions

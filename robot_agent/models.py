@@ -1,12 +1,13 @@
-"""The Robot DB (SPEC §8): a SQLite file in WAL mode on the robot, schema owned by ``migrations/robot``.
+"""The Robot DB (docs/design.md §7): a SQLite file in WAL mode on the robot, schema owned by
+``migrations/robot``.
 
 Tables: ``meta`` (key -> JSON: robot id, versions, the configuration in force), ``kernels`` (downloaded
 kernel artifacts and their state), ``config_history``, ``map_versions`` (each step's map change),
 ``walls`` (the current map, for restarts), ``poses`` (trajectory), ``outbox`` (map versions not yet
 acknowledged by the server), ``applied_messages`` (control messages applied or rejected, and whether the
 server has the acknowledgement), ``kernels_run`` (the highest version of each kernel ever put in force: the
-anti-rollback floor of SPEC §9). ``kernels.installed_by_seq`` ties a downloaded kernel to the message that
-installed it. Lengths metres, angles radians, times UTC.
+anti-rollback floor of docs/design.md §9). ``kernels.installed_by_seq`` ties a downloaded kernel to the
+message that installed it. Lengths metres, angles radians, times UTC.
 """
 
 from __future__ import annotations
@@ -140,8 +141,8 @@ class AppliedMessage(RobotBase):
 
 
 class RunFloor(RobotBase):
-    """The highest version of kernel ``stage``/``name`` this robot has ever put in force (SPEC §9: it never
-    runs a lower one unless a message says rollback). Only ever raised; ``seq`` is the message whose
+    """The highest version of kernel ``stage``/``name`` this robot has ever put in force (docs/design.md §9:
+    it never runs a lower one unless a message says rollback). Only ever raised; ``seq`` is the message whose
     configuration raised it (null: start-up or automatic rollback)."""
 
     __tablename__ = "kernels_run"

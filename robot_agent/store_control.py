@@ -1,5 +1,5 @@
 """The Robot DB's control tables as the agent uses them: the outcome of every control message and the
-configuration it put in force (one transaction), the kernel versions' anti-rollback floors (SPEC §9,
+configuration it put in force (one transaction), the kernel versions' anti-rollback floors (docs/design.md §9,
 only ever raised), acknowledgements, and the downloaded kernels' records and states.
 
 Every method is one transaction or one read, O(rows touched).
@@ -79,7 +79,8 @@ class ControlTables(RobotDBFile):
 
     def run_floors(self) -> dict[tuple[str, str], str]:
         """``(stage, name) -> version``: the highest version of each kernel this robot has put in force
-        (SPEC §9 anti-rollback floor; kept across restarts). One read of a table with a row per kernel name.
+        (docs/design.md §9 anti-rollback floor; kept across restarts). One read of a table with a row per
+        kernel name.
         """
         with self._factory() as s:
             return {(r.stage, r.name): r.version for r in s.scalars(select(RunFloor))}

@@ -2,7 +2,7 @@
 
 A small microcontroller (the Plat-F1's own board or an Arduino "bridge") counts the wheel encoders and
 reports them over a serial port; the host turns the counts into robot poses with the project's
-differential-drive odometry (:mod:`shared.odometry`, paper §2 eq. 9-11; SPEC §2, §3).
+differential-drive odometry (:mod:`shared.odometry`, paper §2 eq. 9-11; docs/design.md §2, §3).
 
 Wire protocol, version 1
 ========================

@@ -1,4 +1,4 @@
-"""Pairing each laser scan with the wheel-odometry pose at the scan's time stamp (SPEC §2, §3).
+"""Pairing each laser scan with the wheel-odometry pose at the scan's time stamp (docs/design.md §2, §3).
 
 The laser (10 Hz) and the encoder bridge (20-100 Hz) run on their own clocks; both sources stamp on the
 host's clock (the serial drivers' ``clock``, :func:`time.time` by default; the simulator's for ``sim``).

@@ -121,7 +121,7 @@ class SensorParams:
         ]
 
 
-#: The URG-04LX's PP reply (SPEC §3): 20..5600 mm, 1024 steps per turn, 44..725, front 384, 600 rpm.
+#: The URG-04LX's PP reply (docs/design.md §3): 20..5600 mm, 1024 steps per turn, 44..725, front 384, 600 rpm.
 URG04LX_PARAMS = SensorParams("URG-04LX(Hokuyo Automatic Co.,Ltd.)", 20, 5600, 1024, 44, 725, 384, 600)
 
 

@@ -2,8 +2,8 @@
 
 ``UrgDriver(port)`` opens the port (a device path, or any pyserial URL), switches a SCIP 1.1 sensor to
 SCIP 2.0, stops any scan stream left running and reads the sensor's parameters (PP). ``scans()`` streams MD
-frames as scans in metres (SPEC §3): angles from AMIN/AFRT/ARES (a cluster of steps at its middle step,
-the increment ``cluster`` steps), the range window DMIN..DMAX, error codes (< 20 mm) as NaN, and the
+frames as scans in metres (docs/design.md §3): angles from AMIN/AFRT/ARES (a cluster of steps at its middle
+step, the increment ``cluster`` steps), the range window DMIN..DMAX, error codes (< 20 mm) as NaN, and the
 sensor's 24-bit millisecond stamps mapped to host seconds (:mod:`robot_agent.sensors.urg_scans`).
 
 Recovery: a frame with a bad checksum or truncated is dropped (counted in ``stats``, logged) and reading
