@@ -36,7 +36,10 @@ def measure(log: Path, loop_closure: bool = False) -> dict[str, float]:
     wall time, the worker competing for the cores) and the replay ``linemap map``'s with loop closure."""
     import tempfile
 
-    from shared.mapping import map_scans, open_source, write_outputs
+    try:
+        from shared.mapping import map_scans, open_source, write_outputs
+    except ImportError:  # a baseline tree from before offline mapping left the CLI package
+        from shared.cli.mapping import map_scans, open_source, write_outputs  # type: ignore[no-redef]
     from shared.pipeline import Pipeline, PipelineConfig
     from shared.sim import default_world, simulate_run
 
