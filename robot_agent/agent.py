@@ -48,6 +48,7 @@ from shared.control import ControlMessageError, OperationKind, parse_message
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Kernel, Stage
 from shared.pipeline import Pipeline, PipelineConfig
+from shared.protocol import RobotKernel, RobotStatus
 from shared.signing import load_public_key
 from shared.slam import LoopClosureSettings, OnlineGraphMapper
 from shared.types import Pose2D, Scan
@@ -153,7 +154,7 @@ class Agent:
             self.uploader = Uploader(
                 self.link,
                 self.db,
-                self._status,
+                self.status,
                 self._wall_time,
                 self._wake_uploader,
                 self._mapping_over,
@@ -593,20 +594,23 @@ class Agent:
         return cls
 
     # ------------------------------------------------------------------ status
-    def _status(self) -> dict[str, Any]:
+    def status(self) -> RobotStatus:
+        """What the robot reports about itself with each upload."""
         median_ms, _p99 = self.pipeline.timing_ms()
         config = self.pipeline.config
-        return {
-            "mode": str(config.mode),
-            "active_kernels": kernels_in_use(config),
-            "step_ms": median_ms if median_ms == median_ms else None,
-            "last_error": _clip(self.stats.errors.status(), 2000),  # the server takes at most 2000 characters
-            "config": config.model_dump(mode="json"),
-            "kernels": [
-                {"stage": k.stage, "name": k.name, "version": k.version, "state": k.state, "sha256": k.sha256}
-                for k in self.db.kernels()
-            ],
-        }
+        return RobotStatus.model_validate(
+            {
+                "mode": str(config.mode),
+                "active_kernels": kernels_in_use(config),
+                "step_ms": median_ms if median_ms == median_ms else None,
+                "last_error": _clip(self.stats.errors.status(), 2000),  # the server takes at most 2000
+                "config": config.model_dump(mode="json"),
+                "kernels": [
+                    RobotKernel(stage=k.stage, name=k.name, version=k.version, state=k.state, sha256=k.sha256)
+                    for k in self.db.kernels()
+                ],
+            }
+        )
 
     def _wall_time(self, version: int) -> float | None:
         """When the step of map ``version`` finished (Unix s), if it is the newest step; else None."""

@@ -24,6 +24,12 @@ import httpx
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from robot_agent.errors import LinkError, UnexpectedAnswerError
+from shared.protocol import (
+    ARTIFACT_SHA256_HEADER,
+    ARTIFACT_SIGNATURE_HEADER,
+    ARTIFACT_STAGE_HEADER,
+    MessageAck,
+)
 
 __all__ = [
     "Backoff",
@@ -212,7 +218,7 @@ class ServerLink:
 
     def ack(self, seq: int, outcome: str, reason: str | None) -> None:
         """Report a message's outcome; a conflicting earlier acknowledgement (409) is logged, not retried."""
-        body = {"outcome": outcome, "reason": reason}
+        body = MessageAck.model_validate({"outcome": outcome, "reason": reason}).model_dump(mode="json")
         resp = self._call("POST", f"/robots/{self.robot_id}/messages/{seq}/ack", json=body)
         if resp.status_code == 409:
             log.warning("message %d was acknowledged differently before: %s", seq, _detail(resp))
@@ -231,9 +237,9 @@ class ServerLink:
         resp = self._call("GET", f"/kernels/{name}/{version}/artifact", expect="text/x-python")
         return KernelDownload(
             resp.content,
-            resp.headers.get("x-linemap-sha256", ""),
-            resp.headers.get("x-linemap-signature"),
-            resp.headers.get("x-linemap-stage", ""),
+            resp.headers.get(ARTIFACT_SHA256_HEADER, ""),
+            resp.headers.get(ARTIFACT_SIGNATURE_HEADER),
+            resp.headers.get(ARTIFACT_STAGE_HEADER, ""),
         )
 
 
