@@ -36,6 +36,7 @@ __all__ = [
     "KernelDownload",
     "ServerLink",
     "UploadConflict",
+    "is_transient",
     "parse_retry_after",
 ]
 
@@ -103,6 +104,11 @@ class _Uploaded(_Answer):
 
 class _Conflict(_Answer):
     current_version: int = Field(ge=0)
+
+
+def is_transient(exc: LinkError) -> bool:
+    """A link failure the next attempt may not meet: no answer at all, 408, 429 or a 5xx."""
+    return exc.status is None or exc.status in (408, 429) or exc.status >= 500
 
 
 def parse_retry_after(value: str | None, cap_s: float, now_s: float | None = None) -> float | None:
