@@ -86,7 +86,7 @@ class Agent:
         self.poller: Poller | None = None
         self.uploader: Uploader | None = None
         if self.link is not None:
-            preparer = MessagePreparer(settings, self.link, self.db, loader, recent.list)
+            preparer = MessagePreparer(settings, self.link, self.db, loader, recent.latest)
             self.poller = Poller(
                 self.link,
                 self.db.applied_seq,

@@ -85,7 +85,8 @@ class RecentScans:
         with self._lock:
             self._scans.append(scan)
 
-    def list(self) -> list[Scan]:
+    def latest(self) -> list[Scan]:
+        """The scans kept, oldest first."""
         with self._lock:
             return list(self._scans)
 
