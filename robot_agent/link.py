@@ -1,5 +1,5 @@
-"""The robot's side of the REST API (SPEC §8): long-poll messages, acknowledge them, upload maps, download
-kernels.
+"""The robot's side of the REST API (docs/design.md §9): long-poll messages, acknowledge them, upload maps,
+download kernels.
 
 Every call raises :class:`LinkError` on a transport failure or an unexpected status, and
 :class:`UnexpectedAnswerError` (a :class:`LinkError`) on an answer that is not the API's: a redirect, a
@@ -24,12 +24,19 @@ import httpx
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from robot_agent.errors import LinkError, UnexpectedAnswerError
+from shared.protocol import (
+    ARTIFACT_SHA256_HEADER,
+    ARTIFACT_SIGNATURE_HEADER,
+    ARTIFACT_STAGE_HEADER,
+    MessageAck,
+)
 
 __all__ = [
     "Backoff",
     "KernelDownload",
     "ServerLink",
     "UploadConflict",
+    "is_transient",
     "parse_retry_after",
 ]
 
@@ -97,6 +104,11 @@ class _Uploaded(_Answer):
 
 class _Conflict(_Answer):
     current_version: int = Field(ge=0)
+
+
+def is_transient(exc: LinkError) -> bool:
+    """A link failure the next attempt may not meet: no answer at all, 408, 429 or a 5xx."""
+    return exc.status is None or exc.status in (408, 429) or exc.status >= 500
 
 
 def parse_retry_after(value: str | None, cap_s: float, now_s: float | None = None) -> float | None:
@@ -212,7 +224,7 @@ class ServerLink:
 
     def ack(self, seq: int, outcome: str, reason: str | None) -> None:
         """Report a message's outcome; a conflicting earlier acknowledgement (409) is logged, not retried."""
-        body = {"outcome": outcome, "reason": reason}
+        body = MessageAck.model_validate({"outcome": outcome, "reason": reason}).model_dump(mode="json")
         resp = self._call("POST", f"/robots/{self.robot_id}/messages/{seq}/ack", json=body)
         if resp.status_code == 409:
             log.warning("message %d was acknowledged differently before: %s", seq, _detail(resp))
@@ -231,9 +243,9 @@ class ServerLink:
         resp = self._call("GET", f"/kernels/{name}/{version}/artifact", expect="text/x-python")
         return KernelDownload(
             resp.content,
-            resp.headers.get("x-linemap-sha256", ""),
-            resp.headers.get("x-linemap-signature"),
-            resp.headers.get("x-linemap-stage", ""),
+            resp.headers.get(ARTIFACT_SHA256_HEADER, ""),
+            resp.headers.get(ARTIFACT_SIGNATURE_HEADER),
+            resp.headers.get(ARTIFACT_STAGE_HEADER, ""),
         )
 
 

@@ -5,7 +5,8 @@ A link fault is reported and the round retried after a backoff (the server's ``R
 and capped by :mod:`robot_agent.link`, is honoured); an unexpected exception in a round is logged and
 retried the same way, and one that escapes :meth:`Uploader.run` is caught by the supervisor
 (:mod:`robot_agent.supervise`), which restarts it. Each round that succeeds counts as a healthy round
-(:class:`~robot_agent.health.ErrorReport`).
+(:class:`~robot_agent.health.ErrorReport`). Bodies are built from :mod:`shared.protocol`'s models, the ones
+the server validates them with.
 """
 
 from __future__ import annotations
@@ -14,12 +15,12 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
 from robot_agent.errors import LinkError
 from robot_agent.health import ErrorReport
 from robot_agent.link import Backoff, ServerLink, UploadConflict
 from robot_agent.store import RobotDB
+from shared.protocol import MapDelta, MapSnapshot, RobotStatus
 
 __all__ = ["Uploader"]
 
@@ -27,7 +28,7 @@ log = logging.getLogger(__name__)
 
 
 class Uploader:
-    """Collaborators: ``link``, ``db`` (the Robot DB), ``status`` (the status dict sent with each upload),
+    """Collaborators: ``link``, ``db`` (the Robot DB), ``status`` (the status sent with each upload),
     ``wall_time`` (map version -> when its step finished, Unix s, or None), ``wake`` (set when there is
     something new), ``mapping_over`` (set once the last step is recorded), ``errors``."""
 
@@ -35,7 +36,7 @@ class Uploader:
         self,
         link: ServerLink,
         db: RobotDB,
-        status: Callable[[], dict[str, Any]],
+        status: Callable[[], RobotStatus],
         wall_time: Callable[[int], float | None],
         wake: threading.Event,
         mapping_over: threading.Event,
@@ -120,19 +121,19 @@ class Uploader:
         base = self.db.get("uploaded_version")
         if self.need_snapshot or base is None or int(base) != up.first_version - 1:
             return self._send_snapshot()
-        payload = {
-            "version": up.version,
-            "base_version": int(base),
-            "stamp_s": up.stamp_s,
-            "segments": up.segments,
-            "removed": up.removed,
-            "centroids": up.centroids,
-            "pose": up.pose,
-            "trajectory": up.trajectory,
-            "status": self._status(),
-            "wall_time_s": self._wall_time(up.version),
-        }
-        got = self.link.upload(payload, f"r{self.robot_id}-{base}-{up.version}")
+        delta = MapDelta(
+            version=up.version,
+            base_version=int(base),
+            stamp_s=up.stamp_s,
+            segments=up.segments,
+            removed=up.removed,
+            centroids=up.centroids,
+            pose=up.pose,
+            trajectory=up.trajectory,
+            status=self._status(),
+            wall_time_s=self._wall_time(up.version),
+        )
+        got = self.link.upload(delta.model_dump(mode="json"), f"r{self.robot_id}-{base}-{up.version}")
         if isinstance(got, UploadConflict):
             if got.current_version >= up.version:
                 self.db.mark_uploaded(got.current_version)
@@ -146,13 +147,10 @@ class Uploader:
         snap = self.db.snapshot()
         if snap is None:
             return False
-        payload = {
-            "base_version": None,
-            "status": self._status(),
-            "wall_time_s": self._wall_time(int(snap["version"])),
-            **snap,
-        }
-        got = self.link.upload(payload, f"r{self.robot_id}-snapshot-{snap['version']}")
+        body = MapSnapshot.model_validate(
+            {**snap, "status": self._status(), "wall_time_s": self._wall_time(int(snap["version"]))}
+        )
+        got = self.link.upload(body.model_dump(mode="json"), f"r{self.robot_id}-snapshot-{snap['version']}")
         if isinstance(got, UploadConflict):
             if got.current_version >= snap["version"]:
                 self.db.mark_uploaded(got.current_version)

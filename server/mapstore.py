@@ -23,6 +23,7 @@ from server.errors import ConflictError, InvalidRequestError, NotFoundError
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
 from server.schemas import MapOut, MapUpload, MapUploadOut
 from server.snapdiff import SnapshotDiff
+from shared.protocol import MAP_FIELDS, STATUS_FIELDS, RobotStatus
 
 __all__ = [
     "AppliedUpload",
@@ -312,21 +313,7 @@ def apply_upload(
     if seen_at is not None:
         changes["last_seen_at"] = seen_at
     if up.status is not None:
-        st = up.status
-        changes.update(
-            {
-                k: val
-                for k, val in (
-                    ("mode", st.mode),
-                    ("active_kernels", st.active_kernels),
-                    ("step_ms", st.step_ms),
-                    ("config", st.config),
-                    ("kernels", [k.model_dump() for k in st.kernels] if st.kernels is not None else None),
-                )
-                if val is not None
-            }
-        )
-        changes["last_error"] = st.last_error
+        changes.update(_status_columns(up.status))
     conn.execute(update(_ROBOTS).where(_ROBOTS.c.id == robot_id).values(**changes))
     conn.execute(
         insert(_UPLOADS).values(
@@ -342,17 +329,22 @@ def apply_upload(
     event = {
         "kind": "snapshot" if up.base_version is None else "delta",
         "robot_id": robot_id,
-        "version": v,
-        "base_version": up.base_version,
-        "stamp_s": up.stamp_s,
-        "segments": up.segments,
-        "removed": up.removed,
-        "centroids": up.centroids,
-        "pose": up.pose,
-        "trajectory": up.trajectory,
-        "wall_time_s": up.wall_time_s,
+        **{name: getattr(up, name) for name in MAP_FIELDS},  # the lists themselves, not copies
     }
     return AppliedUpload(MapUploadOut(version=v, duplicate=False), event)
+
+
+def _status_columns(st: RobotStatus) -> dict[str, Any]:
+    """The robot row's columns a status sets: each field of :class:`RobotStatus` (a column of the same
+    name) that the robot sent, and ``last_error`` always (None clears it)."""
+    columns: dict[str, Any] = {}
+    for name in STATUS_FIELDS:
+        value = getattr(st, name)
+        if name == "kernels" and value is not None:
+            value = [k.model_dump() for k in value]
+        if value is not None or name == "last_error":
+            columns[name] = value
+    return columns
 
 
 def map_version(s: Session, robot_id: int) -> int:

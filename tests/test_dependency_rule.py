@@ -21,6 +21,7 @@ LAYERS: dict[str, int] = {
     "shared.types": 1,
     "shared.sqltypes": 1,
     "shared.signing": 1,
+    "shared.protocol": 1,
     "shared.odometry": 2,
     "shared.metrics": 2,
     "shared.baselines": 2,

@@ -31,8 +31,14 @@ from shared.control import (
 )
 from shared.kernels import Stage
 from shared.kernels.stages import STAGES
-from shared.kernels.versions import VERSION_PATTERN
 from shared.pipeline.config import Mode, PipelineConfig
+from shared.protocol import (
+    KERNEL_NAME_MAX_LENGTH,
+    KERNEL_NAME_PATTERN,
+    SHA256_PATTERN,
+    VERSION_PATTERN,
+    anchored,
+)
 
 __all__ = ["ControlDraft", "KernelDraft", "LoopClosureDraft", "OperationDraft", "router"]
 
@@ -44,8 +50,8 @@ ParamScalar = bool | int | float | str | list[int]
 class KernelDraft(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
-    version: str | None = Field(None, pattern=f"^{VERSION_PATTERN}$")
+    name: str = Field(pattern=anchored(KERNEL_NAME_PATTERN), max_length=KERNEL_NAME_MAX_LENGTH)
+    version: str | None = Field(None, pattern=anchored(VERSION_PATTERN))
     params: dict[str, ParamScalar] = Field(
         default_factory=dict, description="Parameter -> value, in the units of the kernel's schema (SI)."
     )
@@ -56,9 +62,9 @@ class OperationDraft(BaseModel):
 
     kind: Literal["install", "update", "delete", "rollback"]
     stage: Stage
-    name: str = Field(pattern=r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$", max_length=64)
-    version: str = Field(pattern=f"^{VERSION_PATTERN}$")
-    sha256: str | None = Field(None, pattern=r"^[0-9a-fA-F]{64}$")
+    name: str = Field(pattern=anchored(KERNEL_NAME_PATTERN), max_length=KERNEL_NAME_MAX_LENGTH)
+    version: str = Field(pattern=anchored(VERSION_PATTERN))
+    sha256: str | None = Field(None, pattern=anchored(SHA256_PATTERN))
     below_floor: bool = Field(
         False, description="Rollback only: the operator's override of the robot's anti-rollback floor."
     )

@@ -10,7 +10,6 @@ is the robot's business (it verifies again and dry-runs it before swapping it in
 
 from __future__ import annotations
 
-import re
 from typing import Annotated, Any
 
 from fastapi import APIRouter, File, Form, Request, Response, UploadFile, status
@@ -28,6 +27,14 @@ from shared.errors import KernelSourceError
 from shared.kernels import Stage
 from shared.kernels.source_check import check_source_bounded
 from shared.kernels.versions import legacy_version_key, parse_version
+from shared.protocol import (
+    ARTIFACT_KEY_ID_HEADER,
+    ARTIFACT_SHA256_HEADER,
+    ARTIFACT_SIGNATURE_HEADER,
+    ARTIFACT_STAGE_HEADER,
+    KERNEL_NAME_MAX_LENGTH,
+    KERNEL_NAME_RE,
+)
 from shared.signing import SignatureError, key_id, load_public_key, public_key_text, sha256_hex, verify_digest
 
 __all__ = ["keys_router", "router"]
@@ -35,7 +42,6 @@ __all__ = ["keys_router", "router"]
 router = APIRouter(prefix="/kernels", tags=["kernels"])
 keys_router = APIRouter(prefix="/keys", tags=["keys"])
 
-_NAME = re.compile(r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$")
 _STAGES = [s.value for s in Stage]
 
 
@@ -108,7 +114,7 @@ def revoke_key(kid: str, who: OperatorDep, state: StateDep) -> None:
 
 
 def _validate(name: str, stage: str, version: str, source: bytes, limit: int) -> None:
-    if not _NAME.fullmatch(name) or len(name) > 64:
+    if not KERNEL_NAME_RE.fullmatch(name) or len(name) > KERNEL_NAME_MAX_LENGTH:
         raise InvalidRequestError(
             f"name {name[:80]!r}: expected lower-case words joined by '-', e.g. 'my-dbscan'", field="name"
         )
@@ -300,10 +306,10 @@ def fetch_artifact(name: str, version: str, request: Request, who: PrincipalDep,
         etag = f'"{art.sha256}"'
         headers = {
             "ETag": etag,
-            "X-Linemap-Sha256": art.sha256,
-            "X-Linemap-Signature": art.signature,
-            "X-Linemap-Key-Id": art.key_id,
-            "X-Linemap-Stage": art.stage,
+            ARTIFACT_SHA256_HEADER: art.sha256,
+            ARTIFACT_SIGNATURE_HEADER: art.signature,
+            ARTIFACT_KEY_ID_HEADER: art.key_id,
+            ARTIFACT_STAGE_HEADER: art.stage,
             "Cache-Control": "private, max-age=31536000, immutable",
         }
         if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:

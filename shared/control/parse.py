@@ -359,11 +359,11 @@ def _operation(el: _Element, kind: OperationKind) -> KernelOperation:
     stage = next((s for s in Stage if s.value == attrs["stage"]), None)
     if stage is None:
         _fail(el, f"stage={attrs['stage']!r} is not a stage: expected {', '.join(Stage)}")
-    if not KERNEL_NAME.match(attrs["name"]):
+    if not KERNEL_NAME.fullmatch(attrs["name"]):
         _fail(el, f"name={attrs['name']!r} is not a kernel name: expected lower-case words joined by '-'")
     _read(el, attrs["version"], _version)
     sha = attrs.get("sha256")
-    if sha is not None and not SHA256.match(sha):
+    if sha is not None and not SHA256.fullmatch(sha):
         _fail(el, f"sha256={sha[:70]!r} is not a SHA-256 digest: expected 64 hexadecimal digits")
     digest = sha.lower() if sha is not None else None
     below = attrs.get(BELOW_FLOOR)

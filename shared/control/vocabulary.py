@@ -25,6 +25,7 @@ from enum import StrEnum
 
 from shared.control.model import ParamValue
 from shared.kernels import Stage
+from shared.protocol.patterns import KERNEL_NAME_RE, SHA256_RE
 
 __all__ = [
     "ANGLE_UNITS",
@@ -67,9 +68,10 @@ DEFAULT_ANGLE_UNIT = "deg"
 #: Largest magnitude of an integer value (fits a signed 64-bit column).
 MAX_INT = 2**63 - 1
 
-KERNEL_NAME = re.compile(r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$")
+#: Kernel names and digests are spelled as the protocol spells them (use ``fullmatch``).
+KERNEL_NAME = KERNEL_NAME_RE
+SHA256 = SHA256_RE
 PARAM_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-SHA256 = re.compile(r"^[0-9a-fA-F]{64}$")
 _INT = re.compile(r"^[+-]?[0-9]+$")
 _FLOAT = re.compile(r"^[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?$")
 

@@ -8,7 +8,6 @@ refused with :class:`DuplicateKernelError`.
 from __future__ import annotations
 
 import builtins
-import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -16,12 +15,11 @@ from typing import Any, TypeVar
 from shared.errors import DuplicateKernelError, LinemapError, UnknownKernelError
 from shared.kernels.base import Kernel, Stage, parse_version
 from shared.kernels.params import KernelParams
+from shared.protocol.patterns import KERNEL_NAME_RE
 
 __all__ = ["REGISTRY", "KernelInfo", "KernelRegistry", "register"]
 
 K = TypeVar("K", bound=type[Kernel[Any]])
-
-_NAME = re.compile(r"^[a-z][a-z0-9]*(-[a-z0-9]+)*$")
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,7 +55,7 @@ class KernelRegistry:
         name = getattr(cls, "name", None)
         if not isinstance(stage, Stage):
             raise LinemapError(f"kernel class {cls.__name__} has stage {stage!r}: expected a Stage member")
-        if not isinstance(name, str) or not _NAME.match(name):
+        if not isinstance(name, str) or not KERNEL_NAME_RE.fullmatch(name):
             raise LinemapError(
                 f"kernel class {cls.__name__} has name {name!r}: expected lower-case words joined by '-'"
             )

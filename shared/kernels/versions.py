@@ -6,7 +6,8 @@ leading zero, at most :data:`MAX_COMPONENT_DIGITS` digits (so ``1.0.0`` and ``10
 exactly one number triple and each triple has exactly one spelling: two versions are the same version if
 and only if their strings are equal, so "immutable versions" cannot be sidestepped by re-spelling one.
 
-Every place that checks a version uses :data:`VERSION_PATTERN` (the server's upload form and its JSON
+Every place that checks a version uses :data:`VERSION_PATTERN`, defined once in
+:mod:`shared.protocol.patterns` and re-exported here (the server's upload form and its JSON
 control drafts, the control XML parser and its XSD, whose pattern a test compares with this one) and every
 comparison uses :func:`parse_version` (the registry, the robot's anti-rollback floors). All functions are
 O(len(text)).
@@ -16,6 +17,8 @@ from __future__ import annotations
 
 import re
 
+from shared.protocol.patterns import MAX_COMPONENT_DIGITS, VERSION_PATTERN, VERSION_RE
+
 __all__ = [
     "MAX_COMPONENT_DIGITS",
     "VERSION_PATTERN",
@@ -24,15 +27,6 @@ __all__ = [
     "legacy_version_key",
     "parse_version",
 ]
-
-#: Digits a version component may have (999999 is the largest component).
-MAX_COMPONENT_DIGITS = 6
-
-_PART = f"(0|[1-9][0-9]{{0,{MAX_COMPONENT_DIGITS - 1}}})"
-#: The canonical spelling, unanchored (XSD patterns are implicitly anchored; use ``fullmatch`` in Python).
-VERSION_PATTERN = rf"{_PART}\.{_PART}\.{_PART}"
-#: :data:`VERSION_PATTERN` compiled; always use ``fullmatch`` (``match`` with ``$`` would accept a newline).
-VERSION_RE = re.compile(VERSION_PATTERN)
 
 _LEGACY = re.compile(r"([0-9]+)\.([0-9]+)\.([0-9]+)")
 

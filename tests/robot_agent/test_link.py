@@ -18,9 +18,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from robot_agent.agent import _transient
 from robot_agent.errors import LinkError, UnexpectedAnswerError
-from robot_agent.link import DEFAULT_MAX_RETRY_AFTER_S, Backoff, ServerLink, parse_retry_after
+from robot_agent.link import DEFAULT_MAX_RETRY_AFTER_S, Backoff, ServerLink, is_transient, parse_retry_after
 from tests.robot_agent.answerproxy import AnswerProxy
 from tests.server.authlimits import BLOCK_S, LIMIT, SteppedClock, start_limited
 from tests.server.live import Live
@@ -85,7 +84,7 @@ def test_an_answer_that_is_not_the_apis_is_a_transient_link_fault(proxy: AnswerP
         for call in calls:
             with pytest.raises(UnexpectedAnswerError, match="unexpected answer") as info:
                 call()
-            assert _transient(info.value), "retried, never taken as the server's word"
+            assert is_transient(info.value), "retried, never taken as the server's word"
             assert "expected" in str(info.value)
     finally:
         link.close()

@@ -32,3 +32,14 @@ def test_every_module_the_page_imports_exists() -> None:
     for js in STATIC_DIR.rglob("*.js"):
         for target in re.findall(r"""^\s*import\s[^'"]*['"](\.[^'"]+)['"]""", js.read_text(), flags=re.M):
             assert (js.parent / target).resolve().is_file(), f"{js.name} imports missing {target}"
+
+
+def test_the_upload_form_spells_versions_as_the_protocol_does() -> None:
+    """The kernel upload form checks the version before sending it, with the protocol's pattern."""
+    import json
+
+    from shared.protocol import VERSION_PATTERN
+
+    js = (STATIC_DIR / "views" / "kernels.js").read_text()
+    found = re.search(r"^const VERSION_PATTERN = (\"[^\n]*\");$", js, flags=re.M)
+    assert found is not None and json.loads(found.group(1)) == VERSION_PATTERN

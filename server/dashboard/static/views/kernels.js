@@ -6,6 +6,10 @@ import { api, builtinKernels } from "../api.js";
 import { STAGES, paramList } from "../schema.js";
 import { AckPanel, sendDraft, installDraft } from "./ack.js";
 
+// shared/protocol/patterns.py VERSION_PATTERN (tests/server/test_dashboard_files.py keeps the two equal).
+const VERSION_PATTERN = "(0|[1-9][0-9]{0,5})\\.(0|[1-9][0-9]{0,5})\\.(0|[1-9][0-9]{0,5})";
+const VERSION_RE = new RegExp(`^${VERSION_PATTERN}$`);
+
 export function renderKernels(root, ctx) {
   const ack = new AckPanel(ctx);
   const tableBox = h("div", null, h("p", { class: "muted" }, "Loading…"));
@@ -49,7 +53,7 @@ function uploadForm(reload) {
   const name = h("input", { type: "text", name: "name", required: true, placeholder: "e.g. dbscan-fast", "data-testid": "kernel-upload-name" });
   const stage = h("select", { name: "stage", "data-testid": "kernel-upload-stage" }, STAGES.map((s) => h("option", { value: s }, s)));
   const version = h("input", { type: "text", name: "version", required: true, placeholder: "MAJOR.MINOR.PATCH, e.g. 1.0.1",
-    pattern: "\\d+\\.\\d+\\.\\d+", "data-testid": "kernel-upload-version" });
+    pattern: VERSION_PATTERN, "data-testid": "kernel-upload-version" });
   const sig = h("input", { type: "text", name: "signature", placeholder: "base64 Ed25519 signature", "data-testid": "kernel-upload-signature",
     spellcheck: "false", autocomplete: "off" });
   const sigFile = h("input", { type: "file", accept: ".sig,.txt", "data-testid": "kernel-upload-sigfile", onchange: async () => {
@@ -72,8 +76,8 @@ function uploadForm(reload) {
     err.hidden = true;
     ok.hidden = true;
     if (!file.files[0]) { err.textContent = "Choose the kernel's .py file."; err.hidden = false; return; }
-    if (!/^\d+\.\d+\.\d+$/.test(version.value.trim())) {
-      err.textContent = `Version '${version.value}' must be MAJOR.MINOR.PATCH (e.g. 1.0.1).`;
+    if (!VERSION_RE.test(version.value.trim())) {
+      err.textContent = `Version '${version.value}' must be MAJOR.MINOR.PATCH without leading zeros (e.g. 1.0.1).`;
       err.hidden = false;
       return;
     }

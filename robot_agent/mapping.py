@@ -1,0 +1,189 @@
+"""The agent's mapping loop: reads scans from the source, steps the pipeline, records each step in the Robot
+DB (its outbox), and between two steps lets the kernel supervisor apply control messages.
+
+:class:`PipelineSlot` holds the pipeline in force (a :class:`~shared.pipeline.Pipeline`, or an
+:class:`~shared.slam.OnlineGraphMapper` once loop closure is on), which the supervisor reconfigures between
+steps; :class:`RecentScans` keeps the last scans for the dry runs of downloaded kernels (poller thread).
+A step costs the pipeline's step plus O(walls) to find the changed walls; lengths in metres, times in s.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from robot_agent.health import AgentStats
+from robot_agent.settings import AgentSettings
+from robot_agent.sources import is_live, open_scans
+from robot_agent.store import RobotDB, StepRecord
+from shared.pipeline import Pipeline, PipelineConfig
+from shared.slam import OnlineGraphMapper
+from shared.types import Pose2D, Scan
+
+__all__ = ["MappingLoop", "PipelineSlot", "RecentScans"]
+
+log = logging.getLogger(__name__)
+
+
+class PipelineSlot:
+    """The pipeline in force; empty until :meth:`start`. Used from the mapping thread only."""
+
+    def __init__(self, laser_offset: Pose2D) -> None:
+        self.laser_offset = laser_offset
+        self._pipeline: Pipeline | OnlineGraphMapper | None = None
+
+    def start(self, config: PipelineConfig) -> None:
+        """Build the pipeline for ``config`` (with the pose graph if it has loop closure on)."""
+        if config.loop_closure is not None:
+            self._pipeline = OnlineGraphMapper(self._make_pipeline, config)
+        else:
+            self._pipeline = Pipeline(config, laser_offset=self.laser_offset)
+
+    @property
+    def pipeline(self) -> Pipeline | OnlineGraphMapper:
+        assert self._pipeline is not None, "PipelineSlot.start was not called"
+        return self._pipeline
+
+    @property
+    def config(self) -> PipelineConfig | None:
+        """The configuration in force; None before :meth:`start`."""
+        return self._pipeline.config if self._pipeline is not None else None
+
+    def _make_pipeline(self, config: PipelineConfig) -> Pipeline:
+        return Pipeline(config, laser_offset=self.laser_offset)
+
+    def reconfigure(self, config: PipelineConfig) -> None:
+        """Swap ``config`` in between two steps. Loop closure switched on over the front end alone starts
+        the pose graph here, at the pose the robot has, over the map drawn so far (which stays as drawn);
+        switched off, the graph stays and stops searching (:class:`OnlineGraphMapper`)."""
+        pipeline = self.pipeline
+        if isinstance(pipeline, Pipeline) and config.loop_closure is not None:
+            pipeline.reconfigure(config)  # raises with the old configuration kept
+            graph = OnlineGraphMapper(self._make_pipeline, config, front=pipeline)
+            self._pipeline = graph
+            log.info("loop closure switched on at step %d", graph.version)
+            return
+        pipeline.reconfigure(config)
+
+    def close(self) -> None:
+        if isinstance(self._pipeline, OnlineGraphMapper):
+            self._pipeline.close()
+
+
+class RecentScans:
+    """The last ``size`` scans mapped, shared between the mapping thread and the poller. O(1) to add."""
+
+    def __init__(self, size: int = 10) -> None:
+        self._scans: deque[Scan] = deque(maxlen=size)
+        self._lock = threading.Lock()
+
+    def add(self, scan: Scan) -> None:
+        with self._lock:
+            self._scans.append(scan)
+
+    def latest(self) -> list[Scan]:
+        """The scans kept, oldest first."""
+        with self._lock:
+            return list(self._scans)
+
+
+class MappingLoop:
+    """Maps from ``settings.source`` into ``slot``'s pipeline. Collaborators: ``db`` (the Robot DB: each
+    step's record, and where to resume after a restart), ``stats`` (``steps``), ``recent`` (scans for dry
+    runs), ``between_steps`` (applies pending control messages), ``after_step`` (the kernels' probation and
+    rollback), ``wake`` (set after each step recorded: the uploader has something to send)."""
+
+    def __init__(
+        self,
+        settings: AgentSettings,
+        slot: PipelineSlot,
+        db: RobotDB,
+        stats: AgentStats,
+        recent: RecentScans,
+        between_steps: Callable[[], None],
+        after_step: Callable[[], None],
+        wake: threading.Event,
+    ) -> None:
+        self.s = settings
+        self.slot, self.db, self.stats, self.recent = slot, db, stats, recent
+        self._between_steps, self._after_step, self._wake = between_steps, after_step, wake
+        self._stepped: tuple[int, float] = (0, 0.0)
+        self._prev_walls: dict[int, tuple[float, ...]] = {}
+        stored = db.walls()
+        self._id_offset = int(max((w[0] for w in stored), default=-1)) + 1
+
+    def run(self, stop: threading.Event) -> None:
+        """Map until the source ends, then (``stay``) keep applying messages until ``stop`` is set."""
+        self._map(stop)
+        while self.s.stay and not stop.is_set():  # the source ended: keep serving the link
+            self._between_steps()
+            stop.wait(0.05)
+
+    def wall_time(self, version: int) -> float | None:
+        """When the step of map ``version`` finished (Unix s), if it is the newest step; else None."""
+        stepped_version, at = self._stepped
+        return at if stepped_version == version else None
+
+    def _map(self, stop: threading.Event) -> None:
+        resume = int(self.db.get("source_index", 0) or 0)
+        version = int(self.db.get("map_version", 0) or 0)
+        own_pace = self.s.rate_hz is None  # the scans' own time stamps (logs) or 10 Hz (simulator)
+        period = 0.1 if own_pace else (1.0 / self.s.rate_hz if self.s.rate_hz else None)
+        next_at, last_stamp = time.monotonic(), None
+        # A replayable source (simulator, log) skips what was mapped before a restart; a live sensor
+        # cannot be replayed, so its scans are all new and its count goes on from there.
+        live = is_live(self.s.source)
+        for index, scan in self._scans(stop):
+            if live:
+                index += resume
+            if stop.is_set() or (self.s.max_steps is not None and self.stats.steps >= self.s.max_steps):
+                return
+            if index < resume:
+                continue
+            if own_pace and last_stamp is not None:
+                period = min(max(scan.stamp_s - last_stamp, 0.0), 5.0)  # a gap in a log: wait at most 5 s
+            last_stamp = scan.stamp_s
+            if period is not None:
+                stop.wait(max(0.0, next_at - time.monotonic()))
+                next_at = max(next_at + period, time.monotonic() - period)
+            self._between_steps()
+            result = self.slot.pipeline.step(scan)
+            self.recent.add(scan)
+            version += 1
+            self.db.record_step(self._record(version, index + 1, scan, result.pose))
+            self._stepped = (version, time.time())
+            self.stats.steps += 1
+            self._after_step()
+            self._wake.set()
+
+    def _scans(self, stop: threading.Event) -> Iterator[tuple[int, Scan]]:
+        if is_live(self.s.source):
+            scans = open_scans(self.s.source, encoders=self.s.encoders, stop=stop)
+        else:
+            scans = open_scans(self.s.source, seed=self.s.seed, laps=self.s.laps, encoders=self.s.encoders)
+        yield from enumerate(scans)
+
+    def _record(self, version: int, source_index: int, scan: Scan, pose: Any) -> StepRecord:
+        pipeline = self.slot.pipeline
+        ids, segments = pipeline.walls()
+        now = {
+            int(i) + self._id_offset: tuple(float(v) for v in seg)
+            for i, seg in zip(ids, segments, strict=True)
+        }
+        changed = [[float(i), *seg] for i, seg in now.items() if self._prev_walls.get(i) != seg]
+        removed = [i for i in self._prev_walls if i not in now]
+        self._prev_walls = now
+        cents = pipeline.recent_centroids(200).tolist()
+        return StepRecord(
+            version,
+            scan.stamp_s,
+            source_index,
+            changed,
+            removed,
+            [scan.stamp_s, pose.x_m, pose.y_m, pose.theta_rad],
+            cents,
+        )

@@ -1,0 +1,172 @@
+"""What the robot and the server send each other (docs/design.md §9), as pydantic models both sides use.
+
+The robot builds its bodies from these models (``model_dump(mode="json")``) and the server validates them
+with the same models, which also make up the OpenAPI document (:mod:`server.schemas` reuses or subclasses
+them). Units: lengths in metres, angles in radians, times in seconds (``stamp_s`` the robot's clock,
+``wall_time_s`` Unix time). Map rows are compact lists because a robot uploads every few hundred
+milliseconds: ``segments`` ``[segment_id, x0_m, y0_m, x1_m, y1_m]``, ``centroids`` ``[x_m, y_m]``, ``pose``
+``[x_m, y_m, theta_rad]``, ``trajectory`` ``[stamp_s, x_m, y_m, theta_rad]``. Rows are checked by
+pydantic-core itself (finite floats, exact length): validation is O(rows) with no Python call per row.
+
+The JSON is the wire format: field names and types here must stay as older robots and servers send and
+read them.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+__all__ = [
+    "ARTIFACT_KEY_ID_HEADER",
+    "ARTIFACT_SHA256_HEADER",
+    "ARTIFACT_SIGNATURE_HEADER",
+    "ARTIFACT_STAGE_HEADER",
+    "INT64_MAX",
+    "MAP_FIELDS",
+    "STATUS_FIELDS",
+    "Finite",
+    "Int64",
+    "KernelMeta",
+    "MapDelta",
+    "MapSnapshot",
+    "MapUpload",
+    "MessageAck",
+    "Outcome",
+    "PointRow",
+    "PoseRow",
+    "RobotKernel",
+    "RobotStatus",
+    "SegmentRow",
+    "TrajRow",
+]
+
+#: Largest integer on the wire (signed 64 bits, what a database column holds): ids, sequence numbers,
+#: versions and counts are bounded by it, so an oversized number is refused, not overflowed.
+INT64_MAX = 2**63 - 1
+Int64 = Annotated[int, Field(ge=0, le=INT64_MAX)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+SegmentRow = Annotated[list[Finite], Field(min_length=5, max_length=5)]
+PointRow = Annotated[list[Finite], Field(min_length=2, max_length=2)]
+PoseRow = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+TrajRow = Annotated[list[Finite], Field(min_length=4, max_length=4)]
+#: What became of a control message; ``rolled-back``: applied, then undone by the robot (a kernel that
+#: failed at run time).
+Outcome = Literal["applied", "rejected", "rolled-back"]
+
+#: Headers of a kernel artifact download (``GET /kernels/{name}/{version}/artifact``), whose body is the
+#: module's source.
+ARTIFACT_SHA256_HEADER = "X-Linemap-Sha256"
+ARTIFACT_SIGNATURE_HEADER = "X-Linemap-Signature"
+ARTIFACT_KEY_ID_HEADER = "X-Linemap-Key-Id"
+ARTIFACT_STAGE_HEADER = "X-Linemap-Stage"
+
+
+class _Body(BaseModel):
+    """A body the robot sends: unknown fields are refused."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+class RobotKernel(_Body):
+    """One kernel in a robot's store (docs/design.md §7): ``state`` verified | active | retired | failed."""
+
+    stage: str = Field(max_length=32)
+    name: str = Field(max_length=64)
+    version: str = Field(max_length=32)
+    state: str = Field(max_length=16)
+    sha256: str = Field(max_length=64)
+
+
+class RobotStatus(_Body):
+    """What a robot reports about itself with each map upload."""
+
+    mode: Literal["online", "offline", "mixed"] | None = None
+    active_kernels: dict[str, str] | None = Field(None, description="stage -> 'name@version'")
+    step_ms: Finite | None = Field(None, ge=0)
+    last_error: str | None = Field(None, max_length=2000, description="The robot's latest problem, if any.")
+    config: dict[str, Any] | None = Field(None, description="The configuration in force (PipelineConfig).")
+    kernels: list[RobotKernel] | None = Field(None, max_length=1000, description="The robot's kernel store.")
+
+
+class MapUpload(_Body):
+    """A temporary map from the robot: a full snapshot (``base_version`` null) or a delta since
+    ``base_version``. ``segments`` rows are ``[segment_id, x0_m, y0_m, x1_m, y1_m]`` (all walls for a
+    snapshot; new or changed walls for a delta); ``removed`` the ids that are gone; ``trajectory`` rows
+    ``[stamp_s, x_m, y_m, theta_rad]`` since ``base_version`` (all of them for a snapshot)."""
+
+    version: int = Field(ge=1, le=INT64_MAX)
+    base_version: int | None = Field(None, ge=0, le=INT64_MAX)
+    stamp_s: Finite = 0.0
+    wall_time_s: Finite | None = Field(
+        None, description="Unix time (s) at which the robot finished the step of this version (for latency)."
+    )
+    segments: list[SegmentRow] = Field(default_factory=list, max_length=200_000)
+    removed: list[Int64] = Field(default_factory=list, max_length=200_000)
+    centroids: list[PointRow] = Field(default_factory=list, max_length=100_000)
+    pose: PoseRow = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+    trajectory: list[TrajRow] = Field(default_factory=list, max_length=1_000_000)
+    status: RobotStatus | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self) -> MapUpload:
+        if self.base_version is not None and self.base_version >= self.version:
+            raise ValueError(f"base_version {self.base_version} must be below version {self.version}")
+        if self.base_version is None and self.removed:
+            raise ValueError("a snapshot (base_version null) cannot remove segments")
+        for row in self.segments:
+            if row[0] != int(row[0]) or not 0 <= row[0] <= INT64_MAX:
+                raise ValueError(f"segment id must be an integer in 0..2**63-1, got {row[0]}")
+        return self
+
+
+class MapDelta(MapUpload):
+    """The map's changes since ``base_version`` (the version the server has)."""
+
+    base_version: int = Field(ge=0, le=INT64_MAX)
+
+
+class MapSnapshot(MapUpload):
+    """The whole map (sent when the server's version is not the delta's base)."""
+
+    base_version: None = None
+
+
+#: The map's own fields of an upload (all but ``status``), in the model's order.
+MAP_FIELDS: tuple[str, ...] = tuple(name for name in MapUpload.model_fields if name != "status")
+#: The fields of a robot's status, in the model's order.
+STATUS_FIELDS: tuple[str, ...] = tuple(RobotStatus.model_fields)
+
+
+class MessageAck(_Body):
+    """The robot's acknowledgement of control message ``seq`` (in the URL): its outcome, and why when it
+    was not applied."""
+
+    outcome: Outcome
+    reason: str | None = Field(None, max_length=4000, description="Why it was rejected (required then).")
+
+    @model_validator(mode="after")
+    def _reason_when_rejected(self) -> MessageAck:
+        if self.outcome != "applied" and not (self.reason and self.reason.strip()):
+            raise ValueError(f"a {self.outcome} message needs a reason")
+        return self
+
+
+class KernelMeta(BaseModel):
+    """A kernel artifact as the server describes it (``GET /kernels``). ``sha256`` is of the module's
+    bytes and ``signature`` the base64 Ed25519 signature over it by key ``key_id``; a download of the
+    module carries them in the ``ARTIFACT_*_HEADER`` headers. No patterns here: versions stored before the
+    canonical spelling are still listed."""
+
+    name: str
+    version: str
+    stage: str
+    sha256: str
+    size_bytes: int
+    signature: str
+    key_id: str
+    uploaded_at: datetime
+    uploaded_by: str
+    deleted: bool
