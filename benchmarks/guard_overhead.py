@@ -1,5 +1,5 @@
 """What the guarded path costs a downloaded kernel per call: the kernel runs in a confined worker process
-(robot_agent/kernelproc.py, docs/reliability/sandbox.md), each call crosses a socket with a deadline, and
+(robot_agent/kernels/proc.py, docs/reliability/sandbox.md), each call crosses a socket with a deadline, and
 the guard checks the result (robot_agent/guard.py). Built-in kernels run in-process, unguarded.
 
     .venv/bin/python benchmarks/guard_overhead.py [--calls 2000]
@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from robot_agent.dryrun import load_in_worker
 from robot_agent.guard import guarded
+from robot_agent.kernels.dryrun import load_in_worker
 from shared.kernels import REGISTRY
 from shared.kernels.conformance import check_result
 from shared.kernels.noise.dbscan import Dbscan

@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/sandbox_detection.py [--hang-s S] [--budget-s S]  (default: the agent's own)
 
-For each kind, the kernel is run exactly as the agent runs it (robot_agent/dryrun.py: the checks in a
+For each kind, the kernel is run exactly as the agent runs it (robot_agent/kernels/dryrun.py: the checks in a
 confined worker, service calls guarded in a long-lived worker) and the time is measured from the start of
 the phase that meets the fault (the import, the dry run, the battery, or the service call) until the
 refusal or the fallback's answer is back in the caller. Prints one line per kind with the outcome and the
@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from robot_agent.agent import AgentSettings
-from robot_agent.dryrun import load_in_worker, verify_in_worker
 from robot_agent.errors import KernelRejected
 from robot_agent.guard import guarded
+from robot_agent.kernels.dryrun import load_in_worker, verify_in_worker
 from shared.kernels.conformance import wall_points
 from shared.kernels.noise.dbscan import Dbscan
 

@@ -43,7 +43,7 @@ log = logging.getLogger(__name__)
 class Agent:
     """One robot's daemon. ``run(stop)`` blocks until the source ends (or ``stop`` is set).
 
-    Downloaded kernels run in confined worker processes (:mod:`robot_agent.dryrun`,
+    Downloaded kernels run in confined worker processes (:mod:`robot_agent.kernels.dryrun`,
     docs/reliability/sandbox.md): one that hangs or dies in service is killed and rolled back, and the
     agent goes on; nothing needs a restart."""
 

@@ -1,14 +1,14 @@
 """Run-time protection for hot-swapped kernels, for as long as they run.
 
 :func:`guarded` subclasses a downloaded kernel class (the agent passes the class of
-:func:`robot_agent.kernelproc.remote_class`, whose code runs in a confined worker process) so that each
+:func:`robot_agent.kernels.proc.remote_class`, whose code runs in a confined worker process) so that each
 ``apply`` is timed and checked, and a failure never escapes: the call is answered by ``fallback`` (the
 kernel it replaced) instead, so the step completes and no scan is lost, and ``on_failure`` is told, after
 which the agent rolls the kernel back. Failures:
 
-- the kernel raised, or ran out of its memory limit in the worker (:class:`~robot_agent.kernelproc.
+- the kernel raised, or ran out of its memory limit in the worker (:class:`~robot_agent.kernels.proc.
   KernelCallError`), or any other exception;
-- the worker hung past its per-call limit or died (:class:`~robot_agent.kernelproc.WorkerError`): the
+- the worker hung past its per-call limit or died (:class:`~robot_agent.kernels.proc.WorkerError`): the
   supervisor has killed it already; the kernel is never called again (``on_stuck`` is told too);
 - a result that fails the stage's result checks (:func:`shared.kernels.conformance.check_result`: type,
   shapes, non-finite values): it never reaches the map;
@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from robot_agent.kernelproc import KernelCallError, WorkerError
+from robot_agent.kernels.proc import KernelCallError, WorkerError
 from shared.errors import LinemapError
 from shared.kernels import Kernel, Stage
 from shared.kernels.conformance import check_result

@@ -2,8 +2,8 @@
 message installs, verify its signature and run its checks in a confined worker process.
 
 None of a downloaded kernel's code runs in the agent's process: the dry run and the conformance battery run
-in a worker with time, CPU and memory limits (:mod:`robot_agent.dryrun`, docs/reliability/sandbox.md), and a
-kernel that passed is served by a long-lived worker of its own. This may take seconds per kernel; the
+in a worker with time, CPU and memory limits (:mod:`robot_agent.kernels.dryrun`, docs/reliability/sandbox.md),
+and a kernel that passed is served by a long-lived worker of its own. This may take seconds per kernel; the
 mapping thread only gets the result (:class:`~robot_agent.control.Prepared`) through a queue.
 """
 
@@ -40,7 +40,7 @@ class KernelLoader:
 
     def load(self, source: bytes, stage: Stage, name: str, version: str) -> type[Kernel[Any]]:
         """The class of a downloaded kernel running in its own confined worker process."""
-        from robot_agent.dryrun import load_in_worker
+        from robot_agent.kernels.dryrun import load_in_worker
 
         try:
             return load_in_worker(
@@ -59,7 +59,7 @@ class KernelLoader:
 
     def load_stored(self, rec: KernelRecord) -> type[Kernel[Any]]:
         """A kernel of the Robot DB, its signature checked again (at start-up)."""
-        from robot_agent.kernels import verify_artifact
+        from robot_agent.kernels.artifact import verify_artifact
 
         verify_artifact(rec.source, rec.sha256, rec.signature, self.trusted, self.s.allow_unsigned)
         return self.load(rec.source, Stage(rec.stage), rec.name, rec.version)
@@ -116,8 +116,8 @@ class MessagePreparer:
                 return
 
     def _fetch_and_verify(self, op: KernelOperation) -> type[Kernel[Any]]:
-        from robot_agent.dryrun import verify_in_worker
-        from robot_agent.kernels import verify_artifact
+        from robot_agent.kernels.artifact import verify_artifact
+        from robot_agent.kernels.dryrun import verify_in_worker
 
         got = self.link.fetch_kernel(op.name, op.version)
         sha = op.sha256 or ""

@@ -1,10 +1,11 @@
 """What each stage's kernels are given on real scans, built by the pipeline's own stage functions.
 
-The agent's dry run applies a downloaded kernel to these inputs before it may run (``robot_agent.dryrun``):
-the earlier stages run with the kernels of a configuration (the default pipeline unless one is given) and
-the same functions the pipeline's step uses (:func:`~shared.pipeline.stages.remove_noise`,
-:func:`~shared.pipeline.stages.cluster`, :func:`~shared.pipeline.stages.centroids_in_order`), so a kernel
-is tried on what it will see. Points stay in the scanner's frame (metres). Pure: scans in, arrays out.
+The agent's dry run applies a downloaded kernel to these inputs before it may run
+(``robot_agent.kernels.dryrun``): the earlier stages run with the kernels of a configuration (the default
+pipeline unless one is given) and the same functions the pipeline's step uses
+(:func:`~shared.pipeline.stages.remove_noise`, :func:`~shared.pipeline.stages.cluster`,
+:func:`~shared.pipeline.stages.centroids_in_order`), so a kernel is tried on what it will see. Points stay in
+the scanner's frame (metres). Pure: scans in, arrays out.
 
 Cost: one segmentation per scan, plus the noise chain and clustering for the later stages; a few
 milliseconds per URG-04LX scan.

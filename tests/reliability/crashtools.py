@@ -110,7 +110,7 @@ def cmdline(pid: int) -> bytes:
 
 def dry_run_child(cmd: bytes) -> bool:
     """Whether command line ``cmd`` is a kernel's checks (dry run) worker of the agent."""
-    return b"spawn_main" in cmd or b"robot_agent.worker\0checks\0" in cmd
+    return b"spawn_main" in cmd or b"robot_agent.kernels.worker\0checks\0" in cmd
 
 
 def power_cut(agent: AgentProcess) -> list[str]:

@@ -150,7 +150,7 @@ def workers_of(agent_pid: int) -> list[int]:
         except OSError:
             continue
         argv = [a.decode(errors="replace") for a in raw if a]
-        if "robot_agent.worker" in argv and argv[-1] == str(agent_pid) and state != "Z":
+        if "robot_agent.kernels.worker" in argv and argv[-1] == str(agent_pid) and state != "Z":
             found.append(int(entry.name))
     return found
 

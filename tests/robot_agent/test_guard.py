@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from robot_agent.dryrun import load_in_worker
 from robot_agent.guard import guarded
+from robot_agent.kernels.dryrun import load_in_worker
 from shared.errors import KernelParameterError
 from shared.kernels import REGISTRY, NoiseResult
 from shared.kernels.noise.dbscan import Dbscan

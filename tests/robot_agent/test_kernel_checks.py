@@ -17,14 +17,10 @@ import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from robot_agent.errors import AgentError, KernelRejected
-from robot_agent.kernels import (
-    DryRunReport,
-    check_conformance,
-    dry_run,
-    load_kernel_class,
-    module_name,
-    verify_artifact,
-)
+from robot_agent.kernels.artifact import verify_artifact
+from robot_agent.kernels.conformance import check_conformance
+from robot_agent.kernels.dryrun import DryRunReport, dry_run
+from robot_agent.kernels.loading import load_kernel_class, module_name
 from shared.errors import LinemapError, UnknownKernelError
 from shared.kernels import REGISTRY, Lines, NoiseRemovalKernel, Stage
 from shared.kernels.conformance import check_result

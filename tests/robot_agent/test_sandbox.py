@@ -1,4 +1,4 @@
-"""What a downloaded kernel can reach from its worker process (robot_agent/sandbox.py,
+"""What a downloaded kernel can reach from its worker process (robot_agent/kernels/sandbox.py,
 docs/reliability/sandbox.md): a real worker, confined as the agent confines it, runs a kernel that tries
 each escape and reports what happened (through the only channel it has: the text of an exception).
 """
@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from robot_agent.dryrun import load_in_worker
-from robot_agent.kernelproc import KernelCallError
+from robot_agent.kernels.dryrun import load_in_worker
+from robot_agent.kernels.proc import KernelCallError
 
 PROBES = b"""
 import json, os, signal, socket

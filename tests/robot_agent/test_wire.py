@@ -1,5 +1,5 @@
-"""The agent <-> kernel worker message format (robot_agent/wire.py): what a worker sends is untrusted, so
-decoding anything either gives the values back or raises WireError, never another exception."""
+"""The agent <-> kernel worker message format (robot_agent/kernels/wire.py): what a worker sends is untrusted,
+so decoding anything either gives the values back or raises WireError, never another exception."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robot_agent import wire
+from robot_agent.kernels import wire
 from shared.kernels import NoiseResult
 from shared.types import Pose2D
 

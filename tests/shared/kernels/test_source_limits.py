@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robot_agent.errors import KernelRejected
-from robot_agent.kernels import load_kernel_class
+from robot_agent.kernels.loading import load_kernel_class
 from shared.errors import KernelSourceError
 from shared.kernels import Stage
 from shared.kernels.source_check import check_source_bounded
@@ -97,7 +97,7 @@ def test_the_agent_loader_refuses_it_and_lives(source: str) -> None:
 
 
 def test_the_agent_dry_run_refuses_it_in_its_child() -> None:
-    from robot_agent.kernels import dry_run
+    from robot_agent.kernels.dryrun import dry_run
 
     for source in ("x = " + "+".join(["1"] * 200_000), "x = " + "-" * 200_000 + "1"):
         with pytest.raises(KernelRejected, match=r"dry run: import failed: (RecursionError|MemoryError)"):

@@ -1,15 +1,15 @@
 """The agent's side of a kernel worker process: start it, talk to it with deadlines, kill it.
 
-:class:`KernelWorker` starts ``python -m robot_agent.worker`` (:mod:`robot_agent.worker`) with an empty
-environment, in its own scratch directory, with only its end of a socket pair open, from one long-lived
-spawner thread (the parent-death signal fires when the *thread* that started a child ends, so workers are
-never started from a thread that may end, such as the poller). Every request has a deadline: a worker that
-does not answer in time is killed (SIGKILL) and :class:`WorkerError` raised; one that dies or answers
-garbage likewise. :func:`remote_class` makes a kernel class whose construction and ``apply`` run in the
-worker, so the agent's registry and pipeline use it like any kernel.
+:class:`KernelWorker` starts ``python -m robot_agent.kernels.worker`` (:mod:`robot_agent.kernels.worker`) with
+an empty environment, in its own scratch directory, with only its end of a socket pair open, from one
+long-lived spawner thread (the parent-death signal fires when the *thread* that started a child ends, so
+workers are never started from a thread that may end, such as the poller). Every request has a deadline: a
+worker that does not answer in time is killed (SIGKILL) and :class:`WorkerError` raised; one that dies or
+answers garbage likewise. :func:`remote_class` makes a kernel class whose construction and ``apply`` run in
+the worker, so the agent's registry and pipeline use it like any kernel.
 
-Cost per ``apply``: the arguments and the result cross the socket (:mod:`robot_agent.wire`); about 0.1 ms
-for a scan's points (benchmarks/guard_overhead.py). Starting a worker: a Python interpreter, numpy and the
+Cost per ``apply``: the arguments and the result cross the socket (:mod:`robot_agent.kernels.wire`); about 0.1
+ms for a scan's points (benchmarks/guard_overhead.py). Starting a worker: a Python interpreter, numpy and the
 built-in kernels (about 1 s; the caller's start-up allowance covers it).
 """
 
@@ -34,8 +34,8 @@ from pydantic import ConfigDict
 
 import robot_agent
 import shared
-from robot_agent import wire
 from robot_agent.errors import AgentError
+from robot_agent.kernels import wire
 from shared.errors import KernelParameterError
 from shared.kernels import Kernel, KernelParams, Stage
 from shared.kernels.stages import STAGES
@@ -134,7 +134,7 @@ class KernelWorker:
                     "-B",
                     "-s",
                     "-m",
-                    "robot_agent.worker",
+                    "robot_agent.kernels.worker",
                     role,
                     str(theirs.fileno()),
                     str(os.getpid()),

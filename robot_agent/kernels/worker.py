@@ -1,11 +1,12 @@
 """The kernel worker process: where a downloaded kernel's code runs, confined (docs/reliability/sandbox.md).
 
-Started by :mod:`robot_agent.kernelproc` as ``python -B -m robot_agent.worker ROLE FD PARENT_PID`` with an
-empty environment, in a fresh scratch directory, with only the socket ``FD`` open. It dies with the agent
-(parent-death signal), then answers one request at a time over the socket (:mod:`robot_agent.wire`):
+Started by :mod:`robot_agent.kernels.proc` as ``python -B -m robot_agent.kernels.worker ROLE FD PARENT_PID``
+with an empty environment, in a fresh scratch directory, with only the socket ``FD`` open. It dies with the
+agent (parent-death signal), then answers one request at a time over the socket
+(:mod:`robot_agent.kernels.wire`):
 
 ``{"op": "inputs", "stage", "scans"}``     build the dry run's stage inputs with the built-in kernels
-``{"op": "confine", ...}``                  warm the built-ins up, then :func:`robot_agent.sandbox.confine`
+``{"op": "confine", ...}``                  warm the built-ins up, then confine itself (``sandbox.confine``)
 ``{"op": "load", "source", ...}``           import the module, find its kernel class (untrusted from here)
 ``{"op": "new", "params"}``                 construct a kernel: its id and validated parameters
 ``{"op": "apply", "id", "args"}``           one ``apply`` call: the result
@@ -54,7 +55,7 @@ def _warm_up(stage: str, name: str) -> None:
 
 
 def _failure(st: _State, exc: BaseException, what: str, where: str = "") -> dict[str, Any]:
-    from robot_agent.kernels import _describe
+    from robot_agent.kernels.loading import describe_error as _describe
 
     if isinstance(exc, MemoryError):
         limit = f"its {st.memory_mb:g} MB limit"
@@ -66,7 +67,8 @@ def _failure(st: _State, exc: BaseException, what: str, where: str = "") -> dict
 
 def _load(st: _State, req: dict[str, Any]) -> dict[str, Any]:
     from robot_agent.errors import KernelRejected
-    from robot_agent.kernels import _source_file, load_kernel_class
+    from robot_agent.kernels.loading import load_kernel_class
+    from robot_agent.kernels.loading import source_file as _source_file
 
     stage, name, version = str(req["stage"]), str(req["name"]), str(req["version"])
     st.filename = _source_file(stage, name, version)
@@ -192,7 +194,7 @@ def _inputs(st: _State, req: dict[str, Any]) -> dict[str, Any]:
 
 
 def _confine(st: _State, req: dict[str, Any]) -> dict[str, Any]:
-    from robot_agent import sandbox
+    from robot_agent.kernels import sandbox
 
     st.memory_mb = float(req["memory_mb"])
     _warm_up(str(req["stage"]), str(req.get("name") or ""))
@@ -207,7 +209,7 @@ def _confine(st: _State, req: dict[str, Any]) -> dict[str, Any]:
 
 
 def _serve(sock: socket.socket) -> None:
-    from robot_agent import wire
+    from robot_agent.kernels import wire
 
     st = _State()
     handlers: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {
@@ -240,7 +242,7 @@ def _serve(sock: socket.socket) -> None:
 def main(argv: list[str]) -> None:
     """``ROLE FD PARENT_PID``: die with the parent, then serve requests on socket ``FD`` until it closes
     (``ROLE``, ``checks`` or ``service``, only names the process)."""
-    from robot_agent.sandbox import die_with_parent
+    from robot_agent.kernels.sandbox import die_with_parent
 
     fd, parent = int(argv[1]), int(argv[2])
     die_with_parent(parent)

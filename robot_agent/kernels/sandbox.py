@@ -1,7 +1,7 @@
 """Confinement a kernel worker process applies to itself before it reads any untrusted code (Linux).
 
-:func:`confine` is called by :mod:`robot_agent.worker` once its imports are done; each layer is tried and
-reported (``{"layer": "applied" | "unavailable: why"}``), so the agent logs what holds on this machine
+:func:`confine` is called by :mod:`robot_agent.kernels.worker` once its imports are done; each layer is tried
+and reported (``{"layer": "applied" | "unavailable: why"}``), so the agent logs what holds on this machine
 (docs/reliability/sandbox.md lists every layer and what it does and does not prevent):
 
 - ``pdeathsig``: ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` (the worker dies with the agent) — applied first, by

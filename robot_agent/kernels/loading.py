@@ -1,18 +1,7 @@
-"""Checks a downloaded kernel passes before the agent may run it (docs/design.md §7, §9).
-
-The agent installs a kernel only after every step below succeeded, cheapest first; each refusal raises
-:class:`~robot_agent.errors.KernelRejected` whose ``reason`` is what the server (and the operator) is told:
-
-1. :func:`verify_artifact`: the SHA-256 of the source matches the message's, and an Ed25519 signature by a
-   key the robot trusts covers it (unsigned code only with the ``--allow-unsigned`` development flag);
-2. the dry run and the conformance battery, in a confined worker process with time, CPU and memory limits
-   (:func:`robot_agent.dryrun.verify_in_worker`; :func:`dry_run` is its dry-run part);
-3. the kernel is then loaded in a long-lived worker process of its own (:func:`robot_agent.dryrun.
-   load_in_worker`), and the agent registers a class that forwards every call to it.
-
-The downloaded code never runs in the agent's process. :func:`load_kernel_class` (importing a module and
-finding its kernel class) and :func:`check_conformance` are what the worker runs; they are plain functions
-and can be used in-process for trusted code (tests). Nothing here touches the database or the network.
+"""Loading a downloaded kernel: importing its module and finding its kernel class. This is what
+a confined worker process runs (:mod:`robot_agent.kernels.worker`); it is a plain function and can be used
+in-process for trusted code (tests). A module's self-registration is undone, so loading never changes the
+registry; errors name the line of the kernel's source where they were raised.
 """
 
 from __future__ import annotations
@@ -22,87 +11,19 @@ import inspect
 import sys
 import threading
 import types
-from collections.abc import Mapping, Sequence
 from typing import Any
-
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from robot_agent.errors import KernelRejected
 from shared.errors import LinemapError
-from shared.kernels import (
-    REGISTRY,
-    Kernel,
-    KernelRegistry,
-    Stage,
-)
-from shared.kernels.conformance import check_kernel
+from shared.kernels import REGISTRY, Kernel, KernelRegistry, Stage
 from shared.kernels.stages import STAGES
-from shared.signing import SignatureError, key_id, sha256_hex, verify_digest
 
-__all__ = [
-    "STARTUP_ALLOWANCE_S",
-    "DryRunReport",
-    "check_conformance",
-    "dry_run",
-    "load_kernel_class",
-    "module_name",
-    "verify_artifact",
-]
-
+__all__ = ["describe_error", "load_kernel_class", "module_name", "source_file"]
 
 #: Serialises module loads: the registry diff that undoes a module's self-registration needs it.
 _LOAD_LOCK = threading.Lock()
 
-_UNSIGNED = "unsigned kernel refused; run the agent with --allow-unsigned for development"
 
-
-# --------------------------------------------------------------------------------------- 1. the artifact
-def verify_artifact(
-    source: bytes,
-    sha256: str,
-    signature: str | None,
-    trusted: Sequence[Ed25519PublicKey],
-    allow_unsigned: bool = False,
-) -> str | None:
-    """Check a kernel artifact's digest and signature; return the id of the key that signed it.
-
-    ``sha256`` is the hex digest the control message names, ``signature`` the base64 Ed25519 signature over
-    it (:func:`shared.signing.sign_digest`), ``trusted`` the public keys this robot accepts. Returns the
-    signing key's id, or ``None`` for unsigned code accepted because ``allow_unsigned`` is set (development
-    only). A signature that is present is always checked, even with ``allow_unsigned``.
-
-    Raises :class:`KernelRejected`: "sha256 mismatch: expected X, got Y"; "unsigned kernel refused; ...";
-    no trusted keys configured; a signature that is malformed or verifies with none of the keys.
-    O(len(source)) for the hash, then ~0.1 ms per trusted key.
-    """
-    got = sha256_hex(source)
-    if got != sha256.strip().lower():
-        raise KernelRejected(f"sha256 mismatch: expected {sha256}, got {got}")
-    if not signature:
-        if allow_unsigned:
-            return None
-        raise KernelRejected(_UNSIGNED)
-    if not trusted:
-        raise KernelRejected(
-            "signed kernel refused: this robot trusts no signing key; add the operator's public key"
-            " (linemap keys generate prints it) to the agent's trusted keys"
-        )
-    failures: list[str] = []
-    for key in trusted:
-        try:
-            verify_digest(key, got, signature)
-        except SignatureError as exc:
-            failures.append(str(exc))
-            continue
-        return key_id(key)
-    if any(not f.startswith("signature does not verify") for f in failures):
-        malformed = next(f for f in failures if not f.startswith("signature does not verify"))
-        raise KernelRejected(f"bad signature: {malformed}")
-    ids = ", ".join(key_id(k) for k in trusted)
-    raise KernelRejected(f"bad signature: it verifies with none of the trusted keys ({ids})")
-
-
-# ------------------------------------------------------------------------------------------ 2. loading
 def module_name(name: str, version: str) -> str:
     """The module name a kernel's source is imported under: ``linemap_kernel_<name>_<version>``.
 
@@ -113,7 +34,7 @@ def module_name(name: str, version: str) -> str:
     return "".join(c if c.isalnum() or c == "_" else "_" for c in raw)
 
 
-def _source_file(stage: Stage | str, name: str, version: str) -> str:
+def source_file(stage: Stage | str, name: str, version: str) -> str:
     return f"<kernel {stage}/{name}@{version}>"
 
 
@@ -138,7 +59,7 @@ def _line_in(exc: BaseException, filename: str) -> int | None:
     return line
 
 
-def _describe(exc: BaseException, filename: str) -> str:
+def describe_error(exc: BaseException, filename: str) -> str:
     """``"ExcType: message (line N)"`` with N the innermost line of the kernel's own source, if any."""
     message = exc.msg if isinstance(exc, SyntaxError) else str(exc)
     line = _line_in(exc, filename)
@@ -186,7 +107,7 @@ def load_kernel_class(source: bytes, stage: Stage | str, name: str, version: str
     Cost: that of importing the module.
     """
     want = _stage(stage)
-    filename = _source_file(want, name, version)
+    filename = source_file(want, name, version)
     modname = module_name(name, version)
     with _LOAD_LOCK:
         previous = sys.modules.get(modname)
@@ -200,7 +121,7 @@ def load_kernel_class(source: bytes, stage: Stage | str, name: str, version: str
                 code = compile(source, filename, "exec", dont_inherit=True)
                 exec(code, module.__dict__)
             except (Exception, SystemExit) as exc:
-                raise KernelRejected(f"import failed: {_describe(exc, filename)}") from None
+                raise KernelRejected(f"import failed: {describe_error(exc, filename)}") from None
             finally:
                 _undo_registrations(before, modname)
             cls = _find_kernel(module, want, name, version)
@@ -244,27 +165,3 @@ def _find_kernel(module: types.ModuleType, stage: Stage, name: str, version: str
     except LinemapError as exc:
         raise KernelRejected(f"invalid kernel declaration: {exc}") from None
     return cls
-
-
-# -------------------------------------------------------------------------------------- 3. conformance
-def check_conformance(cls: type[Kernel[Any]], params: Mapping[str, Any] | None = None) -> None:
-    """Run :func:`shared.kernels.conformance.check_kernel`; :class:`KernelRejected` listing the problems.
-
-    The reason names at most 10 problems (and how many more there were). About 12 ``apply`` calls on at
-    most 1000 points, in the calling process.
-    """
-    problems = check_kernel(cls, params)
-    if problems:
-        shown = "; ".join(problems[:10])
-        more = f"; and {len(problems) - 10} more" if len(problems) > 10 else ""
-        n = len(problems)
-        raise KernelRejected(
-            f"conformance failed for {_ident(cls)} ({n} problem{'s' if n > 1 else ''}): {shown}{more}"
-        )
-
-
-from robot_agent.dryrun import (  # noqa: E402  (kept importable from here)
-    STARTUP_ALLOWANCE_S,
-    DryRunReport,
-    dry_run,
-)

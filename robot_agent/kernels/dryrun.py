@@ -1,10 +1,10 @@
 """Checks and loading of a downloaded kernel in worker processes (docs/reliability/sandbox.md).
 
 :func:`verify_in_worker` runs the dry run (the kernel applied to the inputs its stage would see on the
-last scans) and the conformance battery in a fresh, confined worker (:mod:`robot_agent.worker`) with a
+last scans) and the conformance battery in a fresh, confined worker (:mod:`robot_agent.kernels.worker`) with a
 wall-time budget per phase, a CPU-time limit (RLIMIT_CPU) and a memory limit (RLIMIT_AS), then kills it.
 :func:`load_in_worker` starts the long-lived worker a kernel that passed serves from, and returns the
-kernel class that forwards to it (:func:`robot_agent.kernelproc.remote_class`). Both are called on the
+kernel class that forwards to it (:func:`robot_agent.kernels.proc.remote_class`). Both are called on the
 poller thread and return within their limits whatever the kernel does: a kernel that hangs or spins at
 import, in the dry run or in the battery is killed at its limit and refused with the reason.
 """
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from robot_agent.errors import AgentError, KernelRejected
-from robot_agent.kernelproc import KernelWorker, WorkerError, remote_class
+from robot_agent.kernels.proc import KernelWorker, WorkerError, remote_class
 from shared.kernels import Kernel, Stage
 from shared.types import Scan
 
@@ -239,7 +239,7 @@ def load_in_worker(
 ) -> type[Kernel[Any]]:
     """Start the long-lived confined worker a downloaded kernel runs in and import it there.
 
-    Returns the class to register (:func:`robot_agent.kernelproc.remote_class`): constructing it and each
+    Returns the class to register (:func:`robot_agent.kernels.proc.remote_class`): constructing it and each
     ``apply`` run in the worker within ``call_s``. The worker has ``memory_mb`` of address space above its
     footprint and no CPU limit (a per-call wall-time limit instead). Raises :class:`KernelRejected` when
     the import fails or takes longer than ``import_s`` (the worker is killed), :class:`AgentError` when
