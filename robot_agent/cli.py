@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import signal
 import threading
 import tomllib
 from pathlib import Path
@@ -13,6 +12,7 @@ import typer
 
 from shared.errors import LinemapError
 from shared.slam import LoopClosureSettings, OnlineGraphMapper
+from shared.stopsignals import stop_on_signals
 
 __all__ = ["agent_cmd"]
 
@@ -207,8 +207,7 @@ def agent_cmd(
         typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)
     agent = Agent(settings)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop)
     where = f"server {server_url} as robot {rid}" if server_url else "no server"
     typer.echo(f"linemap agent: source {src}, Robot DB {settings.db_path}, {where}", err=True)
     agent.run(stop)

@@ -22,6 +22,7 @@ LAYERS: dict[str, int] = {
     "shared.sqltypes": 1,
     "shared.signing": 1,
     "shared.protocol": 1,
+    "shared.stopsignals": 1,
     "shared.odometry": 2,
     "shared.metrics": 2,
     "shared.baselines": 2,

@@ -35,6 +35,7 @@ from pathlib import Path
 from robot_agent.sensors.errors import SensorError
 from robot_agent.sensors.scip_info import URG04LX_PARAMS, SensorParams
 from robot_agent.sensors.urg_model import FAULTS, AtEnd, EmulatorFrame, Fault, UrgModel
+from shared.stopsignals import stop_on_signals
 from shared.types import Scan
 
 __all__ = ["UrgEmulator", "main"]
@@ -318,7 +319,6 @@ def main(argv: list[str] | None = None) -> int:
     URG-04LX until Ctrl-C."""
     import argparse
     import itertools
-    import signal
 
     from robot_agent.sources import open_scans
     from shared.errors import LinemapError
@@ -337,8 +337,7 @@ def main(argv: list[str] | None = None) -> int:
         print("emulator: --world must be 'sim', 'sim:WORLD_FILE' or a log, not a device")
         return 2
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop)
     try:
         scans = open_scans(args.world, seed=args.seed)
         first = next(scans)  # a bad world fails here, before the device appears

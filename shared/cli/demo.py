@@ -34,6 +34,7 @@ import typer
 
 from shared.cli.demo_world import DEFAULT_WORLD, save_map_png, world_source
 from shared.errors import LinemapError
+from shared.stopsignals import stop_on_signals
 
 __all__ = ["DemoInfo", "demo_cmd"]
 
@@ -268,8 +269,7 @@ def demo_cmd(
     op_token = token.stdout.strip().splitlines()[-1]
 
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop)
     server_args = ["server", "--db", str(db), "--host", host, "--port", str(port)]
     server = _Child("server", server_args, directory / "server.log")
     agent: _Child | None = None
