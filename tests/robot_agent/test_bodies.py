@@ -13,10 +13,11 @@ import httpx
 from robot_agent.agent import Agent, AgentSettings
 from robot_agent.health import ErrorReport
 from robot_agent.link import ServerLink, UploadConflict
-from robot_agent.store import RobotDB, StepRecord
+from robot_agent.store import RobotDB
 from robot_agent.uploader import Uploader
 from server.schemas import AckIn, MapUpload, RobotStatus
 from shared.protocol import RobotStatus as SentStatus
+from tests.robot_agent.records import step_record
 
 
 class _Recorder:
@@ -28,18 +29,6 @@ class _Recorder:
     def upload(self, payload: dict[str, Any], key: str) -> dict[str, Any] | UploadConflict:
         self.bodies.append((json.loads(json.dumps(payload)), key))  # as it goes on the wire
         return {"version": payload["version"], "duplicate": False}
-
-
-def _step(version: int) -> StepRecord:
-    return StepRecord(
-        version=version,
-        stamp_s=version * 0.1,
-        source_index=version,
-        segments=[[float(version), 0.0, 0.0, 1.0, float(version)]],
-        removed=[version - 1] if version > 1 else [],
-        pose=[version * 0.1, 1.0, 2.0, 0.5],
-        centroids=[[0.5, 0.5]],
-    )
 
 
 def _status() -> SentStatus:
@@ -61,10 +50,10 @@ def test_uploaded_snapshots_and_deltas_validate_against_the_servers_model(tmp_pa
     )
     try:
         for v in (1, 2):
-            db.record_step(_step(v))
+            db.record_step(step_record(v))
         assert uploader.send_maps()  # nothing uploaded yet: a snapshot
         for v in (3, 4):
-            db.record_step(_step(v))
+            db.record_step(step_record(v))
         assert uploader.send_maps()  # then a delta from version 2
     finally:
         db.close()

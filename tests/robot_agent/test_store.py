@@ -16,7 +16,7 @@ from sqlalchemy import create_engine
 from robot_agent.models import RobotBase
 from robot_agent.store import RobotDB
 from robot_agent.store_db import MIGRATIONS_DIR
-from robot_agent.store_map import StepRecord
+from tests.robot_agent.records import step_record
 
 
 def test_migrated_schema_matches_the_models(tmp_path: Path) -> None:
@@ -30,23 +30,11 @@ def test_migrated_schema_matches_the_models(tmp_path: Path) -> None:
         db.close()
 
 
-def _step(version: int) -> StepRecord:
-    return StepRecord(
-        version=version,
-        stamp_s=version * 0.1,
-        source_index=version,
-        segments=[[float(version), 0.0, 0.0, 1.0, float(version)]],
-        removed=[version - 1] if version > 1 else [],
-        pose=[version * 0.1, 1.0, 2.0, 0.5],
-        centroids=[[0.5, 0.5]],
-    )
-
-
 def test_steps_fold_into_one_delta_and_survive_reopening(tmp_path: Path) -> None:
     path = tmp_path / "robot.db"
     db = RobotDB(path)
     for v in (1, 2, 3):
-        db.record_step(_step(v))
+        db.record_step(step_record(v))
     db.close()
     db = RobotDB(path)  # reopened, as after a restart
     try:
@@ -90,12 +78,12 @@ def test_a_snapshot_holds_exactly_its_versions_while_a_step_lands(tmp_path: Path
     db, other = RobotDB(path), RobotDB(path)
     try:
         for v in range(1, 6):
-            db.record_step(_step(v))
+            db.record_step(step_record(v))
         landed: list[int] = []
 
         def step_lands(_conn: object, _cursor: object, statement: str, *_args: object) -> None:
             if not landed and "FROM poses" in statement and "max(" not in statement:
-                other.record_step(_step(6))
+                other.record_step(step_record(6))
                 landed.append(6)
 
         event.listen(db.engine, "before_cursor_execute", step_lands)
