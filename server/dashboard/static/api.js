@@ -138,3 +138,12 @@ export function builtinKernels() {
   if (!builtinCache) builtinCache = api.builtinKernels().catch((e) => { builtinCache = null; throw e; });
   return builtinCache;
 }
+
+/** Uploaded kernels (GET /kernels), cached for a few seconds across tabs (in a view's shared state). */
+export async function uploadedKernels(shared, maxAgeMs = 5000) {
+  if (!shared.uploaded || performance.now() - shared.uploadedAt > maxAgeMs) {
+    shared.uploaded = await api.kernels();
+    shared.uploadedAt = performance.now();
+  }
+  return shared.uploaded;
+}

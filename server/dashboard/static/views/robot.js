@@ -86,15 +86,6 @@ export function renderRobot(root, ctx, robotId, initialTab) {
   ctx.onCleanup(() => { document.title = "linemap dashboard"; });
 }
 
-/** Uploaded kernels (GET /kernels), cached for a few seconds across tabs. */
-export async function uploadedKernels(shared, maxAgeMs = 5000) {
-  if (!shared.uploaded || performance.now() - shared.uploadedAt > maxAgeMs) {
-    shared.uploaded = await api.kernels();
-    shared.uploadedAt = performance.now();
-  }
-  return shared.uploaded;
-}
-
 // ---- Status ---------------------------------------------------------------------------------------
 
 class StatusTab {

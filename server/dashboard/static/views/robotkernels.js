@@ -1,10 +1,10 @@
 // Robot page, Kernels tab: the robot's installed kernels (with Roll back to…), the uploaded kernel
 // versions it could install (Install), and the acknowledgement of what was sent.
 
+import { uploadedKernels } from "../api.js";
 import { h, mount, badge, modal, when } from "../dom.js";
 import { cmpVersion, STAGES, configBlocks } from "../schema.js";
 import { AckPanel, sendDraft, installDraft, rollbackDraft } from "./ack.js";
-import { uploadedKernels } from "./robot.js";
 
 export class RobotKernelsTab {
   constructor(shared) {

@@ -3,11 +3,10 @@
 // and a Raw XML area for messages like the paper's Listing 1.
 
 import { h, mount } from "../dom.js";
-import { api } from "../api.js";
+import { api, uploadedKernels } from "../api.js";
 import { STAGES, MODES, stageKey, configBlocks, isChain, isOptional } from "../schema.js";
 import { KernelEditor, kernelOptions, NONE } from "./kernelform.js";
 import { AckPanel } from "./ack.js";
-import { uploadedKernels } from "./robot.js";
 
 // The paper's Listing 1 (as in tests/shared/control/fixtures/listing1.xml).
 export const LISTING_1 = `<?xml version="1.0"?>
