@@ -17,7 +17,7 @@ provides cannot exist on the robot and is refused here.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -30,7 +30,7 @@ from shared.kernels import REGISTRY, Stage
 from shared.kernels.base import parse_version
 from shared.pipeline.config import PipelineConfig
 
-__all__ = ["builtin_only", "check_like_robot", "robot_checkable"]
+__all__ = ["builtin_only", "check_like_robot", "robot_checkable", "server_checkable", "uploaded_artifacts"]
 
 Version = tuple[int, int, int]
 
@@ -54,10 +54,34 @@ def _builtin_versions() -> dict[tuple[str, str], set[Version]]:
 
 
 def builtin_only(stage: Stage, name: str, version: str | None) -> bool:
-    """The ``checkable`` without a robot (``/control/xml``): build a kernel here when it is built in at
-    that version (at all, for no version); other kernels are the robot's to check."""
+    """Build a kernel here when it is built in at that version (at all, for no version); other kernels
+    are the robot's to check."""
     versions = _builtin_versions().get((stage.value, name), set())
     return bool(versions) and (version is None or _version(version) in versions)
+
+
+def server_checkable(
+    artifacts: Iterable[KernelArtifact], msg: ControlMessage
+) -> Callable[[Stage, str, str | None], bool]:
+    """The ``checkable`` without a robot (``/control/xml``): built-in kernel versions are built here; a
+    kernel name that is built in at another version, held uploaded (not deleted) or installed by ``msg``
+    itself is the robot's to check; a name that exists nowhere is built here, which refuses it by name
+    ("no kernel named ..."). O(artifacts)."""
+    known = {(art.stage, art.name) for art in artifacts if art.deleted_at is None}
+    known |= {key[0] for key in _builtin_versions().items()}
+    for op in msg.operations:
+        if op.kind in (OperationKind.INSTALL, OperationKind.UPDATE):
+            known.add((op.stage.value, op.name))
+
+    def checkable(stage: Stage, name: str, version: str | None) -> bool:
+        return builtin_only(stage, name, version) or (stage.value, name) not in known
+
+    return checkable
+
+
+def uploaded_artifacts(s: Session) -> list[KernelArtifact]:
+    """Every kernel artifact the server holds (deleted ones included). O(artifacts)."""
+    return list(s.scalars(select(KernelArtifact)).all())
 
 
 class _RobotKernels:
@@ -120,7 +144,7 @@ def _base_config(robot: Robot) -> PipelineConfig:
 def check_like_robot(s: Session, robot: Robot, msg: ControlMessage) -> None:
     """Raise :class:`InvalidRequestError` (422) when the robot would refuse ``msg``'s settings, naming the
     element, the parameter and its allowed range. O(kernel artifacts + message)."""
-    artifacts = s.scalars(select(KernelArtifact)).all()
+    artifacts = uploaded_artifacts(s)
     try:
         to_config(msg, _base_config(robot), checkable=robot_checkable(robot, artifacts, msg))
     except ControlMessageError as exc:

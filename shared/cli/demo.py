@@ -164,14 +164,17 @@ def _setup(base: str, op_token: str, directory: Path) -> tuple[int, str, str, st
                 f"could not register the demo signing key: HTTP {r.status_code} {r.text[:300]}"
             )
     example = signature = None
-    if EXAMPLE_KERNEL.is_file():
-        kernels = directory / "kernels"
+    kernels = directory / "kernels"
+    # every example kernel artifact, signed, ready to upload (docs/examples: a new version of a built-in
+    # kernel, and a kernel of a new name)
+    for source in sorted(EXAMPLE_KERNEL.parent.glob("*.py")):
         kernels.mkdir(exist_ok=True)
-        copy = kernels / EXAMPLE_KERNEL.name
-        shutil.copyfile(EXAMPLE_KERNEL, copy)
-        signature = sign_digest(load_private_key(pair.private_pem), sha256_hex(copy.read_bytes()))
-        copy.with_suffix(".sig").write_text(signature + "\n", encoding="utf-8")
-        example = str(copy)
+        copy = kernels / source.name
+        shutil.copyfile(source, copy)
+        signed = sign_digest(load_private_key(pair.private_pem), sha256_hex(copy.read_bytes()))
+        copy.with_suffix(".sig").write_text(signed + "\n", encoding="utf-8")
+        if source == EXAMPLE_KERNEL:
+            example, signature = str(copy), signed
     return int(robot["id"]), str(robot["token"]), str(key_file), pair.public_b64, example, signature
 
 
@@ -376,8 +379,8 @@ def _banner(info: DemoInfo, directory: Path) -> None:
     ]
     if info.example_kernel:
         lines.append(
-            f"Example kernel: {info.example_kernel} with its signature in "
-            f"{Path(info.example_kernel).with_suffix('.sig').name} (upload it on the Kernels page)"
+            f"Example kernels: {Path(info.example_kernel).parent}/*.py, each with its signature in a .sig "
+            "file (upload them on the Kernels page)"
         )
     lines.append(f"Logs:           {directory / 'server.log'}, {directory / 'agent.log'}")
     lines.append("Stop with Ctrl-C.")

@@ -286,6 +286,43 @@ def test_upload_install_and_roll_back_a_signed_kernel(page: Any, demo: dict[str,
     )
 
 
+def test_a_kernel_of_a_new_name_is_chosen_in_the_tune_form(page: Any, demo: dict[str, Any]) -> None:
+    """The example radius-outlier filter (a kernel no built-in has the name of) is uploaded, installed,
+    and chosen for the noise-removal chain in the Tune form; the message names it by <kernel name="..">
+    and the robot runs it."""
+    source = Path(demo["example_kernel"]).parent / "radius_outlier.py"
+    page.goto(f"{demo['url']}#/kernels")
+    tid(page, "kernel-upload-file").set_input_files(str(source))
+    tid(page, "kernel-upload-name").fill("radius-outlier")
+    tid(page, "kernel-upload-stage").select_option("noise-removal")
+    tid(page, "kernel-upload-version").fill("1.0.0")
+    tid(page, "kernel-upload-signature").fill(source.with_suffix(".sig").read_text().strip())
+    tid(page, "kernel-upload-submit").click()
+    row = page.locator('[data-testid="kernel-row"][data-name="radius-outlier"][data-version="1.0.0"]')
+    expect(row).to_be_visible()
+    row.get_by_test_id("kernel-install").click()
+    tid(page, "kernel-install-robot").select_option(str(demo["robot_id"]))
+    tid(page, "kernel-install-confirm").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+
+    open_robot(page, demo)
+    tid(page, "tab-tune").click()
+    tid(page, "tune-kernel-noise-removal-0").select_option("radius-outlier@1.0.0")
+    tid(page, "param-noise-removal-0-json").fill('{"radius_m": 0.06, "min_neighbours": 2}')
+    tid(page, "tune-preview").click()
+    expect(tid(page, "xml-preview")).to_contain_text('<kernel name="radius-outlier">')
+    shot(page, "06b-tune-new-kernel")
+    tid(page, "tune-send").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    wait_for(
+        "radius-outlier running",
+        lambda: robot_state(demo)["active_kernels"].get("noise-removal") == "radius-outlier@1.0.0",
+        60,
+    )
+    params = robot_state(demo)["config"]["noise_removal"][0]["params"]
+    assert params == {"radius_m": 0.06, "min_neighbours": 2}
+
+
 def test_history_shows_audit_and_acknowledgements(page: Any, demo: dict[str, Any]) -> None:
     page.goto(f"{demo['url']}#/history")
     audit = tid(page, "audit-row")
