@@ -155,6 +155,64 @@ def test_live_map_grows_and_latency_is_measured(page: Any, demo: dict[str, Any])
     shot(page, "02-live-map")
 
 
+def test_map_tools_pose_layers_measure_and_downloads(page: Any, demo: dict[str, Any]) -> None:
+    """What people reach for on a map: a pose readout, layers switched off and on, a measured distance and
+    angle, and the map downloaded as files of the version on screen."""
+    open_robot(page, demo)
+    expect(tid(page, "map-version")).to_have_text(re.compile(r"^[1-9][0-9]*$"))
+    pose = re.compile(r"^x -?[0-9.]+ m · y -?[0-9.]+ m · heading [0-9.]+°$")
+    expect(tid(page, "map-pose")).to_have_text(pose)
+
+    # layers: centroids off, then on again; the frame drawn says which layers it drew
+    tid(page, "map-layer-centroids").uncheck()
+    drawn = "window.linemapStats.layers.centroids"
+    wait_for("a frame without centroids", lambda: page.evaluate(drawn) is False)
+    assert page.evaluate("window.linemapStats.layers.walls") is True
+    tid(page, "map-layer-centroids").check()
+    wait_for("centroids back", lambda: page.evaluate(drawn) is True)
+
+    # measure: three clicks 150 px right, then 150 px up: a distance of 150 px in metres, bearing 0 deg,
+    # and a right angle at the middle point
+    tid(page, "map-measure").click()
+    canvas = tid(page, "map-canvas")
+    box = canvas.bounding_box()
+    x0, y0 = box["width"] / 2 - 75, box["height"] / 2 + 75
+    for dx, dy in ((0, 0), (150, 0), (150, -150)):
+        canvas.click(position={"x": x0 + dx, "y": y0 + dy})
+    scale = page.evaluate("window.linemapStats.scale")
+    text = tid(page, "map-measure-text").inner_text()
+    metres = re.match(r"^([0-9.]+) m · bearing ([0-9.]+)° · then ([0-9.]+) m · angle ([0-9.]+)°$", text)
+    assert metres is not None, text
+    assert abs(float(metres[1]) - 150 / scale) <= 0.011 and abs(float(metres[3]) - 150 / scale) <= 0.011
+    assert float(metres[2]) in (0.0, 360.0) and abs(float(metres[4]) - 90.0) <= 0.1, text
+    shot(page, "02b-measure")
+    tid(page, "map-measure").click()
+    expect(tid(page, "map-measure-readout")).to_be_hidden()
+
+    # downloads: GeoJSON of the version on screen (or, said so, the current one), then PGM + YAML of one
+    tid(page, "map-download").click()
+    with page.expect_download() as got:
+        tid(page, "map-download-geojson").click()
+    name = got.value.suggested_filename
+    assert name.endswith(".geojson"), name
+    note = tid(page, "map-download-note")
+    expect(note).to_contain_text(re.compile(r"(Downloaded map v[0-9]+|no longer held)"))
+    tid(page, "map-download").click()
+    with page.expect_download() as got:
+        tid(page, "map-download-pgm+yaml").click()
+    pgm = got.value.suggested_filename
+    expect(note).to_contain_text(pgm.removesuffix(".pgm") + ".yaml")
+    version = re.search(r"-map-v([0-9]+)-", pgm)
+    assert version is not None, pgm
+    # a version the server no longer holds: the current one is downloaded, and the note says so
+    got = page.evaluate(
+        """async (rid) => { const m = await import('/static/downloads.js');
+                            return await m.downloadMap(rid, 'geojson', 1); }""",
+        demo["robot_id"],
+    )
+    assert got["version"] > 1 and "map v1 is no longer held" in got["note"], got
+
+
 def test_tuning_dbscan_epsilon_is_acknowledged_and_in_force(page: Any, demo: dict[str, Any]) -> None:
     open_robot(page, demo)
     tid(page, "tab-tune").click()
@@ -349,7 +407,9 @@ def test_a_5000_wall_map_draws_in_full(page: Any, demo: dict[str, Any]) -> None:
         [i, (i % 100) * 0.5, (i // 100) * 0.5, (i % 100) * 0.5 + 0.4, (i // 100) * 0.5 + 0.1]
         for i in range(5000)
     ]
-    with httpx.Client(base_url=demo["url"] + "api/v1", headers={"Authorization": f"Bearer {token}"}) as robot:
+    # 30 s: a 5,000-wall upload on a loaded 2-core machine can take longer than httpx's default 5 s
+    auth = {"Authorization": f"Bearer {token}"}
+    with httpx.Client(base_url=demo["url"] + "api/v1", headers=auth, timeout=30) as robot:
         snap = {"version": 1, "base_version": None, "segments": segments, "pose": [25.0, 12.0, 0.0]}
         assert robot.post(f"/robots/{rid}/maps", json=snap).status_code == 200
         page.goto(f"{demo['url']}#/robots/{rid}")
