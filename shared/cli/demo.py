@@ -86,7 +86,9 @@ def _tail(path: Path, lines: int = 15) -> str:
 class _Child:
     """A ``linemap`` subprocess with its output in a log file."""
 
-    def __init__(self, name: str, args: list[str], log: Path) -> None:
+    def __init__(self, name: str, args: list[str], log: Path, env: dict[str, str] | None = None) -> None:
+        """``env``: variables added to this process's environment for the child (secrets go there, not
+        into ``args``: a command line is visible to every local user in ``ps``)."""
         self.name, self.log = name, log
         self._out = log.open("ab")
         # Own session: a Ctrl-C at the terminal reaches only the demo, which stops the children in order.
@@ -96,6 +98,7 @@ class _Child:
             stderr=subprocess.STDOUT,
             start_new_session=True,
             preexec_fn=_die_with_parent,
+            env={**os.environ, **env} if env else None,
         )
 
     def alive(self) -> bool:
@@ -295,12 +298,12 @@ def demo_cmd(
                 "--laps", str(laps),
                 "--server", base,
                 "--robot-id", str(robot_id),
-                "--token", robot_token,
                 "--db", str(directory / "robot.db"),
                 "--trust-key", public_key,
                 *(["--loop-closure"] if loop_closure else []),
             ],
             directory / "agent.log",
+            env={"LINEMAP_ROBOT_TOKEN": robot_token},  # not on the command line: ps shows that to all
         )  # fmt: skip
         info = DemoInfo(
             f"{base}/", op_token, world, robot_id, ROBOT_NAME, key_file, public_key, example, signature,

@@ -9,6 +9,7 @@ export const FORMATS = [
   { key: "geojson", label: "GeoJSON" },
   { key: "svg", label: "SVG" },
   { key: "dxf", label: "DXF" },
+  { key: "mcap", label: "MCAP (ROS 2, Foxglove)" },
   { key: "pgm+yaml", label: "PGM + YAML (ROS map)" },
 ];
 

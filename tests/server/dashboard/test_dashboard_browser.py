@@ -272,21 +272,29 @@ def test_loop_closure_switched_on_and_off_from_the_form(page: Any, demo: dict[st
 
 
 def test_out_of_range_value_is_refused_with_its_name(page: Any, demo: dict[str, Any]) -> None:
-    before = robot_state(demo)["last_seq"]
     open_robot(page, demo)
     tid(page, "tab-tune").click()
+    tid(page, "param-noise-removal-0-epsilon_m").fill("0.045")
+    tid(page, "tune-send").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    before = robot_state(demo)["last_seq"]
     tid(page, "param-noise-removal-0-epsilon_m").fill("-1")
     tid(page, "tune-send").click()
     expect(tid(page, "form-error")).to_contain_text("epsilon")
+    # the earlier "applied" panel is gone: under the error it would make the bad value look applied
+    expect(tid(page, "ack")).to_be_hidden()
     assert robot_state(demo)["last_seq"] == before, "nothing was queued"
 
 
 def test_listing_1_pasted_as_is(page: Any, demo: dict[str, Any]) -> None:
     open_robot(page, demo)
     tid(page, "tab-tune").click()
+    tid(page, "tune-preview").click()
+    expect(tid(page, "xml-preview")).to_be_visible()
     tid(page, "raw-xml").fill(LISTING_1)
     tid(page, "raw-send").click()
     expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    expect(tid(page, "xml-preview")).to_be_hidden()  # the form's preview is not what was sent
 
     def in_force() -> bool:
         config = robot_state(demo)["config"]
