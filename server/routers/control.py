@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from server.deps import OperatorDep, StateDep
 from server.errors import InvalidRequestError
-from server.msgcheck import server_checkable, uploaded_artifacts
+from server.msgcheck import check_declared, server_checkable, uploaded_artifacts
 from shared.control import (
     NO_SCAN_MATCHING,
     ControlMessage,
@@ -166,12 +166,13 @@ def control_xml(draft: ControlDraft, who: OperatorDep, state: StateDep) -> Contr
         if op.below_floor and op.kind != "rollback":
             raise InvalidRequestError(f"operations: below_floor is for a rollback only, not {op.kind}")
     msg = draft_message(draft)
-    with state.db.session() as s:
-        checkable = server_checkable(uploaded_artifacts(s), msg)
     try:
         xml = build_message(msg)
-        # what the robot will read must be what we meant, and valid as the robot will check it
-        to_config(parse_message(xml), PipelineConfig(), checkable=checkable)
+        with state.db.session() as s:
+            artifacts = uploaded_artifacts(s)
+            # what the robot will read must be what we meant, and valid as the robot will check it
+            to_config(parse_message(xml), PipelineConfig(), checkable=server_checkable(artifacts, msg))
+            check_declared(artifacts, msg)
     except ControlMessageError as exc:
         raise InvalidRequestError(str(exc)) from None
     return ControlXml(xml=xml.decode("utf-8"))

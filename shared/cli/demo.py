@@ -148,6 +148,7 @@ def _wait_healthy(base: str, server: _Child, timeout_s: float = 60.0) -> None:
 def _setup(base: str, op_token: str, directory: Path) -> tuple[int, str, str, str, str | None, str | None]:
     """Register the robot and a signing key; pre-sign the example kernel. Returns (robot id, robot token,
     private key file, public key, example kernel file, its signature)."""
+    from shared.cli.kernelfile import describe_kernel_file
     from shared.signing import generate_keypair, load_private_key, sha256_hex, sign_digest
 
     pair = generate_keypair()
@@ -176,6 +177,8 @@ def _setup(base: str, op_token: str, directory: Path) -> tuple[int, str, str, st
         shutil.copyfile(source, copy)
         signed = sign_digest(load_private_key(pair.private_pem), sha256_hex(copy.read_bytes()))
         copy.with_suffix(".sig").write_text(signed + "\n", encoding="utf-8")
+        declared = describe_kernel_file(source)["parameters"]  # the upload's optional `parameters`
+        copy.with_suffix(".params.json").write_text(json.dumps(declared, indent=2) + "\n", encoding="utf-8")
         if source == EXAMPLE_KERNEL:
             example, signature = str(copy), signed
     return int(robot["id"]), str(robot["token"]), str(key_file), pair.public_b64, example, signature
@@ -382,8 +385,8 @@ def _banner(info: DemoInfo, directory: Path) -> None:
     ]
     if info.example_kernel:
         lines.append(
-            f"Example kernels: {Path(info.example_kernel).parent}/*.py, each with its signature in a .sig "
-            "file (upload them on the Kernels page)"
+            f"Example kernels: {Path(info.example_kernel).parent}/*.py, each with its signature (.sig) and "
+            "parameter schema (.params.json) (upload them on the Kernels page)"
         )
     lines.append(f"Logs:           {directory / 'server.log'}, {directory / 'agent.log'}")
     lines.append("Stop with Ctrl-C.")

@@ -60,11 +60,31 @@ def kernels_cmd(
     markdown: Annotated[
         bool, typer.Option("--markdown", help="Print the catalogue as a Markdown table.")
     ] = False,
+    describe: Annotated[
+        Path | None,
+        typer.Option(
+            "--describe",
+            help="Print the parameter JSON Schema of the kernel defined in this module (your own file: it is "
+            "imported here), for the `parameters` field of its upload.",
+        ),
+    ] = None,
 ) -> None:
     """List the registered kernels with their parameters, units, ranges and defaults."""
     from shared.cli.render import kernel_markdown, kernel_table
     from shared.kernels import REGISTRY
 
+    if describe is not None:
+        from shared.cli.kernelfile import describe_kernel_file
+
+        try:
+            info = describe_kernel_file(describe)
+        except LinemapError as exc:
+            err_console.print(f"[red]error:[/red] {exc}")
+            raise typer.Exit(2) from None
+        what = f"{info['name']} {info['version']} ({info['stage']})"
+        err_console.print(f"{what}: its parameters as JSON Schema")
+        typer.echo(json.dumps(info["parameters"], indent=2))
+        return
     if markdown:
         typer.echo(kernel_markdown(REGISTRY.list()), nl=False)
         return

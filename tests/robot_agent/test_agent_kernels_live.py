@@ -146,27 +146,28 @@ def test_a_kernel_of_a_new_name_is_installed_chosen_and_runs(
         )
         assert unknown.status_code == 422, unknown.text
         assert "median-filter" in unknown.json()["detail"] and "dbscan" in unknown.json()["detail"]
-        installed = _send(
-            op,
-            rid,
+        install = (
             '<kernel-install stage="noise-removal" name="radius-outlier" version="1.0.0" '
-            f'sha256="{digest}"/>',
+            f'sha256="{digest}"/>'
         )
-        assert installed["status"] == "applied", installed
+        # uploaded without a declared parameter schema: the robot alone checks the parameters, against
+        # the code, and refuses the whole message (install included), keeping the settings it had
         too_wide = _send(
             op,
             rid,
-            '<noise-removal><kernel name="radius-outlier"><param name="radius_m" unit="m">9</param>'
+            install + '<noise-removal><kernel name="radius-outlier"><param name="radius_m" unit="m">9</param>'
             "</kernel></noise-removal>",
         )
         assert too_wide["status"] == "rejected", too_wide
         assert "radius_m" in too_wide["reason"] and "5" in too_wide["reason"], too_wide["reason"]
-        assert _noise(op, rid) == "dbscan@1.0.0"  # the robot kept the settings it had
+        assert _noise(op, rid) == "dbscan@1.0.0"
+        # one message installs the kernel and puts it into the chain
         chosen = _send(
             op,
             rid,
-            '<noise-removal><kernel name="radius-outlier"><param name="radius_m" unit="cm">6</param>'
-            '<param name="min_neighbours">2</param></kernel></noise-removal>',
+            install + '<noise-removal><kernel name="radius-outlier">'
+            '<param name="radius_m" unit="cm">6</param><param name="min_neighbours">2</param>'
+            "</kernel></noise-removal>",
         )
         assert chosen["status"] == "applied", chosen
         wait_for("radius-outlier in use", lambda: _noise(op, rid) == "radius-outlier@1.0.0")
