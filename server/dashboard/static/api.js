@@ -128,6 +128,8 @@ export const api = {
 
   audit: (limit = 100, before) => request("GET", `/audit${q({ limit, before })}`),
 
+  mapLatest: (id, trajectory = 300) =>
+    request("GET", `/robots/${encodeURIComponent(id)}/maps/latest?trajectory=${trajectory}`),
   streamUrl: (id, trajectory = 5000) =>
     `${BASE}/robots/${encodeURIComponent(id)}/maps/stream?trajectory=${trajectory}`,
 };

@@ -442,3 +442,24 @@ def test_a_5000_wall_map_draws_in_full(page: Any, demo: dict[str, Any]) -> None:
     print("dashboard 5,000-wall map:", figures)
     save_figures("big-map", figures)
     shot(page, "08-big-map")
+
+
+def test_fleet_view_shows_every_robots_map_and_pose(page: Any, demo: dict[str, Any]) -> None:
+    """Both robots (the demo's and the 5,000-wall one) with their maps drawn and their poses."""
+    with operator_client(demo) as op:
+        robots = op.get("/robots").json()
+    page.goto(f"{demo['url']}#/fleet")
+    cards = tid(page, "fleet-card")
+    expect(cards).to_have_count(len(robots))
+    sim = page.locator(f'[data-testid="fleet-card"][data-robot-id="{demo["robot_id"]}"]')
+    expect(sim).not_to_have_attribute("data-version", "0")
+    assert int(sim.get_attribute("data-drawn") or 0) > 0, "walls drawn in the card"
+    pose = re.compile(r"^x -?[0-9.]+ m · y -?[0-9.]+ m · heading")
+    expect(sim.get_by_test_id("fleet-pose")).to_have_text(pose)
+    big = next(r for r in robots if r["name"] == "big-map")
+    expect(page.locator(f'[data-testid="fleet-card"][data-robot-id="{big["id"]}"]')).to_have_attribute(
+        "data-drawn", re.compile(r"^[1-9][0-9]{3}$")
+    )
+    shot(page, "09-fleet")
+    sim.click()
+    expect(tid(page, "map-canvas")).to_be_visible()
