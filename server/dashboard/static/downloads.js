@@ -19,7 +19,7 @@ function exportUrl(robotId, fmt, version) {
   return `${BASE}/robots/${encodeURIComponent(robotId)}/maps/export?${q}`;
 }
 
-async function fetchExport(robotId, fmt, version) {
+export async function fetchExport(robotId, fmt, version) {
   const res = await fetch(exportUrl(robotId, fmt, version), { credentials: "same-origin" });
   if (res.ok) {
     const name = /filename="([^"]+)"/.exec(res.headers.get("Content-Disposition") || "")?.[1] || `map.${fmt}`;

@@ -6,12 +6,13 @@
 import { h, mount } from "./dom.js";
 import { FORMATS } from "./downloads.js";
 
-/** The layers a user can switch; all shown at first. */
+/** The layers a user can switch; all but those marked off shown at first. */
 export const LAYERS = [
   { key: "walls", label: "walls" },
   { key: "centroids", label: "centroids" },
   { key: "trajectory", label: "trajectory" },
   { key: "robot", label: "robot" },
+  { key: "occupancy", label: "occupancy grid", off: true }, // fetched from the server when switched on
 ];
 
 /** The pose readout: "x 1.23 m · y −4.56 m · heading 90.0°" ("—" without a pose). */
@@ -49,7 +50,7 @@ export class MapOverlay {
           onclick: () => { this.downloadMenu.open = false; cb.download(f.key); } }, f.label))));
     this.layerBoxes = {};
     const legend = LAYERS.map((l) => {
-      const box = h("input", { type: "checkbox", checked: true, "data-testid": `map-layer-${l.key}`,
+      const box = h("input", { type: "checkbox", checked: !l.off, "data-testid": `map-layer-${l.key}`,
         onchange: (e) => cb.setLayer(l.key, e.target.checked) });
       this.layerBoxes[l.key] = box;
       return h("label", { class: `legend-item legend-${l.key.replace(/s$/, "")}`, title: `Show or hide the ${l.label}` },

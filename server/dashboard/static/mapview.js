@@ -13,6 +13,7 @@ import { COLORS, drawCentroids, drawGrid, drawRobot, drawTrajectory, scaleBarLen
 import { FAR_M, WallLayer, drawable } from "./maplayer.js";
 import { MapOverlay, poseText } from "./maptools.js";
 import { MEASURE_POINTS, drawMeasure, measureText } from "./measure.js";
+import { OccupancyLayer } from "./occupancy.js";
 import { clampScale, drawnBounds, fittedView, screenToWorld } from "./viewport.js";
 
 const TRAJECTORY_KEEP = 5000;
@@ -58,7 +59,8 @@ export class MapView {
     this.closed = false;
     this.status = "connecting";
 
-    this.layers = { walls: true, centroids: true, trajectory: true, robot: true };
+    this.layers = { walls: true, centroids: true, trajectory: true, robot: true, occupancy: false };
+    this.occupancy = new OccupancyLayer(() => this.invalidate());
     this.measuring = false;
     this.measurePoints = []; // world [x, y] of the clicks, at most MEASURE_POINTS
 
@@ -365,6 +367,10 @@ export class MapView {
     // screen = (x * scale + ox, oy - y * scale)
 
     drawGrid(ctx, w, hgt, scale, ox, oy);
+    if (this.layers.occupancy) {
+      this.occupancy.want(this.robotId, this.version);
+      this.occupancy.draw(ctx, scale, ox, oy);
+    }
 
     // Walls: a small map in one path; else the progressive layer (maplayer.js) and what it has so far.
     let more = false;
@@ -381,6 +387,7 @@ export class MapView {
     }
     if (this.measuring) drawMeasure(ctx, this.measurePoints, scale, ox, oy);
     stats().layers = { ...this.layers };
+    stats().occupancy_version = this.occupancy.grid?.version ?? null;
     this.updateScaleBar(scale);
     return more;
   }

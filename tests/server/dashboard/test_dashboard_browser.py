@@ -170,6 +170,13 @@ def test_map_tools_pose_layers_measure_and_downloads(page: Any, demo: dict[str, 
     assert page.evaluate("window.linemapStats.layers.walls") is True
     tid(page, "map-layer-centroids").check()
     wait_for("centroids back", lambda: page.evaluate(drawn) is True)
+    # the occupancy grid (off at first): the server's ROS map of a version on screen, drawn under the walls
+    assert page.evaluate("window.linemapStats.layers.occupancy") is False
+    tid(page, "map-layer-occupancy").check()
+    grid = "window.linemapStats.occupancy_version"
+    wait_for("the occupancy grid drawn", lambda: page.evaluate(grid) is not None)
+    shot(page, "02a-occupancy")
+    tid(page, "map-layer-occupancy").uncheck()
 
     # measure: three clicks 150 px right, then 150 px up: a distance of 150 px in metres, bearing 0 deg,
     # and a right angle at the middle point
@@ -289,6 +296,7 @@ def test_out_of_range_value_is_refused_with_its_name(page: Any, demo: dict[str, 
 def test_listing_1_pasted_as_is(page: Any, demo: dict[str, Any]) -> None:
     open_robot(page, demo)
     tid(page, "tab-tune").click()
+    expect(tid(page, "param-noise-removal-0-epsilon_m")).to_be_visible()  # the form is loaded
     tid(page, "tune-preview").click()
     expect(tid(page, "xml-preview")).to_be_visible()
     tid(page, "raw-xml").fill(LISTING_1)
