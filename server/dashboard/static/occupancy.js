@@ -1,6 +1,6 @@
 // The occupancy-grid layer of the live map: the server's ROS map (GET .../maps/export?format=pgm and the
-// YAML of the same version: the same grid `linemap map --pgm` writes) drawn under the walls, grey for
-// unknown, light for free, dark for occupied. Fetched when the layer is switched on and again at most
+// YAML of the same version: the same grid `linemap map --pgm` writes) drawn under the walls: free space lit,
+// occupied cells red, unknown left dark. Fetched when the layer is switched on and again at most
 // every REFRESH_MS while the map changes; the image is drawn with its origin and resolution from the YAML.
 
 import { fetchExport } from "./downloads.js";
@@ -73,8 +73,10 @@ export class OccupancyLayer {
       const cctx = canvas.getContext("2d");
       const data = cctx.createImageData(img.width, img.height);
       for (let i = 0; i < img.pixels.length; i++) {
-        const v = img.pixels[i];
-        data.data.set([v, v, v, 110], 4 * i); // translucent over the dark background
+        const v = img.pixels[i] / img.maxval; // map_server trinary: 0 occupied, 205/255 unknown, 254 free
+        if (v >= 0.9) data.data.set([120, 200, 255, 70], 4 * i); // free: lit, translucent
+        else if (v <= 0.35) data.data.set([255, 110, 90, 200], 4 * i); // occupied
+        // unknown: left transparent (the dark background)
       }
       cctx.putImageData(data, 0, 0);
       this.grid = { canvas, width: img.width, height: img.height, version: pgm.version, ...meta };
