@@ -9,6 +9,7 @@ import { renderRobots } from "./views/robots.js";
 import { renderRobot } from "./views/robot.js";
 import { renderKernels } from "./views/kernels.js";
 import { renderHistory } from "./views/history.js";
+import { renderRollouts } from "./views/rollouts.js";
 
 stats(); // window.linemapStats exists from the start
 
@@ -76,7 +77,7 @@ function renderTopbar(active) {
     state.who
       ? [
         h("nav", null, link("robots", "Robots", "#/robots"), link("kernels", "Kernels", "#/kernels"),
-          link("history", "History", "#/history")),
+          link("rollouts", "Rollouts", "#/rollouts"), link("history", "History", "#/history")),
         h("span", { class: "spacer" }),
         h("span", { class: "who", "data-testid": "operator-name", title: `${state.who.kind} #${state.who.id}` }, state.who.name),
         h("button", { type: "button", class: "logout", "data-testid": "logout", onclick: logout }, "Log out"),
@@ -177,6 +178,9 @@ async function route() {
   } else if (page === "kernels") {
     renderTopbar("kernels");
     renderKernels(main, c);
+  } else if (page === "rollouts") {
+    renderTopbar("rollouts");
+    renderRollouts(main, c, path[1]);
   } else if (page === "history") {
     renderTopbar("history");
     renderHistory(main, c);
