@@ -36,19 +36,12 @@ def _rollout(**kw: object) -> RolloutView:
 class Fleet:
     """Simulated robots: what each has acknowledged and reports; ``tick`` advances the rollout."""
 
-    def __init__(self, n: int, **kw: object) -> None:
-        self.out = Outcome(_rollout(**kw), assign_waves(list(range(1, n + 1)), self._c(kw), self._w(kw)))
+    def __init__(self, n: int, canaries: int = 1, wave_size: int = 3, **kw: object) -> None:
+        rollout = _rollout(canaries=canaries, wave_size=wave_size, **kw)
+        self.out = Outcome(rollout, assign_waves(list(range(1, n + 1)), canaries, wave_size))
         self.seen = {rid: Observation(active=OLD, step_ms=10.0) for rid in range(1, n + 1)}
         self.now = T0
         self.log: list[tuple[float, str, int | None]] = []
-
-    @staticmethod
-    def _c(kw: dict[str, object]) -> int:
-        return int(kw.get("canaries", 1))  # type: ignore[call-overload]
-
-    @staticmethod
-    def _w(kw: dict[str, object]) -> int:
-        return int(kw.get("wave_size", 3))  # type: ignore[call-overload]
 
     def tick(self, dt_s: float = 0.0) -> Outcome:
         self.now += timedelta(seconds=dt_s)

@@ -275,7 +275,8 @@ def test_restarted_server_resumes_its_rollouts(tmp_path: Path, key: KeyPair) -> 
         time.sleep(0.02)
     for robot in robots:
         robot.http.close()
-    servers.close()  # stops uvicorn: the lifespan releases this process's leases
+    for _ in servers:  # runs start_live to its end: uvicorn stops, the lifespan releases the leases
+        pass
     from server.app import create_app
     from server.settings import Settings
     from tests.server.live import ServerThread
