@@ -109,14 +109,14 @@ def main(argv: list[str] | None = None) -> int:
             op.post("/keys", json={"name": "bench", "public_key": key.public_b64})
             source = b'"""rollout benchmark kernel"""\n'
             sig = sign_digest(load_private_key(key.private_pem), sha256_hex(source))
-            form = {"name": "bench-filter", "stage": "noise-removal", "version": "1.0.0", "signature": sig}
+            form = {"name": "dbscan", "stage": "noise-removal", "version": "1.1.0", "signature": sig}
             up = op.post("/kernels", data=form, files={"file": ("k.py", source, "text/x-python")})
             if up.status_code != 201:
                 raise SetupError(f"kernel upload: {up.text}")
             body = {
                 "stage": "noise-removal",
-                "name": "bench-filter",
-                "version": "1.0.0",
+                "name": "dbscan",
+                "version": "1.1.0",
                 "sha256": sha256_hex(source),
                 "canaries": args.canaries,
                 "wave_size": args.wave_size,

@@ -182,6 +182,20 @@ class _Tick:
         )
 
 
+def _kernels(seen: Observation) -> list[str]:
+    """The stage's kernels as the robot reports them: ``"a@1.0.0, b@2.0.0"`` (a noise-removal chain)."""
+    return [k.strip() for k in (seen.active or "").split(",") if k.strip()]
+
+
+def _runs(seen: Observation, target: str) -> bool:
+    return target in _kernels(seen)
+
+
+def _of_name(seen: Observation, name: str) -> str | None:
+    """The ``name@version`` of kernel ``name`` in the robot's stage, if it runs one."""
+    return next((k for k in _kernels(seen) if k.rpartition("@")[0] == name), None)
+
+
 def _age_s(now: datetime, then: datetime | None) -> float:
     return 0.0 if then is None else (now - then).total_seconds()
 
@@ -211,7 +225,7 @@ def _health(r: RolloutView, run: RobotRun, seen: Observation) -> str | None:
     ratio = r.max_step_ratio
     base = run.baseline_step_ms
     step = seen.step_ms
-    if ratio is None or not base or step is None or seen.active != r.target or step <= ratio * base:
+    if ratio is None or not base or step is None or not _runs(seen, r.target) or step <= ratio * base:
         return None
     return (
         f"health: step time {step:.1f} ms is {step / base:.2f} x the {base:.1f} ms before the update "
@@ -230,7 +244,7 @@ def _judge_applied(t: _Tick, run: RobotRun, seen: Observation) -> None:
         t.fail(rid, why, roll_back=True)
         return
     age = _age_s(t.now, run.applied_at)
-    if age >= r.commit_window_s and seen.active == r.target:
+    if age >= r.commit_window_s and _runs(seen, r.target):
         t.set(rid, state="installed", reason=None)
         t.events.append(Event("rollout.robot.committed", rid, {"window_s": r.commit_window_s}))
     elif age >= r.commit_window_s + r.ack_timeout_s:
@@ -288,18 +302,25 @@ def _send_wave(t: _Tick, observations: Mapping[int, Observation]) -> None:
         t.events.append(Event("rollout.wave", None, {"wave": r.wave, "robots": pending}))
     for rid in pending:
         seen = observations.get(rid, Observation())
+        same = _of_name(seen, r.name)
         if seen.active is None:
             why = f"has not reported its active {r.stage} kernel: nothing to roll back to, so not updated"
             t.fail(rid, why, roll_back=False)
-        elif seen.active == r.target:
+        elif _runs(seen, r.target):
             t.set(rid, state="installed", reason=f"already running {r.target}")
             t.events.append(Event("rollout.robot.committed", rid, {"already": True}))
+        elif same is None:
+            why = (
+                f"runs no {r.name} in {r.stage} ({seen.active}): an update switches only the uses of "
+                f"{r.name}, so it would change nothing in force; not updated"
+            )
+            t.fail(rid, why, roll_back=False)
         else:
             t.set(
                 rid,
                 state="sent",
                 sent_at=t.now,
-                previous=seen.active,
+                previous=same,
                 baseline_step_ms=seen.step_ms,
                 baseline_error=seen.last_error,
             )

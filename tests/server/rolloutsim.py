@@ -3,6 +3,7 @@ its status with map uploads, as the agent does; and a signed kernel uploaded to 
 
 from __future__ import annotations
 
+import itertools
 import uuid
 from collections.abc import Callable
 
@@ -14,13 +15,18 @@ from tests.server.live import Live
 OLD = "dbscan@1.0.0"
 
 
-def upload_kernel(live: Live, key: KeyPair, version: str = "1.1.0") -> dict[str, str]:
-    """A signed noise-removal kernel on the server: ``{stage, name, version, sha256}``."""
+_MINORS = itertools.count(1)
+
+
+def upload_kernel(live: Live, key: KeyPair) -> dict[str, str]:
+    """A signed new version of ``dbscan`` (the kernel the simulated robots run) on the server, a version
+    number of its own each call (1.1.0, 1.2.0, ...): ``{stage, name, version, sha256}``."""
+    version = f"1.{next(_MINORS)}.0"
     with live.operator() as op:
         r = op.post("/keys", json={"name": "ci", "public_key": key.public_b64})
         assert r.status_code in (201, 409), r.text
         source = f'"""rollout test kernel {uuid.uuid4().hex}"""\n'.encode()
-        name = f"k-{uuid.uuid4().hex[:8]}"
+        name = "dbscan"
         sig = sign_digest(load_private_key(key.private_pem), sha256_hex(source))
         data = {"name": name, "stage": "noise-removal", "version": version, "signature": sig}
         r = op.post("/kernels", data=data, files={"file": (f"{name}.py", source, "text/x-python")})

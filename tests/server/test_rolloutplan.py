@@ -255,3 +255,20 @@ def test_applied_but_never_reported_active_is_rolled_back() -> None:
     assert f.robot(1).state == "applied"
     out = f.tick(31)
     assert out.rollbacks == ((1, OLD),) and "not reported active" in (f.robot(1).reason or "")
+
+
+def test_a_chain_is_updated_by_name_and_rolled_back_to_its_version() -> None:
+    """Noise removal may be a chain ("a@1, b@2"): the update switches the kernel of its name; the robot
+    commits when the chain reports the new version, and a rollback names the version it ran before."""
+    f = Fleet(2, canaries=1, max_failure_share=0.5)
+    f.report(1, active=f"dbscan@1.0.0, {OLD}")
+    f.report(2, active="dbscan@1.0.0")
+    out = f.tick()
+    assert out.sends == (1,) and f.robot(1).previous == OLD
+    f.ack(1, "applied")
+    f.report(1, active=f"dbscan@1.0.0, {NEW}")
+    f.tick(1)
+    f.tick(61)
+    assert f.robot(1).state == "installed"
+    assert f.robot(2).state == "failed" and "runs no radius-outlier" in (f.robot(2).reason or "")
+    assert f.robot(2).sent_at is None and f.out.rollout.state == "completed"
