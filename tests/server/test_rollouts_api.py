@@ -233,6 +233,7 @@ def test_bad_requests_name_what_is_wrong(fast: Live, key: KeyPair) -> None:
             ({**kernel, "robots": [robot.id], "stage": "clustering"}, 422, "not clustering"),
             ({**kernel, "robots": [robot.id], "canaries": 2}, 422, "canaries 2 is more than the 1"),
             ({**kernel, "robots": [robot.id], "max_failure_share": 1.5}, 422, "max_failure_share"),
+            ({**kernel, "robots": [2**63]}, 422, "robots.0"),
         ]
         for body, code, needle in cases:
             r = op.post("/rollouts", json=body)
