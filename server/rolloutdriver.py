@@ -29,6 +29,8 @@ from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import or_, select, update
 from sqlalchemy.orm import Session
 
+from server.deps import AppState
+from server.hub import Hub
 from server.models import AuditEntry, Message, Robot, Rollout, RolloutRobot, utcnow
 from server.rolloutplan import Observation, Outcome, RobotRun, RolloutView, advance
 from shared.control import parse_message
@@ -210,8 +212,8 @@ def apply_outcome(
 class RolloutDriver:
     """Advances the active rollouts of one database; ``owner`` names this process in the leases."""
 
-    def __init__(self, state: Any, owner: str | None = None) -> None:
-        self.state = state  # server.deps.AppState (not imported: deps is above this module)
+    def __init__(self, state: AppState, owner: str | None = None) -> None:
+        self.state = state
         self.owner = owner or f"{socket.gethostname()[:30]}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
 
     def tick(self) -> list[tuple[int, int]]:
@@ -269,7 +271,7 @@ class RolloutDriver:
         return queued
 
 
-def wake(hub: Any, queued: list[tuple[int, int]]) -> None:
+def wake(hub: Hub, queued: list[tuple[int, int]]) -> None:
     """Wake the long-polls of the robots just sent a message (on the event loop: the hub is not
     thread-safe); robots on other server processes see it within their ``poll_recheck_s``."""
     for rid, seq in queued:

@@ -114,8 +114,9 @@ def _robot_ids(s: Session, body: RolloutIn) -> list[int]:
         if unknown:
             raise InvalidRequestError(f"no robots with ids {unknown}", field="robots")
     if body.canaries > len(ids):
+        robots = "1 robot" if len(ids) == 1 else f"{len(ids)} robots"
         raise InvalidRequestError(
-            f"canaries {body.canaries} is more than the {len(ids)} robots of the rollout", field="canaries"
+            f"canaries {body.canaries} is more than the {robots} of the rollout", field="canaries"
         )
     busy = s.execute(
         select(RolloutRobot.robot_id, Rollout.id)

@@ -121,4 +121,7 @@ def test_the_form_says_what_is_wrong(live: Live, page: Any) -> None:
     page.locator('[data-testid^="rollout-robot-"]').first.check()
     page.get_by_test_id("rollout-canaries").fill("5")
     page.get_by_test_id("rollout-start").click()
-    expect(page.get_by_test_id("rollout-error")).to_contain_text("canaries 5 is more than the 1 robots")
+    expect(page.get_by_test_id("rollout-error")).to_contain_text(
+        "canaries 5 is more than the 1 robot of the rollout"
+    )
+    page.screenshot(path=str(ARTIFACTS / "rollouts-form.png"), full_page=True)
