@@ -126,9 +126,13 @@ def messages(draw: st.DrawFn) -> ControlMessage:
         segmentation=draw(st.none() | _from_table(SEGMENTATION_KERNELS)),
         noise_removal=draw(st.none() | st.lists(_from_table(NOISE_KERNELS), max_size=3).map(tuple)),
         clustering=draw(st.none() | _from_table(CLUSTERING_KERNELS)),
-        straight_line=draw(st.none() | _from_table({k: KernelElement(k) for k in STRAIGHT_LINE_SPELLING})),
+        straight_line=draw(
+            st.none() | _from_table({k: KernelElement(k) for k in STRAIGHT_LINE_SPELLING})
+        ),
         scan_matching=draw(
-            st.none() | st.just(NO_SCAN_MATCHING) | _from_table({k: KernelElement(k) for k in SCAN_MATCHERS})
+            st.none()
+            | st.just(NO_SCAN_MATCHING)
+            | _from_table({k: KernelElement(k) for k in SCAN_MATCHERS})
         ),
         schedule=draw(st.none() | schedule_entries),
         loop_closure=draw(st.none() | kernel_specs(LOOP_CLOSURE).map(lambda s: replace(s, version=None))),

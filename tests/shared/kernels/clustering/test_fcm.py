@@ -43,14 +43,8 @@ def test_registered() -> None:
 def test_defaults_and_validation() -> None:
     p = FuzzyCMeans().params
     assert (p.n_clusters, p.fuzzifier, p.tolerance, p.seed) == (2, 2.0, 0.005, 0)
-    for bad in (
-        {"fuzzifier": 1.0},
-        {"fuzzifier": 11.0},
-        {"tolerance": 0.0},
-        {"tolerance": 1.0},
-        {"n_clusters": 0},
-        {"max_iterations": 0},
-    ):
+    for bad in ({"fuzzifier": 1.0}, {"fuzzifier": 11.0}, {"tolerance": 0.0}, {"tolerance": 1.0},
+                {"n_clusters": 0}, {"max_iterations": 0}):
         with pytest.raises(KernelParameterError):
             FuzzyCMeans(bad)
 

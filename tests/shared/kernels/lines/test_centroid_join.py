@@ -80,11 +80,8 @@ def test_nan_row_is_skipped_and_neighbours_joined() -> None:
 
 @settings(max_examples=60, deadline=None)
 @given(
-    pts=arrays(
-        np.float64,
-        st.tuples(st.integers(0, 30), st.just(2)),
-        elements=st.floats(-20.0, 20.0, allow_nan=False),
-    ),
+    pts=arrays(np.float64, st.tuples(st.integers(0, 30), st.just(2)),
+               elements=st.floats(-20.0, 20.0, allow_nan=False)),
     gap=st.floats(0.1, 50.0),
 )
 def test_property_every_segment_joins_two_consecutive_input_points(pts: np.ndarray, gap: float) -> None:

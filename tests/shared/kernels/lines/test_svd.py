@@ -63,14 +63,10 @@ def test_matches_numpy_svd_rank_one_reconstruction() -> None:
 def test_matches_sklearn_pca_per_group() -> None:
     rng = np.random.default_rng(5)
     groups = np.repeat(np.arange(6), 40)
-    pts = np.vstack(
-        [
-            line_points(
-                rng.uniform(-4, 4), rng.uniform(0, math.pi), -1.0, rng.uniform(0, 2), 40, 0.02, seed=g
-            )
-            for g in range(6)
-        ]
-    )
+    pts = np.vstack([
+        line_points(rng.uniform(-4, 4), rng.uniform(0, math.pi), -1.0, rng.uniform(0, 2), 40, 0.02, seed=g)
+        for g in range(6)
+    ])
     lines = Svd().apply(pts, groups)
     assert lines.n_lines == 6
     np.testing.assert_array_equal(lines.group, np.arange(6))

@@ -26,9 +26,8 @@ def check_against_kdtree(ref: F, queries: F, radius: float, cell: float | None =
     assert np.array_equal(idx >= 0, found)
     np.testing.assert_allclose(dist[found], want_dist[found], rtol=1e-12, atol=1e-12)
     # the index may differ on ties, but must point at a point that far away
-    np.testing.assert_allclose(
-        np.hypot(*(ref[idx[found]] - queries[found]).T), want_dist[found], rtol=1e-12, atol=1e-12
-    )
+    np.testing.assert_allclose(np.hypot(*(ref[idx[found]] - queries[found]).T), want_dist[found], rtol=1e-12,
+                               atol=1e-12)
     assert np.all(np.isinf(dist[~found]))
 
 

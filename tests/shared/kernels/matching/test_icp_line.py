@@ -46,9 +46,8 @@ HALL = World(
 )
 
 
-def points(
-    world: World, pose: Pose2D, seed: int, noise: RangeNoise = NOISE, geometry: BeamGeometry | None = None
-) -> F:
+def points(world: World, pose: Pose2D, seed: int, noise: RangeNoise = NOISE,
+           geometry: BeamGeometry | None = None) -> F:
     """Scanner-frame points, in beam order, of a simulated scan from ``pose``."""
     rng = np.random.default_rng(seed)
     if geometry is None:
@@ -73,16 +72,8 @@ def test_registered() -> None:
 
 @pytest.mark.parametrize(
     "bad",
-    [
-        {"max_iterations": 0},
-        {"max_correspondence_m": 0.0},
-        {"trim_ratio": 0.0},
-        {"trim_ratio": 1.5},
-        {"degeneracy_ratio": 1.0},
-        {"lambda_deg": 90.0},
-        {"max_points": 2},
-        {"line_max_ratio": 0.0},
-    ],
+    [{"max_iterations": 0}, {"max_correspondence_m": 0.0}, {"trim_ratio": 0.0}, {"trim_ratio": 1.5},
+     {"degeneracy_ratio": 1.0}, {"lambda_deg": 90.0}, {"max_points": 2}, {"line_max_ratio": 0.0}],
 )
 def test_invalid_parameters_are_refused(bad: dict[str, float]) -> None:
     with pytest.raises(KernelParameterError):

@@ -132,9 +132,8 @@ def test_named_elements_match_scipy(element: str) -> None:
     psi=st.tuples(st.integers(0, 5), st.integers(0, 5), st.integers(0, 5)),
     seed=st.integers(0, 2**32 - 1),
 )
-def test_random_sets_and_elements_match_scipy(
-    cells: list[tuple[int, int]], psi: tuple[int, int, int], seed: int
-) -> None:
+def test_random_sets_and_elements_match_scipy(cells: list[tuple[int, int]], psi: tuple[int, int, int],
+                                              seed: int) -> None:
     size = 0.05
     rng = np.random.default_rng(seed)
     base = np.array(cells, dtype=np.float64).reshape(-1, 2)
@@ -143,11 +142,8 @@ def test_random_sets_and_elements_match_scipy(
 
 
 @settings(max_examples=30, deadline=None)
-@given(
-    seed=st.integers(0, 2**32 - 1),
-    n=st.integers(1, 800),
-    psi=st.tuples(st.integers(0, 3), st.integers(0, 3), st.integers(0, 3)),
-)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 800),
+       psi=st.tuples(st.integers(0, 3), st.integers(0, 3), st.integers(0, 3)))
 def test_dense_random_clouds_match_scipy(seed: int, n: int, psi: tuple[int, int, int]) -> None:
     rng = np.random.default_rng(seed)
     check_against_scipy(rng.normal(0.0, 0.1, (n, 2)), 0.02, psi)
@@ -191,10 +187,8 @@ def noisy_wall_with_outliers(seed: int, angle: float) -> tuple[FloatArray, int]:
     d = np.array([np.cos(angle), np.sin(angle)])
     n = np.array([-d[1], d[0]])
     wall = s[:, None] * d + rng.normal(0.0, 0.01, s.size)[:, None] * n + [0.3, -0.7]
-    outliers = (
-        wall[rng.integers(0, len(wall), 40)]
-        + n * rng.choice([-1.0, 1.0], 40)[:, None] * rng.uniform(0.15, 1.0, 40)[:, None]
-    )
+    outliers = wall[rng.integers(0, len(wall), 40)] + n * rng.choice([-1.0, 1.0], 40)[:, None] \
+        * rng.uniform(0.15, 1.0, 40)[:, None]
     return np.concatenate([wall, outliers]), len(wall)
 
 

@@ -81,10 +81,8 @@ def reference_labels(scan: Scan, kernel: AbdIepf) -> NDArray[np.intp]:
             d = np.abs(u[0] * (q[:, 1] - q[0, 1]) - u[1] * (q[:, 0] - q[0, 0])) / norm
         else:
             d = np.hypot(*(q - q[0]).T)
-        d_t = min(
-            max(3 * p.sigma_r0_m + p.epsilon_a * (r[members].mean() - p.r0_m), 3 * p.sigma_r0_m),
-            p.split_max_m,
-        )
+        d_t = min(max(3 * p.sigma_r0_m + p.epsilon_a * (r[members].mean() - p.r0_m), 3 * p.sigma_r0_m),
+                  p.split_max_m)
         k = int(np.argmax(d[1:-1])) + 1
         return (False, k) if d[k] > d_t else (True, -1)
 
@@ -161,14 +159,8 @@ def test_registered() -> None:
 
 @pytest.mark.parametrize(
     "bad",
-    [
-        {"lambda_deg": 0.0},
-        {"lambda_deg": 90.0},
-        {"min_points": 0},
-        {"sigma_r0_m": 0.0},
-        {"max_skip": -1},
-        {"no_such": 1},
-    ],
+    [{"lambda_deg": 0.0}, {"lambda_deg": 90.0}, {"min_points": 0}, {"sigma_r0_m": 0.0}, {"max_skip": -1},
+     {"no_such": 1}],
 )
 def test_invalid_parameters_are_refused(bad: dict[str, float]) -> None:
     with pytest.raises(KernelParameterError):
@@ -206,10 +198,8 @@ def test_noisy_square_room_is_stable_over_seeds() -> None:
 
 def test_door_gap_breaks() -> None:
     # front wall x = 2 with a 0.8 m door; a corridor wall at x = 4 behind it
-    walls = np.array(
-        [[2, -2, 2, -0.4], [2, 0.4, 2, 2], [4, -0.4, 4, 0.4], [2, -0.4, 4, -0.4], [2, 0.4, 4, 0.4]],
-        dtype=np.float64,
-    )
+    walls = np.array([[2, -2, 2, -0.4], [2, 0.4, 2, 2], [4, -0.4, 4, 0.4], [2, -0.4, 4, -0.4],
+                      [2, 0.4, 4, 0.4]], dtype=np.float64)
     scan = Scan.from_geometry(URG04LX, raycast(walls, Pose2D(), URG04LX.angles_rad()))
     seg = AbdIepf().apply(scan)
     pts = seg.points
