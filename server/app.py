@@ -30,7 +30,8 @@ from server.mediatype import require_media_type
 from server.migrate import upgrade
 from server.parsepool import UploadParser
 from server.quota import UploadQuota
-from server.routers import auth, control, kernels, maps, messages, meta, robots
+from server.rolloutdriver import RolloutDriver, drive_forever
+from server.routers import auth, control, kernels, maps, messages, meta, robots, rollouts
 from server.settings import Settings
 from server.shutdown import DisconnectOnShutdown, ShutdownSignal
 from server.writer import WriteBatcher
@@ -50,6 +51,7 @@ ROUTERS: list[tuple[APIRouter, str]] = [
     (kernels.keys_router, API_PREFIX),
     (maps.router, API_PREFIX),
     (control.router, API_PREFIX),
+    (rollouts.router, API_PREFIX),
     (dashboard.router, ""),
 ]
 
@@ -65,12 +67,17 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         tasks = [asyncio.create_task(_flush_seen(state)), asyncio.create_task(_checkpoint(state))]
+        tasks.append(asyncio.create_task(drive_forever(driver)))  # rollouts (server.rolloutdriver)
         state.credentials.start(db.read)  # keeps the credentials in use cached (server.credcache)
         yield
         _app.state.shutdown.set()
         for task in tasks:
             task.cancel()
         await run_in_threadpool(state.credentials.stop)
+        try:
+            await run_in_threadpool(driver.release)
+        except Exception:  # the leases then run out by themselves (rollout_lease_s)
+            log.exception("could not release this process's rollout leases")
         try:
             await run_in_threadpool(state.flush_seen)
         except StorageFullError as exc:  # the last-seen times are a convenience: stop anyway
@@ -89,6 +96,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
         redoc_url=None,
     )
     app.state.linemap = state
+    app.state.rollout_driver = driver = RolloutDriver(state)
     app.state.shutdown = ShutdownSignal()  # set by ``linemap server`` when it begins to stop
     app.state.upload_quota = UploadQuota.from_settings(settings)  # per process (server.quota)
     app.state.upload_parser = parser = UploadParser(settings.database_url)  # big uploads: a worker process

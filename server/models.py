@@ -38,6 +38,8 @@ __all__ = [
     "Message",
     "OperatorToken",
     "Robot",
+    "Rollout",
+    "RolloutRobot",
     "Session",
     "SigningKey",
     "TrajectoryPoint",
@@ -242,3 +244,66 @@ class AuditEntry(Base):
     action: Mapped[str] = mapped_column(String(50))
     target: Mapped[str] = mapped_column(String(200))
     detail: Mapped[dict[str, Any]] = mapped_column(default=dict)
+
+
+class Rollout(Base):
+    """A kernel version rolled out to many robots: canaries, then waves (docs/rollouts.md).
+
+    ``state``: running | paused | completed | stopped | aborted. ``active`` is true while the driver has
+    something to do (a wave to send, a robot in its commit window, a late acknowledgement to watch);
+    ``lease_owner``/``lease_until`` name the server process driving it (one at a time, across processes).
+    Thresholds: ``max_failure_share`` of the robots tried, ``max_step_ratio`` of a robot's step time
+    before the rollout; times in seconds."""
+
+    __tablename__ = "rollouts"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    stage: Mapped[str] = mapped_column(String(32))
+    name: Mapped[str] = mapped_column(String(64))
+    version: Mapped[str] = mapped_column(String(32))
+    sha256: Mapped[str] = mapped_column(String(64))
+    state: Mapped[str] = mapped_column(String(20), default="running")
+    active: Mapped[bool] = mapped_column(default=True, index=True)
+    canaries: Mapped[int] = mapped_column(Integer)
+    wave_size: Mapped[int] = mapped_column(Integer)
+    max_failure_share: Mapped[float] = mapped_column(Float)
+    commit_window_s: Mapped[float] = mapped_column(Float)
+    ack_timeout_s: Mapped[float] = mapped_column(Float)
+    max_step_ratio: Mapped[float | None] = mapped_column(Float, default=None)
+    fail_on_rollback_error: Mapped[bool] = mapped_column(default=True)
+    wave: Mapped[int] = mapped_column(Integer, default=0)
+    stop_reason: Mapped[str | None] = mapped_column(Text, default=None)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    created_by: Mapped[str] = mapped_column(String(100))
+    finished_at: Mapped[datetime | None] = mapped_column(default=None)
+    lease_owner: Mapped[str | None] = mapped_column(String(64), default=None)
+    lease_until: Mapped[datetime | None] = mapped_column(default=None)
+
+
+class RolloutRobot(Base):
+    """One robot of a rollout: its place (``position``; wave 0 = canaries), state and the reason.
+
+    ``state``: pending | sent | applied (in its commit window) | installed | rolled-back | failed | skipped.
+    ``previous`` is the stage's kernel (``name@version``) before the update: what a rollback goes back to.
+    ``watch``: a robot given up on (no acknowledgement in time) whose queued update may still be applied
+    later; the driver rolls it back if it is."""
+
+    __tablename__ = "rollout_robots"
+    __table_args__ = (UniqueConstraint("rollout_id", "robot_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    rollout_id: Mapped[int] = mapped_column(ForeignKey("rollouts.id", ondelete="CASCADE"), index=True)
+    robot_id: Mapped[int] = mapped_column(ForeignKey("robots.id", ondelete="CASCADE"), index=True)
+    position: Mapped[int] = mapped_column(Integer)
+    wave: Mapped[int] = mapped_column(Integer)
+    state: Mapped[str] = mapped_column(String(20), default="pending")
+    reason: Mapped[str | None] = mapped_column(Text, default=None)
+    seq: Mapped[int | None] = mapped_column(Integer, default=None)
+    rollback_seq: Mapped[int | None] = mapped_column(Integer, default=None)
+    previous: Mapped[str | None] = mapped_column(String(100), default=None)
+    baseline_step_ms: Mapped[float | None] = mapped_column(Float, default=None)
+    baseline_error: Mapped[str | None] = mapped_column(Text, default=None)
+    sent_at: Mapped[datetime | None] = mapped_column(default=None)
+    applied_at: Mapped[datetime | None] = mapped_column(default=None)
+    finished_at: Mapped[datetime | None] = mapped_column(default=None)
+    watch: Mapped[bool] = mapped_column(default=False)

@@ -36,6 +36,15 @@ class Settings(BaseSettings):
         "(covers writes by other server processes sharing a PostgreSQL database).",
     )
     online_window_s: float = Field(10.0, gt=0, description="A robot seen within this window is online.")
+    rollout_tick_s: float = Field(
+        1.0, gt=0, le=60, description="The rollout driver re-reads every active rollout this often (s)."
+    )
+    rollout_lease_s: float = Field(
+        30.0,
+        gt=0,
+        description="A server process drives a rollout under a lease this long (s), renewed every tick; "
+        "another process takes the rollout over only after the lease ran out (docs/rollouts.md).",
+    )
     session_ttl_s: float = Field(12 * 3600.0, gt=0, description="Lifetime of a browser session cookie.")
     secure_cookies: bool = Field(
         False,

@@ -10,6 +10,7 @@ import { renderRobot } from "./views/robot.js";
 import { renderKernels } from "./views/kernels.js";
 import { renderHistory } from "./views/history.js";
 import { renderFleet } from "./views/fleet.js";
+import { renderRollouts } from "./views/rollouts.js";
 
 stats(); // window.linemapStats exists from the start
 
@@ -77,7 +78,7 @@ function renderTopbar(active) {
     state.who
       ? [
         h("nav", null, link("robots", "Robots", "#/robots"), link("fleet", "Fleet", "#/fleet"),
-          link("kernels", "Kernels", "#/kernels"),
+          link("kernels", "Kernels", "#/kernels"), link("rollouts", "Rollouts", "#/rollouts"),
           link("history", "History", "#/history")),
         h("span", { class: "spacer" }),
         h("span", { class: "who", "data-testid": "operator-name", title: `${state.who.kind} #${state.who.id}` }, state.who.name),
@@ -179,6 +180,9 @@ async function route() {
   } else if (page === "kernels") {
     renderTopbar("kernels");
     renderKernels(main, c);
+  } else if (page === "rollouts") {
+    renderTopbar("rollouts");
+    renderRollouts(main, c, path[1]);
   } else if (page === "history") {
     renderTopbar("history");
     renderHistory(main, c);
