@@ -154,17 +154,14 @@ def _messages(a: str, b: str, admin: str, rounds: int) -> None:
         with httpx.Client(base_url=b, headers=robot_hdr, timeout=60) as robot:
             for seq in range(rounds):
                 done: list[float] = []
-                polling = threading.Event()
 
-                def poll(after: int = seq) -> None:
-                    polling.set()
+                def poll(after: int = seq, done: list[float] = done) -> None:
                     r = robot.get(f"/robots/{rid}/messages", params={"after": after, "wait": 30})
                     done.append(time.perf_counter())
                     assert r.json()["messages"], "the long-poll ended empty"
 
                 poller = threading.Thread(target=poll)
                 poller.start()
-                polling.wait(10)
                 time.sleep(0.05)  # let the poll reach B and begin waiting
                 t0 = time.perf_counter()
                 r = op.post(

@@ -99,11 +99,11 @@ class Viewer:
 
 
 @contextmanager
-def _two(tmp_path: Path, **settings: object) -> Iterator[tuple[ServerProc, ServerProc, str, int, str]]:
+def _two(tmp_path: Path) -> Iterator[tuple[ServerProc, ServerProc, str, int, str]]:
     """Servers A and B on a fresh PostgreSQL database, and a robot (id, token) registered on A."""
     with (
         fresh_database("postgresql", tmp_path) as url,
-        server_procs(url, 2, poll_recheck_s=SLOW_RECHECK_S, **settings) as (procs, admin),
+        server_procs(url, 2, poll_recheck_s=SLOW_RECHECK_S) as (procs, admin),
     ):
         a, b = procs
         with a.client(admin) as op:
