@@ -5,10 +5,13 @@ the other.
 Starts two server processes (A and B) on a fresh PostgreSQL database made on the server of ``--postgres``
 (dropped afterwards). Figures (median, p99, max):
 
-- map: a viewer streams robot R's map from B; R uploads a snapshot then ``--versions`` deltas to A at
-  ``--rate_hz``; per version, time from sending the upload to A to the event with that version arriving
-  on B, and how many arrived as deltas (the rest as snapshots);
-- message: R long-polls B; an operator queues a message on A; time from sending it to A to B's answer.
+- map: a viewer streams robot R's map from B (and one from A, for comparison); R uploads a snapshot then
+  ``--versions`` deltas to A at ``--rate_hz``; per version, time from sending the upload to A to the event
+  with that version arriving on B (on A), and how many arrived as deltas (the rest as snapshots);
+- message: R long-polls B (then A, in turn); an operator queues a message on A; time from sending it to A
+  to the poll's answer.
+
+Both include A's handling of the request (the notice is sent when A commits, before A answers).
 
 Exit 0 when it ran (figures, not pass/fail), 2 when the setup failed.
 """
@@ -120,15 +123,19 @@ def _maps(a: str, b: str, admin: str, versions: int, rate_hz: float) -> None:
     with httpx.Client(base_url=a, headers=hdr, timeout=30) as op:
         made = op.post("/robots", json={"name": f"fan-{uuid.uuid4().hex[:6]}"}).json()
     rid, robot_hdr = made["id"], {"Authorization": f"Bearer {made['token']}"}
-    got: dict[int, tuple[float, str]] = {}
+    got: dict[str, dict[int, tuple[float, str]]] = {"B": {}, "A": {}}
     sent: dict[int, float] = {}
-    with httpx.Client(base_url=a, headers=robot_hdr, timeout=30) as robot:
-        assert robot.post(f"/robots/{rid}/maps", json=_snapshot(1)).status_code == 200
-        opened = threading.Event()
-        with httpx.Client(base_url=b, headers=hdr, timeout=60) as viewer_client:
-            viewer = threading.Thread(target=_viewer, args=(viewer_client, rid, opened, got), daemon=True)
-            viewer.start()
-            assert opened.wait(30), "the stream on B sent no snapshot"
+    clients = {
+        name: httpx.Client(base_url=url, headers=hdr, timeout=60) for name, url in (("A", a), ("B", b))
+    }
+    try:
+        with httpx.Client(base_url=a, headers=robot_hdr, timeout=30) as robot:
+            assert robot.post(f"/robots/{rid}/maps", json=_snapshot(1)).status_code == 200
+            for name, client in clients.items():
+                opened = threading.Event()
+                args = (client, rid, opened, got[name])
+                threading.Thread(target=_viewer, args=args, daemon=True).start()
+                assert opened.wait(30), f"the stream on {name} sent no snapshot"
             for v in range(2, versions + 2):
                 t0 = time.perf_counter()
                 sent[v] = t0
@@ -136,13 +143,18 @@ def _maps(a: str, b: str, admin: str, versions: int, rate_hz: float) -> None:
                 assert r.status_code == 200, r.text
                 time.sleep(max(0.0, 1.0 / rate_hz - (time.perf_counter() - t0)))
             deadline = time.monotonic() + 10
-            while versions + 1 not in got and time.monotonic() < deadline:
+            while any(versions + 1 not in g for g in got.values()) and time.monotonic() < deadline:
                 time.sleep(0.05)
-    lat = [got[v][0] - sent[v] for v in sent if v in got]
-    deltas = sum(1 for v in sent if v in got and got[v][1] == "delta")
-    print(f"map: {versions} versions uploaded to A at {rate_hz:g} Hz, viewer on B")
-    print(f"  events on B for them: {len(lat)} ({deltas} deltas, {len(lat) - deltas} snapshots)")
-    print(f"  upload sent to A -> event on B   {_ms(lat)}")
+    finally:
+        for client in clients.values():
+            client.close()
+    print(f"map: {versions} versions uploaded to A at {rate_hz:g} Hz, a viewer on B and one on A")
+    for name, where in (("B", "other process"), ("A", "same process, for comparison")):
+        lat = [got[name][v][0] - sent[v] for v in sent if v in got[name]]
+        deltas = sum(1 for v in sent if v in got[name] and got[name][v][1] == "delta")
+        shown = f"{len(lat)} events ({deltas} deltas, {len(lat) - deltas} snapshots)"
+        print(f"  viewer on {name} ({where}): {shown}")
+        print(f"    upload sent to A -> event on {name}   {_ms(lat)}")
 
 
 def _messages(a: str, b: str, admin: str, rounds: int) -> None:
@@ -150,28 +162,41 @@ def _messages(a: str, b: str, admin: str, rounds: int) -> None:
     with httpx.Client(base_url=a, headers=hdr, timeout=30) as op:
         made = op.post("/robots", json={"name": f"fan-{uuid.uuid4().hex[:6]}"}).json()
         rid, robot_hdr = made["id"], {"Authorization": f"Bearer {made['token']}"}
-        lat: list[float] = []
-        with httpx.Client(base_url=b, headers=robot_hdr, timeout=60) as robot:
-            for seq in range(rounds):
+        lat: dict[str, list[float]] = {"B": [], "A": []}
+        robots = {
+            name: httpx.Client(base_url=url, headers=robot_hdr, timeout=60)
+            for name, url in (("A", a), ("B", b))
+        }
+        try:
+            for seq in range(2 * rounds):  # the robot polls B and A in turn
+                name = "B" if seq % 2 == 0 else "A"
                 done: list[float] = []
 
-                def poll(after: int = seq, done: list[float] = done) -> None:
+                def poll(
+                    after: int = seq, done: list[float] = done, robot: httpx.Client = robots[name]
+                ) -> None:
                     r = robot.get(f"/robots/{rid}/messages", params={"after": after, "wait": 30})
                     done.append(time.perf_counter())
                     assert r.json()["messages"], "the long-poll ended empty"
 
                 poller = threading.Thread(target=poll)
                 poller.start()
-                time.sleep(0.05)  # let the poll reach B and begin waiting
+                time.sleep(0.05)  # let the poll reach the server and begin waiting
                 t0 = time.perf_counter()
                 r = op.post(
                     f"/robots/{rid}/messages", content=MESSAGE, headers={"Content-Type": "application/xml"}
                 )
                 assert r.status_code == 201, r.text
                 poller.join(40)
-                lat.append(done[0] - t0)
-    print(f"message: {rounds} control messages queued on A, robot long-polling B")
-    print(f"  message sent to A -> poll answered on B   {_ms(lat)}")
+                lat[name].append(done[0] - t0)
+        finally:
+            for client in robots.values():
+                client.close()
+    print(
+        f"message: {rounds} control messages queued on A per poller, the robot long-polling B and A in turn"
+    )
+    print(f"  message sent to A -> poll answered on B   {_ms(lat['B'])}")
+    print(f"  message sent to A -> poll answered on A   {_ms(lat['A'])}   (same process, for comparison)")
 
 
 def main(argv: list[str] | None = None) -> int:
