@@ -35,9 +35,10 @@ class LoggedUpload:
     body: str | None
 
 
-def append(conn: Connection, robot_id: int, event: dict[str, Any], keep: int = KEEP_VERSIONS) -> None:
+def append(conn: Connection, robot_id: int, event: dict[str, Any], keep: int = KEEP_VERSIONS) -> LoggedUpload:
     """Log the upload whose stream event is ``event`` (:class:`server.mapstore.AppliedUpload`'s) in
-    ``conn``'s transaction, and drop the robot's entries ``keep`` or more versions older. O(event)."""
+    ``conn``'s transaction, and drop the robot's entries ``keep`` or more versions older; returns the
+    entry (its JSON is what every stream sends, encoded once here). O(event)."""
     version = int(event["version"])
     if event["kind"] == "delta":
         base, body = event["base_version"], json.dumps(event, separators=(",", ":"))
@@ -45,6 +46,7 @@ def append(conn: Connection, robot_id: int, event: dict[str, Any], keep: int = K
         base, body = None, None
     conn.execute(insert(_LOG).values(robot_id=robot_id, version=version, base_version=base, body=body))
     conn.execute(delete(_LOG).where(_LOG.c.robot_id == robot_id, _LOG.c.version <= version - keep))
+    return LoggedUpload(version, base, body)
 
 
 def read_after(s: Session, robot_id: int, after: int, limit: int = KEEP_VERSIONS) -> list[LoggedUpload]:

@@ -120,13 +120,11 @@ async def map_events(
                     continue
                 else:
                     continue
-            if isinstance(item, Notice) and item.version <= last:
+            if isinstance(item, (Notice, LoggedUpload)) and item.version <= last:
                 continue  # an upload this stream has sent already
-            if isinstance(item, dict) and item["version"] <= last:
-                continue
-            if isinstance(item, dict) and item["kind"] == "delta" and item["base_version"] == last:
-                yield sse("delta", item, item["version"])
-                last = item["version"]
+            if isinstance(item, LoggedUpload) and item.body is not None and item.base_version == last:
+                yield sse("delta", item.body, item.version)  # an upload to this process: no read
+                last = item.version
             else:  # a notice, a snapshot upload, a delta out of step, or OVERFLOW
                 async for chunk in catch_up():
                     yield chunk

@@ -33,6 +33,7 @@ from sqlalchemy import Connection
 from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access
 from server.errors import ConflictError, InvalidRequestError, RateLimitedError
 from server.mapbounds import screen_stored
+from server.maplog import LoggedUpload
 from server.maplog import append as log_upload
 from server.mapstore import AppliedUpload, apply_upload, map_version, prepare_rows, read_map
 from server.mapstream import map_events
@@ -109,16 +110,17 @@ async def upload_map(
     seen = state.last_seen(robot_id)
     rows = await run_in_threadpool(prepare_rows, robot_id, body, diff) if heavy else None  # before the writer
 
-    def write(conn: Connection) -> AppliedUpload:  # the delta log and the notice commit with the map
+    def write(conn: Connection) -> tuple[AppliedUpload, LoggedUpload | None]:
+        # the delta log and the notice to other processes commit with the map (server.maplog, server.hub)
         applied = apply_upload(conn, robot_id, body, key, seen, cap, rows)
-        if applied.event is not None:
-            log_upload(conn, robot_id, applied.event)
-            state.hub.announce(conn, f"maps:{robot_id}", body.version)
-        return applied
+        if applied.event is None:
+            return applied, None
+        state.hub.announce(conn, f"maps:{robot_id}", body.version)
+        return applied, log_upload(conn, robot_id, applied.event)
 
-    applied = await state.writer.submit(write, heavy=heavy)
-    if applied.event is not None:
-        state.hub.publish(f"maps:{robot_id}", applied.event)
+    applied, logged = await state.writer.submit(write, heavy=heavy)
+    if logged is not None:
+        state.hub.publish(f"maps:{robot_id}", logged)  # the stream sends its JSON as is
         if diff is not None:  # the parser process may diff the robot's next snapshot against this one
             parser.wrote(robot_id, body.version)
     return applied.out
