@@ -79,9 +79,9 @@ async def map_events(
     async def catch_up() -> AsyncIterator[bytes]:
         """The deltas after ``last`` from the log, then a snapshot if they do not reach the current map."""
         nonlocal last
-        current, logged = await run_in_threadpool(_logged, state, robot_id, max(last, 0))
-        start = last
-        if last >= 0:
+        start, current = last, -1
+        if last >= 0:  # (a new viewer gets the whole map: no log to read)
+            current, logged = await run_in_threadpool(_logged, state, robot_id, last)
             for entry in chain_from(last, logged):
                 yield sse("delta", entry.body, entry.version)
                 last = entry.version
