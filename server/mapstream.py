@@ -33,7 +33,7 @@ from server.mapstore import map_version
 from server.notices import Notice
 from server.schemas import MapOut
 
-__all__ = ["AUTH_RECHECK_S", "KEEPALIVE_S", "map_events", "sse"]
+__all__ = ["AUTH_RECHECK_S", "KEEPALIVE_S", "map_events", "read_log", "sse"]
 
 KEEPALIVE_S = 15.0
 #: How often an open stream re-checks its credential (s): with answers at most 0.5 s old
@@ -62,6 +62,34 @@ def _logged(state: AppState, robot_id: int, after: int) -> tuple[int, list[Logge
         return map_version(s, robot_id), read_after(s, robot_id, after)
 
 
+#: Reads of the log in flight, shared by the streams one notice woke at the same version: (app state,
+#: robot, after, the notice's version) -> the read. Every stream of a process runs on its event loop.
+_shared: dict[tuple[int, int, int, int], asyncio.Future[tuple[int, list[LoggedUpload]]]] = {}
+
+
+async def read_log(
+    state: AppState, robot_id: int, after: int, notice: int | None
+) -> tuple[int, list[LoggedUpload]]:
+    """:func:`_logged` off the event loop. Woken by a notice, a stream joins a read that another stream
+    woken by the same notice began (it began after that notice, so it sees that version): N viewers of a
+    robot on a process cost one read per notice, not N."""
+    if notice is None:
+        return await run_in_threadpool(_logged, state, robot_id, after)
+    key = (id(state), robot_id, after, notice)
+    read = _shared.get(key)
+    if read is None:
+        read = asyncio.ensure_future(run_in_threadpool(_logged, state, robot_id, after))
+        _shared[key] = read
+        read.add_done_callback(lambda done: _forget(key, done))
+    return await asyncio.shield(read)  # a viewer that leaves does not cancel the others' read
+
+
+def _forget(key: tuple[int, int, int, int], read: asyncio.Future[Any]) -> None:
+    _shared.pop(key, None)
+    if not read.cancelled():
+        read.exception()  # retrieved here too: every stream that wanted it may have left
+
+
 async def map_events(
     request: Request,
     state: AppState,
@@ -76,12 +104,13 @@ async def map_events(
     recheck = state.settings.poll_recheck_s
     last = -1
 
-    async def catch_up() -> AsyncIterator[bytes]:
-        """The deltas after ``last`` from the log, then a snapshot if they do not reach the current map."""
+    async def catch_up(notice: int | None = None) -> AsyncIterator[bytes]:
+        """The deltas after ``last`` from the log, then a snapshot if they do not reach the current map;
+        ``notice``: the version of the notice that woke the stream."""
         nonlocal last
         start, current = last, -1
         if last >= 0:  # (a new viewer gets the whole map: no log to read)
-            current, logged = await run_in_threadpool(_logged, state, robot_id, last)
+            current, logged = await read_log(state, robot_id, last, notice)
             for entry in chain_from(last, logged):
                 yield sse("delta", entry.body, entry.version)
                 last = entry.version
@@ -126,7 +155,7 @@ async def map_events(
                 yield sse("delta", item.body, item.version)  # an upload to this process: no read
                 last = item.version
             else:  # a notice, a snapshot upload, a delta out of step, or OVERFLOW
-                async for chunk in catch_up():
+                async for chunk in catch_up(item.version if isinstance(item, Notice) else None):
                     yield chunk
             quiet_since = loop.time()
 

@@ -140,17 +140,21 @@ def test_message_queued_on_a_wakes_a_long_poll_on_b(tmp_path: Path) -> None:
         assert [m["seq"] for m in answer[0].json()["messages"]] == [1]
 
 
-def test_twenty_uploads_on_a_reach_a_viewer_on_b_as_twenty_deltas_in_order(tmp_path: Path) -> None:
+def test_twenty_uploads_on_a_reach_viewers_on_b_as_twenty_deltas_in_order(tmp_path: Path) -> None:
+    """Three viewers on B (they share B's reads of the log), uploads as fast as A takes them."""
     with _two(tmp_path) as (a, b, admin, rid, token):
         _upload(a, token, rid, _snapshot(1))
-        with Viewer(b, admin, rid) as viewer:
-            assert viewer.wait_for(1)[0][:2] == ("snapshot", 1)
-            for v in range(2, 22):  # as fast as A takes them
+        with Viewer(b, admin, rid) as v1, Viewer(b, admin, rid) as v2, Viewer(b, admin, rid) as v3:
+            for viewer in (v1, v2, v3):
+                assert viewer.wait_for(1)[0][:2] == ("snapshot", 1)
+            for v in range(2, 22):
                 _upload(a, token, rid, _delta(v))
-            events = viewer.wait_for(21)
-    assert [(kind, v) for kind, v, _ in events] == [("snapshot", 1)] + [("delta", v) for v in range(2, 22)]
-    assert all(data["base_version"] == v - 1 for _, v, data in events[1:])
-    assert events[-1][2]["segments"] == [[21, 21.0, 0.0, 21.0, 1.0]]
+            seen = [viewer.wait_for(21) for viewer in (v1, v2, v3)]
+    for events in seen:
+        expected = [("snapshot", 1)] + [("delta", v) for v in range(2, 22)]
+        assert [(kind, v) for kind, v, _ in events] == expected
+        assert all(data["base_version"] == v - 1 for _, v, data in events[1:])
+        assert events[-1][2]["segments"] == [[21, 21.0, 0.0, 21.0, 1.0]]
 
 
 def _listener_pid(url: str, server_pid: int, other_than: int | None = None) -> int | None:
