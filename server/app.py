@@ -25,10 +25,12 @@ from server.csrf import OriginGuard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState
 from server.errors import RateLimitedError, ServerError, StorageFullError
+from server.hub import Hub
 from server.limiter import AuthFailureLimit, retry_after_header
 from server.mediatype import require_media_type
 from server.migrate import upgrade
 from server.parsepool import UploadParser
+from server.pglisten import NoticeListener, psycopg_connector
 from server.quota import UploadQuota
 from server.rolloutdriver import RolloutDriver, drive_forever
 from server.routers import auth, control, kernels, maps, messages, meta, robots, rollouts
@@ -62,17 +64,25 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     db = Database(settings.database_url, sqlite_max_mb=settings.sqlite_max_mb)
     if migrate:
         upgrade(db.engine)
-    state = AppState(settings=settings, db=db, writer=WriteBatcher(db))
+    # PostgreSQL: writes are announced to the other server processes, whose listeners wake their waiters
+    state = AppState(
+        settings=settings, db=db, writer=WriteBatcher(db), hub=Hub(cross_process=not db.is_sqlite)
+    )
+    listener = None if db.is_sqlite else NoticeListener(state.hub, psycopg_connector(db.url))
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         tasks = [asyncio.create_task(_flush_seen(state)), asyncio.create_task(_checkpoint(state))]
         tasks.append(asyncio.create_task(drive_forever(driver)))  # rollouts (server.rolloutdriver)
         state.credentials.start(db.read)  # keeps the credentials in use cached (server.credcache)
+        if listener is not None:
+            listener.start()  # one dedicated connection, LISTEN (server.pglisten)
         yield
         _app.state.shutdown.set()
         for task in tasks:
             task.cancel()
+        if listener is not None:
+            await listener.stop()
         await run_in_threadpool(state.credentials.stop)
         try:
             await run_in_threadpool(driver.release)
@@ -97,6 +107,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     )
     app.state.linemap = state
     app.state.rollout_driver = driver = RolloutDriver(state)
+    app.state.listener = listener
     app.state.shutdown = ShutdownSignal()  # set by ``linemap server`` when it begins to stop
     app.state.upload_quota = UploadQuota.from_settings(settings)  # per process (server.quota)
     app.state.upload_parser = parser = UploadParser(settings.database_url)  # big uploads: a worker process

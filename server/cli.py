@@ -10,6 +10,7 @@ from typing import Annotated, Any
 import typer
 
 from server.settings import DEFAULT_DATABASE_URL
+from server.workers import server_class
 
 __all__ = ["server_app"]
 
@@ -38,10 +39,31 @@ def serve(
     db: DbOption = DEFAULT_DATABASE_URL,
     host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(min=0, max=65535, help="TCP port.")] = 8000,
+    workers: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            max=64,
+            envvar="LINEMAP_WORKERS",
+            help="Server processes on the port (PostgreSQL only: SQLite has one writer, so one process).",
+        ),
+    ] = 1,
 ) -> None:
     """Serve the API (migrating the database first). Prints the first operator token once, on first start."""
     if ctx.invoked_subcommand is not None:
         ctx.obj = db
+        return
+    from server.database import normalize_url
+
+    if workers > 1 and normalize_url(db).startswith("sqlite"):
+        raise typer.BadParameter(
+            f"{workers} workers need a PostgreSQL database (--db postgresql://USER@HOST/DB); this one is "
+            "SQLite, which allows one writer at a time and whose server wakes its waiters in-process only, "
+            "so it runs as one process (--workers 1)",
+            param_hint="'--workers' / LINEMAP_WORKERS",
+        )
+    if workers > 1:
+        _serve_workers(db, host, port, workers)
         return
     import uvicorn
 
@@ -52,25 +74,9 @@ def serve(
     settings = Settings(database_url=db)
     app = create_app(settings)
     token = ensure_admin_token(app.state.linemap.db)
-    base = f"http://{host}:{port}"
-    if token is not None:
-        typer.echo(f"First start: operator token 'admin' (shown once, keep it): {token}")
-    docs = f"{base}/docs" if settings.api_docs else f"{base}/openapi.json"
-    typer.echo(f"linemap server on {base}  (API: {docs}, database: {app.state.linemap.db.url})")
-    sys.stdout.flush()  # a pipe or log file must see these lines before the server blocks
+    _announce(token, host, port, settings.api_docs, app.state.linemap.db.url, 1)
     _tune_gc()
-    config = uvicorn.Config(
-        app,
-        host=host,
-        port=port,
-        log_level="warning",
-        timeout_graceful_shutdown=5,
-        # proxy_headers=False: uvicorn would otherwise rewrite the client address from X-Forwarded-For sent
-        # by any local client (its default trusts 127.0.0.1); the app reads forwarded headers itself, and
-        # only from the operator's LINEMAP_TRUSTED_PROXIES (server.limiter.client_source).
-        proxy_headers=False,
-    )
-    server = _server_class()(config, app.state.shutdown)
+    server = server_class()(uvicorn.Config(app, **_uvicorn_config(host, port)), app.state.shutdown)
     with contextlib.suppress(KeyboardInterrupt):  # uvicorn re-raises the Ctrl-C it handled, once stopped
         server.run()
     if not server.started:
@@ -78,24 +84,50 @@ def serve(
         raise typer.Exit(3)
 
 
-def _server_class() -> Any:
-    """uvicorn's server whose exit handler (SIGINT, SIGTERM) also ends the app's long-polls and streams
-    (:mod:`server.shutdown`), so Ctrl-C stops at once, cleanly, instead of cancelling them after the
-    graceful timeout with a traceback each."""
-    import uvicorn
+def _uvicorn_config(host: str, port: int) -> dict[str, Any]:
+    return {
+        "host": host,
+        "port": port,
+        "log_level": "warning",
+        "timeout_graceful_shutdown": 5,
+        # proxy_headers=False: uvicorn would otherwise rewrite the client address from X-Forwarded-For sent
+        # by any local client (its default trusts 127.0.0.1); the app reads forwarded headers itself, and
+        # only from the operator's LINEMAP_TRUSTED_PROXIES (server.limiter.client_source).
+        "proxy_headers": False,
+    }
 
-    from server.shutdown import ShutdownSignal
 
-    class Server(uvicorn.Server):
-        def __init__(self, config: uvicorn.Config, stopping: ShutdownSignal) -> None:
-            super().__init__(config)
-            self.stopping = stopping
+def _announce(token: str | None, host: str, port: int, api_docs: bool, url: str, workers: int) -> None:
+    base = f"http://{host}:{port}"
+    if token is not None:
+        typer.echo(f"First start: operator token 'admin' (shown once, keep it): {token}")
+    docs = f"{base}/docs" if api_docs else f"{base}/openapi.json"
+    procs = f", {workers} worker processes" if workers > 1 else ""
+    typer.echo(f"linemap server on {base}  (API: {docs}, database: {url}{procs})")
+    sys.stdout.flush()  # a pipe or log file must see these lines before the server blocks
 
-        def handle_exit(self, sig: int, frame: object) -> None:
-            self.stopping.set()
-            super().handle_exit(sig, frame)  # type: ignore[arg-type]
 
-    return Server
+def _serve_workers(db: str, host: str, port: int, workers: int) -> None:
+    """``--workers N``: migrate and make the first token here, then N processes serve (server.workers)."""
+    from server.bootstrap import ensure_admin_token
+    from server.database import Database
+    from server.migrate import upgrade
+    from server.settings import Settings
+    from server.workers import serve_workers
+
+    settings = Settings(database_url=db)
+    database = Database(settings.database_url)
+    try:
+        upgrade(database.engine)
+        token = ensure_admin_token(database)
+        url = database.url
+    finally:
+        database.dispose()
+    _announce(token, host, port, settings.api_docs, url, workers)
+    code = serve_workers(settings.database_url, host, port, workers, _uvicorn_config(host, port))
+    if code:
+        typer.echo(f"linemap server could not serve on {host}:{port} (see the message above)", err=True)
+        raise typer.Exit(code)
 
 
 def _tune_gc() -> None:

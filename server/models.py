@@ -32,6 +32,7 @@ __all__ = [
     "AuthFailure",
     "Base",
     "KernelArtifact",
+    "MapDeltaRecord",
     "MapSegment",
     "MapState",
     "MapUploadRecord",
@@ -219,6 +220,20 @@ class MapUploadRecord(Base):
     n_segments: Mapped[int] = mapped_column(Integer)
     n_removed: Mapped[int] = mapped_column(Integer)
     received_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class MapDeltaRecord(Base):
+    """The last few uploads of each robot's map as its stream sends them, so that any server process can
+    send a viewer the deltas it missed (server.maplog): a delta's event as JSON, or for a snapshot no
+    body (the stream reads the whole map instead)."""
+
+    __tablename__ = "map_deltas"
+
+    robot_id: Mapped[int] = mapped_column(ForeignKey("robots.id", ondelete="CASCADE"), primary_key=True)
+    version: Mapped[int] = mapped_column(BigInteger, primary_key=True)
+    #: None for a snapshot
+    base_version: Mapped[int | None] = mapped_column(BigInteger, default=None)
+    body: Mapped[str | None] = mapped_column(Text, default=None)
 
 
 class AuthFailure(Base):

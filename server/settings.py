@@ -32,8 +32,9 @@ class Settings(BaseSettings):
         1.0,
         gt=0,
         le=60,
-        description="A waiting long-poll or stream re-reads the database this often "
-        "(covers writes by other server processes sharing a PostgreSQL database).",
+        description="A waiting long-poll or stream re-reads the database this often: a safety net, since "
+        "writes wake waiters at once (in this process, and on PostgreSQL in every other one through "
+        "LISTEN/NOTIFY) and the notice listener resynchronises every waiter after it reconnects.",
     )
     online_window_s: float = Field(10.0, gt=0, description="A robot seen within this window is online.")
     rollout_tick_s: float = Field(

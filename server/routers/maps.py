@@ -1,12 +1,14 @@
 """``/robots/{id}/maps``: the robot uploads temporary maps; operators read the latest or stream them (SSE).
 
-Stream events (``text/event-stream``): ``snapshot`` (the whole map, :class:`server.schemas.MapOut`) first
-and whenever the subscriber must resynchronise, then one ``delta`` per upload, carrying ``version``,
-``base_version``, changed ``segments``, ``removed`` ids, ``centroids``, ``pose`` and new ``trajectory``
-rows. Each event's ``id`` is the map version. A comment line every 15 s keeps proxies from closing it.
-The stream re-checks its credential every ``AUTH_RECHECK_S`` (:func:`server.deps.still_valid`: an answer
-read from the database at most 0.5 s before) and ends when it no longer works (token revoked or rotated, on
-any server process; session closed or expired).
+Stream events (``text/event-stream``, :mod:`server.mapstream`): ``snapshot`` (the whole map,
+:class:`server.schemas.MapOut`) first and whenever the subscriber must resynchronise, then one ``delta``
+per upload (to any server process on the database), carrying ``version``, ``base_version``, changed
+``segments``, ``removed`` ids, ``centroids``, ``pose`` and new ``trajectory`` rows. Each event's ``id`` is
+the map version; a browser reconnecting with ``Last-Event-ID`` resumes after it (the deltas it missed,
+from the delta log, or a snapshot). A comment line every 15 s keeps proxies from closing it. The stream
+re-checks its credential every ``AUTH_RECHECK_S`` (:func:`server.deps.still_valid`: an answer read from
+the database at most 0.5 s before) and ends when it no longer works (token revoked or rotated, on any
+server process; session closed or expired).
 
 ``GET /export?format=geojson|svg|dxf|mcap|pgm|yaml`` returns the latest map as a file (the same writers as
 ``linemap map``); ``pgm`` and ``yaml`` are the two halves of a ROS map_server map at ``resolution`` metres
@@ -18,23 +20,23 @@ header ``X-Map-Skipped`` then counts what was left out).
 
 from __future__ import annotations
 
-import asyncio
-import json
 import tempfile
-from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from fastapi import APIRouter, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
+from sqlalchemy import Connection
 
-from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access, still_valid
+from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access
 from server.errors import ConflictError, InvalidRequestError, RateLimitedError
-from server.hub import OVERFLOW
 from server.mapbounds import screen_stored
-from server.mapstore import apply_upload, map_version, prepare_rows, read_map
+from server.maplog import LoggedUpload
+from server.maplog import append as log_upload
+from server.mapstore import AppliedUpload, apply_upload, map_version, prepare_rows, read_map
+from server.mapstream import map_events
 from server.parsepool import UploadParser, parse_upload
 from server.quota import UploadQuota
 from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapUpload, MapUploadOut
@@ -47,10 +49,6 @@ __all__ = ["router"]
 
 router = APIRouter(prefix="/robots/{robot_id}/maps", tags=["maps"])
 RobotAccess = Annotated[Principal, Depends(robot_access)]
-KEEPALIVE_S = 15.0
-#: How often an open stream re-checks its credential (s): with answers at most 0.5 s old
-#: (server.deps.STILL_VALID_MAX_AGE_S), a revocation ends it within 0.75 s plus one database read.
-AUTH_RECHECK_S = 0.25
 
 
 _UPLOAD_BODY = {
@@ -111,11 +109,18 @@ async def upload_map(
     key = idempotency_key or f"version-{body.version}"
     seen = state.last_seen(robot_id)
     rows = await run_in_threadpool(prepare_rows, robot_id, body, diff) if heavy else None  # before the writer
-    applied = await state.writer.submit(
-        lambda conn: apply_upload(conn, robot_id, body, key, seen, cap, rows), heavy=heavy
-    )
-    if applied.event is not None:
-        state.hub.publish(f"maps:{robot_id}", applied.event)
+
+    def write(conn: Connection) -> tuple[AppliedUpload, LoggedUpload | None]:
+        # the delta log and the notice to other processes commit with the map (server.maplog, server.hub)
+        applied = apply_upload(conn, robot_id, body, key, seen, cap, rows)
+        if applied.event is None:
+            return applied, None
+        state.hub.announce(conn, f"maps:{robot_id}", body.version)
+        return applied, log_upload(conn, robot_id, applied.event)
+
+    applied, logged = await state.writer.submit(write, heavy=heavy)
+    if logged is not None:
+        state.hub.publish(f"maps:{robot_id}", logged)  # the stream sends its JSON as is
         if diff is not None:  # the parser process may diff the robot's next snapshot against this one
             parser.wrote(robot_id, body.version)
     return applied.out
@@ -177,13 +182,6 @@ async def latest_map(
     return await run_in_threadpool(_read, state, robot_id, trajectory, version)
 
 
-def _sse(event: str, data: Any, version: int) -> bytes:
-    # a stored map is encoded by pydantic: a non-finite value stored by an older server becomes null (valid
-    # JSON the page can skip), where json.dumps would write Infinity and the browser's JSON.parse throw
-    text = data.model_dump_json() if isinstance(data, MapOut) else json.dumps(data, separators=(",", ":"))
-    return f"event: {event}\nid: {version}\ndata: {text}\n\n".encode()
-
-
 @router.get(
     "/stream", response_class=StreamingResponse, responses={200: {"content": {"text/event-stream": {}}}}
 )
@@ -195,52 +193,22 @@ async def stream_map(
     trajectory: Annotated[
         int | None, Query(ge=0, le=DB_INT_MAX, description="Trajectory poses in snapshots (last N).")
     ] = None,
+    last_event_id: Annotated[
+        int | None,
+        Header(
+            alias="Last-Event-ID",
+            ge=0,
+            le=DB_INT_MAX,
+            description="Resume after this map version (a reconnecting browser sends it).",
+        ),
+    ] = None,
 ) -> StreamingResponse:
-    """Server-sent events: a ``snapshot``, then a ``delta`` per upload (see the module docstring)."""
+    """Server-sent events: a ``snapshot`` (or, with ``Last-Event-ID``, the deltas after that version),
+    then a ``delta`` per upload (see the module docstring)."""
     await run_in_threadpool(_version, state, robot_id)  # 404 before the stream starts
-
-    async def events() -> AsyncIterator[bytes]:
-        loop = asyncio.get_running_loop()
-        recheck = state.settings.poll_recheck_s
-        with state.hub.subscribe(f"maps:{robot_id}") as queue:
-            snap = await run_in_threadpool(_read, state, robot_id, trajectory)
-            yield _sse("snapshot", snap, snap.version)
-            last, quiet_since = snap.version, loop.time()
-            authed_at = reread_at = loop.time()
-            while True:
-                if loop.time() - authed_at >= AUTH_RECHECK_S:
-                    if not await still_valid(request, state):
-                        return  # the credential was revoked: the stream ends
-                    authed_at = loop.time()
-                try:
-                    item = await asyncio.wait_for(queue.get(), timeout=min(recheck, AUTH_RECHECK_S))
-                except TimeoutError:
-                    if await request.is_disconnected():
-                        return
-                    if loop.time() - reread_at < recheck:
-                        continue
-                    reread_at = loop.time()
-                    if await run_in_threadpool(_version, state, robot_id) != last:  # another process wrote
-                        item = OVERFLOW
-                    elif loop.time() - quiet_since >= KEEPALIVE_S:
-                        quiet_since = loop.time()
-                        yield b": keepalive\n\n"
-                        continue
-                    else:
-                        continue
-                if item is not OVERFLOW and item["version"] <= last:
-                    continue
-                if item is OVERFLOW or (item["kind"] == "delta" and item["base_version"] != last):
-                    snap = await run_in_threadpool(_read, state, robot_id, trajectory)
-                    yield _sse("snapshot", snap, snap.version)
-                    last = snap.version
-                else:
-                    yield _sse(item["kind"], item, item["version"])
-                    last = item["version"]
-                quiet_since = loop.time()
-
+    events = map_events(request, state, robot_id, trajectory, last_event_id, _read)
     headers = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
-    return StreamingResponse(events(), media_type="text/event-stream", headers=headers)
+    return StreamingResponse(events, media_type="text/event-stream", headers=headers)
 
 
 _ExportFormat = Literal["geojson", "svg", "dxf", "mcap", "pgm", "yaml"]

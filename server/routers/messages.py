@@ -130,6 +130,7 @@ def _queue(
         s.flush()
         record(s, who, "message.post", f"robot:{robot_id}", seq=seq, bytes=len(xml.encode()))
         _record_floor_overrides(s, msg, who, robot_id, seq)
+        state.hub.announce(s.connection(), f"messages:{robot_id}", seq)  # delivered at commit
         return _out(m)
 
 
@@ -221,11 +222,13 @@ def _ack(state: AppState, robot_id: int, seq: int, outcome: str, reason: str | N
                 return _out(m)  # a retried acknowledgement
             if m.status == "applied" and outcome == "rolled-back":
                 m.status, m.reason, m.acked_at = outcome, reason, utcnow()
+                state.hub.announce(s.connection(), f"acks:{robot_id}", seq)
                 return _out(m)
             raise ConflictError(
                 f"message {seq} was acknowledged as {m.status} already; cannot change it to {outcome}"
             )
         m.status, m.reason, m.acked_at = outcome, reason, utcnow()
+        state.hub.announce(s.connection(), f"acks:{robot_id}", seq)
         return _out(m)
 
 

@@ -67,10 +67,10 @@ def fresh_database(backend: str, tmp: Path) -> Iterator[str]:
         admin.dispose()
 
 
-def _start(url: str, env: dict[str, str]) -> tuple[ServerProc, str]:
+def _start(url: str, env: dict[str, str], args: tuple[str, ...] = ()) -> tuple[ServerProc, str]:
     port = _free_port()
     proc = subprocess.Popen(
-        [LINEMAP, "server", "--db", url, "--port", str(port)],
+        [LINEMAP, "server", "--db", url, "--port", str(port), *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -97,17 +97,20 @@ def _start(url: str, env: dict[str, str]) -> tuple[ServerProc, str]:
 
 
 @contextmanager
-def server_procs(url: str, n: int = 2, **settings: object) -> Iterator[tuple[list[ServerProc], str]]:
+def server_procs(
+    url: str, n: int = 2, args: tuple[str, ...] = (), **settings: object
+) -> Iterator[tuple[list[ServerProc], str]]:
     """``n`` server processes on ``url`` (started one after the other), with ``settings`` as ``LINEMAP_*``
-    environment; yields them and the admin token the first one printed. Stopped with SIGTERM afterwards."""
+    environment and ``args`` added to the command line; yields them and the admin token the first one
+    printed. Stopped with SIGTERM afterwards."""
     env = {f"LINEMAP_{k.upper()}": str(v) for k, v in settings.items()}
     procs: list[ServerProc] = []
     try:
-        first, out = _start(url, env)
+        first, out = _start(url, env, args)
         procs.append(first)
         token = out.split("keep it): ")[1].split()[0]
         for _ in range(n - 1):
-            procs.append(_start(url, env)[0])
+            procs.append(_start(url, env, args)[0])
         yield procs, token
     finally:
         for p in procs:

@@ -1,7 +1,7 @@
 """rollouts: a kernel version rolled out to many robots in canaries and waves (rollouts, rollout_robots)
 
 Revision ID: 0007
-Revises: 0004 (0005 and 0006 are added in parallel; the merge chains them)
+Revises: 0006
 Create Date: 2026-12-05 16:30:00
 """
 
@@ -13,7 +13,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision: str = "0007"
-down_revision: str | None = "0004"
+down_revision: str | None = "0006"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

@@ -1,0 +1,73 @@
+"""The map delta log: the last :data:`KEEP_VERSIONS` uploads of each robot's map as the stream sends them,
+written in the upload's own transaction, so that any server process can send a live-map viewer the deltas
+it missed: another process's uploads (woken by a notice, :mod:`server.hub`), a viewer that fell behind,
+a browser reconnecting with ``Last-Event-ID``.
+
+A delta is kept as its stream event (JSON text, sent as is); a snapshot upload as a row without a body (a
+viewer behind it is sent the whole current map instead). Each upload costs one insert and one indexed
+delete (the rows ``KEEP_VERSIONS`` versions older); a read costs O(rows read) on the primary key.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import Connection, Table, delete, insert, select
+from sqlalchemy.orm import Session
+
+from server.models import MapDeltaRecord
+
+__all__ = ["KEEP_VERSIONS", "LoggedUpload", "append", "chain_from", "read_after"]
+
+#: Versions kept per robot: 25 s of uploads at 10 Hz (the agent uploads at 2 Hz: two minutes).
+KEEP_VERSIONS = 256
+_LOG: Table = MapDeltaRecord.__table__  # type: ignore[assignment]
+
+
+@dataclass(frozen=True, slots=True)
+class LoggedUpload:
+    """One logged upload: a delta (``body``: its event as JSON) or a snapshot (``body`` None)."""
+
+    version: int
+    base_version: int | None
+    body: str | None
+
+
+def append(conn: Connection, robot_id: int, event: dict[str, Any], keep: int = KEEP_VERSIONS) -> LoggedUpload:
+    """Log the upload whose stream event is ``event`` (:class:`server.mapstore.AppliedUpload`'s) in
+    ``conn``'s transaction, and drop the robot's entries ``keep`` or more versions older; returns the
+    entry (its JSON is what every stream sends, encoded once here). O(event)."""
+    version = int(event["version"])
+    if event["kind"] == "delta":
+        base, body = event["base_version"], json.dumps(event, separators=(",", ":"))
+    else:
+        base, body = None, None
+    conn.execute(insert(_LOG).values(robot_id=robot_id, version=version, base_version=base, body=body))
+    conn.execute(delete(_LOG).where(_LOG.c.robot_id == robot_id, _LOG.c.version <= version - keep))
+    return LoggedUpload(version, base, body)
+
+
+def read_after(s: Session, robot_id: int, after: int, limit: int = KEEP_VERSIONS) -> list[LoggedUpload]:
+    """The robot's logged uploads above version ``after``, oldest first (at most ``limit``)."""
+    rows = s.execute(
+        select(_LOG.c.version, _LOG.c.base_version, _LOG.c.body)
+        .where(_LOG.c.robot_id == robot_id, _LOG.c.version > after)
+        .order_by(_LOG.c.version)
+        .limit(limit)
+    )
+    return [LoggedUpload(int(v), None if b is None else int(b), body) for v, b, body in rows]
+
+
+def chain_from(version: int, logged: list[LoggedUpload]) -> list[LoggedUpload]:
+    """The leading run of ``logged`` that continues a map at ``version`` delta by delta: each a delta whose
+    base is the version before it. Empty when the first is missing (a gap, older than the log keeps) or a
+    snapshot. O(len(logged))."""
+    out: list[LoggedUpload] = []
+    for entry in logged:
+        if entry.body is None or entry.base_version != version:
+            break
+        out.append(entry)
+        version = entry.version
+    return out
