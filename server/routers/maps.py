@@ -1,4 +1,5 @@
-"""``/robots/{id}/maps``: the robot uploads temporary maps; operators read the latest or stream them (SSE).
+"""``/robots/{id}/maps``: the robot uploads temporary maps; operators read the latest or stream them (SSE),
+and list the robot's maps, one per mapping session (``GET /robots/{id}/maps``, :mod:`server.mapsessions`).
 
 Stream events (``text/event-stream``): ``snapshot`` (the whole map, :class:`server.schemas.MapOut`) first
 and whenever the subscriber must resynchronise, then one ``delta`` per upload, carrying ``version``,
@@ -9,8 +10,9 @@ read from the database at most 0.5 s before) and ends when it no longer works (t
 any server process; session closed or expired).
 
 ``GET /export?format=geojson|svg|dxf|pgm|yaml`` returns the latest map as a file (the same writers as
-``linemap map``); ``pgm`` and ``yaml`` are the two halves of a ROS map_server map at ``resolution`` metres
-per pixel, named ``robot-<id>-map-v<version>-<resolution>m.pgm/.yaml`` so that the YAML names its image.
+``linemap map``; ``session=<id>``: that mapping session's map); ``pgm`` and ``yaml`` are the two halves
+of a ROS map_server map at ``resolution`` metres per pixel, named
+``robot-<id>-map-v<version>-<resolution>m.pgm/.yaml`` so that the YAML names its image.
 A stored map with items outside the declared bounds (:mod:`server.mapbounds`; stored before the bounds
 held) is refused with 409 naming them, or exported without them with ``out_of_bounds=skip`` (the response
 header ``X-Map-Skipped`` then counts what was left out).
@@ -34,13 +36,15 @@ from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access, 
 from server.errors import ConflictError, InvalidRequestError, RateLimitedError
 from server.hub import OVERFLOW
 from server.mapbounds import screen_stored
+from server.mapsessions import list_sessions, read_session_map
 from server.mapstore import apply_upload, map_version, prepare_rows, read_map
 from server.parsepool import UploadParser, parse_upload
 from server.quota import UploadQuota
-from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapUpload, MapUploadOut
+from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapSessionOut, MapUpload, MapUploadOut
 from shared.errors import InvalidInputError
 from shared.export import EmptyMapError, ExportError
 from shared.pipeline.snapshot import MapSnapshot
+from shared.protocol import MAP_SESSION_PATTERN, anchored
 from shared.types import Pose2D
 
 __all__ = ["router"]
@@ -79,7 +83,7 @@ def _charge(request: Request, robot_id: int, n_bytes: int) -> None:
         )
 
 
-@router.post("", response_model=MapUploadOut, openapi_extra=_UPLOAD_BODY)
+@router.post("", response_model=MapUploadOut, response_model_exclude_none=True, openapi_extra=_UPLOAD_BODY)
 async def upload_map(
     robot_id: DbIdPath,
     request: Request,
@@ -112,8 +116,10 @@ async def upload_map(
     seen = state.last_seen(robot_id)
     rows = await run_in_threadpool(prepare_rows, robot_id, body, diff) if heavy else None  # before the writer
     applied = await state.writer.submit(
-        lambda conn: apply_upload(conn, robot_id, body, key, seen, cap, rows), heavy=heavy
+        lambda conn: apply_upload(conn, robot_id, body, key, seen, cap, rows, who.actor), heavy=heavy
     )
+    if applied.new_session:  # versions count anew: a version kept from the old session is another map
+        state.recent_maps.forget(robot_id)
     if applied.event is not None:
         state.hub.publish(f"maps:{robot_id}", applied.event)
         if diff is not None:  # the parser process may diff the robot's next snapshot against this one
@@ -121,10 +127,25 @@ async def upload_map(
     return applied.out
 
 
-def _read(state: AppState, robot_id: int, tail: int | None, version: int | None = None) -> MapOut:
+def _read(
+    state: AppState, robot_id: int, tail: int | None, version: int | None = None, session: str | None = None
+) -> MapOut:
     """The current map (``version`` None) or version ``version`` if it is the current one or this process
     read it lately (:mod:`server.recentmaps`); 409 naming the versions held otherwise. ``tail``: only the
-    last N trajectory poses."""
+    last N trajectory poses. ``session``: that mapping session's map (an ended one as it ended; 404 naming
+    the robot's sessions when it has no such session)."""
+    if session is not None:
+        with state.db.read() as s:
+            current, _v = map_version(s, robot_id)
+            if session != current:
+                m = read_session_map(s, robot_id, session, tail)
+                if version is not None and m.version != version:
+                    raise ConflictError(
+                        f"map session {session} of robot {robot_id} ended at version {m.version}, "
+                        f"not {version}",
+                        current_version=m.version,
+                    )
+                return m
     if version is not None:
         kept = state.recent_maps.get(robot_id, version)
         if kept is not None:
@@ -157,9 +178,32 @@ VersionQuery = Annotated[
 ]
 
 
-def _version(state: AppState, robot_id: int) -> int:
+#: ``?session=<uuid>``: the map of that mapping session (the current one or an ended one)
+SessionQuery = Annotated[
+    str | None,
+    Query(
+        pattern=anchored(MAP_SESSION_PATTERN),
+        description="This mapping session's map (see GET /robots/{id}/maps); default: the current one.",
+    ),
+]
+
+
+def _version(state: AppState, robot_id: int) -> tuple[str | None, int]:
     with state.db.read() as s:
         return map_version(s, robot_id)
+
+
+def _sessions(state: AppState, robot_id: int) -> list[MapSessionOut]:
+    with state.db.read() as s:
+        return list_sessions(s, robot_id)
+
+
+@router.get("", response_model=list[MapSessionOut])
+async def list_maps(robot_id: DbIdPath, who: RobotAccess, state: StateDep) -> list[MapSessionOut]:
+    """The robot's maps, one per mapping session, newest first: the current one and those a new session
+    replaced (kept), each with its first and last version, when it started and was last uploaded, and its
+    wall count."""
+    return await run_in_threadpool(_sessions, state, robot_id)
 
 
 @router.get("/latest", response_model=MapOut)
@@ -171,10 +215,12 @@ async def latest_map(
         int | None, Query(ge=0, le=DB_INT_MAX, description="Only the last N trajectory poses.")
     ] = None,
     version: VersionQuery = None,
+    session: SessionQuery = None,
 ) -> MapOut:
     """The whole current map (version 0 and empty before the first upload); with ``version``, that
-    version (409 with ``current_version`` when the server no longer holds it)."""
-    return await run_in_threadpool(_read, state, robot_id, trajectory, version)
+    version (409 with ``current_version`` when the server no longer holds it); with ``session``, that
+    mapping session's map."""
+    return await run_in_threadpool(_read, state, robot_id, trajectory, version, session)
 
 
 def _sse(event: str, data: Any, version: int) -> bytes:
@@ -205,7 +251,7 @@ async def stream_map(
         with state.hub.subscribe(f"maps:{robot_id}") as queue:
             snap = await run_in_threadpool(_read, state, robot_id, trajectory)
             yield _sse("snapshot", snap, snap.version)
-            last, quiet_since = snap.version, loop.time()
+            last, last_session, quiet_since = snap.version, snap.map_session, loop.time()
             authed_at = reread_at = loop.time()
             while True:
                 if loop.time() - authed_at >= AUTH_RECHECK_S:
@@ -220,7 +266,10 @@ async def stream_map(
                     if loop.time() - reread_at < recheck:
                         continue
                     reread_at = loop.time()
-                    if await run_in_threadpool(_version, state, robot_id) != last:  # another process wrote
+                    if await run_in_threadpool(_version, state, robot_id) != (
+                        last_session,
+                        last,
+                    ):  # another process wrote
                         item = OVERFLOW
                     elif loop.time() - quiet_since >= KEEPALIVE_S:
                         quiet_since = loop.time()
@@ -228,12 +277,13 @@ async def stream_map(
                         continue
                     else:
                         continue
-                if item is not OVERFLOW and item["version"] <= last:
+                other = item is not OVERFLOW and item["map_session"] != last_session  # a new map
+                if item is not OVERFLOW and not other and item["version"] <= last:
                     continue
-                if item is OVERFLOW or (item["kind"] == "delta" and item["base_version"] != last):
+                if item is OVERFLOW or other or (item["kind"] == "delta" and item["base_version"] != last):
                     snap = await run_in_threadpool(_read, state, robot_id, trajectory)
                     yield _sse("snapshot", snap, snap.version)
-                    last = snap.version
+                    last, last_session = snap.version, snap.map_session
                 else:
                     yield _sse(item["kind"], item, item["version"])
                     last = item["version"]
@@ -346,13 +396,14 @@ async def export_map(
         Query(description="Stored items outside the declared bounds: refuse (409) or skip them."),
     ] = "refuse",
     version: VersionQuery = None,
+    session: SessionQuery = None,
 ) -> Response:
     """The latest map as a file to download (``version``: that version, e.g. the YAML of the PGM just
     fetched, whose version the ``X-Map-Version`` header and the file name give). 409 when an occupancy
     map is asked of a map without walls, when the stored map has items outside the declared bounds
     (unless ``out_of_bounds=skip``), or when the version asked for is no longer held (with
     ``current_version``); 422 when the resolution would make a grid of more than 16 M cells."""
-    m = await run_in_threadpool(_read, state, robot_id, None, version)
+    m = await run_in_threadpool(_read, state, robot_id, None, version, session)
     extent_m = state.settings.world_extent_m
     body, skipped = await run_in_threadpool(_export, m, fmt, resolution, extent_m, out_of_bounds == "skip")
     headers = {

@@ -19,7 +19,10 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from shared.protocol.patterns import MAP_SESSION_PATTERN, anchored
+
 __all__ = [
+    "AGENT_INSTANCE_HEADER",
     "ARTIFACT_KEY_ID_HEADER",
     "ARTIFACT_SHA256_HEADER",
     "ARTIFACT_SIGNATURE_HEADER",
@@ -62,6 +65,9 @@ ARTIFACT_SHA256_HEADER = "X-Linemap-Sha256"
 ARTIFACT_SIGNATURE_HEADER = "X-Linemap-Signature"
 ARTIFACT_KEY_ID_HEADER = "X-Linemap-Key-Id"
 ARTIFACT_STAGE_HEADER = "X-Linemap-Stage"
+#: Header of every request an agent makes: its process's instance id (a UUID, :data:`MAP_SESSION_PATTERN`'s
+#: spelling), so the server can tell two agents running with one robot token apart.
+AGENT_INSTANCE_HEADER = "X-Linemap-Agent-Instance"
 
 
 class _Body(BaseModel):
@@ -95,8 +101,19 @@ class MapUpload(_Body):
     """A temporary map from the robot: a full snapshot (``base_version`` null) or a delta since
     ``base_version``. ``segments`` rows are ``[segment_id, x0_m, y0_m, x1_m, y1_m]`` (all walls for a
     snapshot; new or changed walls for a delta); ``removed`` the ids that are gone; ``trajectory`` rows
-    ``[stamp_s, x_m, y_m, theta_rad]`` since ``base_version`` (all of them for a snapshot)."""
+    ``[stamp_s, x_m, y_m, theta_rad]`` since ``base_version`` (all of them for a snapshot).
 
+    ``map_session``: the id of the mapping session the versions belong to (a UUID the robot creates when
+    its Robot DB starts a new map); versions count within a session. A snapshot of a session the server has
+    not seen starts a new map there (the old one is kept); a delta must be of the server's current session.
+    Absent: a robot from before map sessions, whose uploads all go to one legacy session."""
+
+    map_session: str | None = Field(
+        None, pattern=anchored(MAP_SESSION_PATTERN), description="The mapping session (a lower-case UUID)."
+    )
+    map_session_reason: str | None = Field(
+        None, max_length=300, description="Why the robot started this session (sent with its snapshots)."
+    )
     version: int = Field(ge=1, le=INT64_MAX)
     base_version: int | None = Field(None, ge=0, le=INT64_MAX)
     stamp_s: Finite = 0.0
