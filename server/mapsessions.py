@@ -14,7 +14,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import Connection, Table, func, insert, select, update
+from sqlalchemy import Connection, Table, func, insert, literal, select, update
 from sqlalchemy.orm import Session
 
 from server.errors import MapSessionEndedError, NotFoundError
@@ -99,7 +99,7 @@ def start_session(
         conn.execute(
             insert(_ARCH_SEG).from_select(
                 ["session_pk", *cols],
-                select(func.cast(ended, _ARCH_SEG.c.session_pk.type), *(_SEG.c[c] for c in cols)).where(
+                select(literal(ended, _ARCH_SEG.c.session_pk.type), *(_SEG.c[c] for c in cols)).where(
                     _SEG.c.robot_id == robot_id
                 ),
             )
@@ -108,7 +108,7 @@ def start_session(
         conn.execute(
             insert(_ARCH_TRAJ).from_select(
                 ["session_pk", *tcols],
-                select(func.cast(ended, _ARCH_TRAJ.c.session_pk.type), *(_TRAJ.c[c] for c in tcols))
+                select(literal(ended, _ARCH_TRAJ.c.session_pk.type), *(_TRAJ.c[c] for c in tcols))
                 .where(_TRAJ.c.robot_id == robot_id)
                 .order_by(_TRAJ.c.id),
             )

@@ -32,7 +32,7 @@ from fastapi import APIRouter, Depends, Header, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 
-from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access, still_valid
+from server.deps import AgentChecked, AppState, Principal, RobotSelf, StateDep, robot_access, still_valid
 from server.errors import ConflictError, InvalidRequestError, RateLimitedError
 from server.hub import OVERFLOW
 from server.mapbounds import screen_stored
@@ -83,7 +83,13 @@ def _charge(request: Request, robot_id: int, n_bytes: int) -> None:
         )
 
 
-@router.post("", response_model=MapUploadOut, response_model_exclude_none=True, openapi_extra=_UPLOAD_BODY)
+@router.post(
+    "",
+    response_model=MapUploadOut,
+    response_model_exclude_none=True,
+    openapi_extra=_UPLOAD_BODY,
+    dependencies=[AgentChecked],
+)
 async def upload_map(
     robot_id: DbIdPath,
     request: Request,
