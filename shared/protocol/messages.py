@@ -17,7 +17,14 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    model_serializer,
+    model_validator,
+)
 
 from shared.protocol.patterns import MAP_SESSION_PATTERN, anchored
 
@@ -97,6 +104,10 @@ class RobotStatus(_Body):
     kernels: list[RobotKernel] | None = Field(None, max_length=1000, description="The robot's kernel store.")
 
 
+#: The fields of an upload that name its map session; left out of the JSON when absent.
+_SESSION_FIELDS = ("map_session", "map_session_reason")
+
+
 class MapUpload(_Body):
     """A temporary map from the robot: a full snapshot (``base_version`` null) or a delta since
     ``base_version``. ``segments`` rows are ``[segment_id, x0_m, y0_m, x1_m, y1_m]`` (all walls for a
@@ -126,6 +137,16 @@ class MapUpload(_Body):
     pose: PoseRow = Field(default_factory=lambda: [0.0, 0.0, 0.0])
     trajectory: list[TrajRow] = Field(default_factory=list, max_length=1_000_000)
     status: RobotStatus | None = None
+
+    @model_serializer(mode="wrap")
+    def _without_absent_session(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """An upload without a map session serialises as before sessions (the legacy fields only). O(1)
+        beyond the fields' own serialisation."""
+        out: dict[str, Any] = handler(self)
+        for name in _SESSION_FIELDS:
+            if name in out and out[name] is None:
+                del out[name]
+        return out
 
     @model_validator(mode="after")
     def _consistent(self) -> MapUpload:

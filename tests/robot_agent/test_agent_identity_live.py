@@ -124,6 +124,7 @@ class _Server:
 
     def __init__(self, db: Path, port: int) -> None:
         self.db, self.port = db, port
+        self.base_url = f"http://127.0.0.1:{port}"
         self.token: str | None = None
         self.srv: ServerProc | None = None
 
@@ -142,12 +143,12 @@ class _Server:
         assert "linemap server on" in text, text
         if "keep it): " in text:
             self.token = text.split("keep it): ")[1].split()[0]
-        self.srv = ServerProc(proc, f"http://127.0.0.1:{self.port}")
+        self.srv = ServerProc(proc, self.base_url)
         wait_for("the server", self._up, 30)
 
     def _up(self) -> bool:
         try:
-            return httpx.get(f"{self.srv.base_url}/healthz", timeout=2).status_code == 200  # type: ignore[union-attr]
+            return httpx.get(f"{self.base_url}/healthz", timeout=2).status_code == 200
         except httpx.TransportError:
             return False
 
@@ -189,8 +190,8 @@ def test_a_server_restored_from_an_older_copy_continues_the_robots_numbering(tmp
         rid = int(robot["id"])
         assert _post(op, rid, "<mode>offline</mode>") == 1
     agent = AgentProcess(
-        db, server=server.srv.base_url, robot_id=rid, token=robot["token"], extra=["--rate", "30"]
-    )  # type: ignore[union-attr]
+        db, server=server.base_url, robot_id=rid, token=robot["token"], extra=["--rate", "30"]
+    )
     try:
         wait_for("message 1 applied", lambda: _applied(db) == [1] if db.exists() else False)
         server.stop()
