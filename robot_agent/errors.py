@@ -59,8 +59,7 @@ class UnexpectedAnswerError(LinkError):
 
 class SupersededError(AgentError):
     """Another agent with this robot's token took over (the server answered 409 ``agent_superseded``), or
-    another agent holds this Robot DB: this agent must stop, not retry (docs/reliability/agent.md, "Map
-    identity")."""
+    another agent holds this Robot DB: this agent must stop, not retry (docs/reliability/identity.md)."""
 
 
 class SourceError(AgentError):

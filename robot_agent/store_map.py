@@ -188,8 +188,8 @@ class MapTables(RobotDBFile):
 
     # ------------------------------------------------------------ map session
     def map_session(self) -> str:
-        """The id of the map session this Robot DB's map belongs to (docs/reliability/agent.md, "Map
-        identity"): made by the migration that created the Robot DB, or by :meth:`new_map_session`."""
+        """The id of the map session this Robot DB's map belongs to (docs/reliability/identity.md): made
+        by the migration that created the Robot DB, or by :meth:`new_map_session`."""
         value = self.get("map_session")
         if value is None:  # a Robot DB whose meta lost it: a new session, never a guess
             return self.new_map_session("the Robot DB had no map session id")

@@ -121,7 +121,7 @@ class Uploader:
     def send_maps(self) -> bool:
         """Send what the outbox holds: a delta from the version the server confirmed, or a snapshot.
 
-        Map identity (docs/reliability/agent.md): every upload carries this Robot DB's map session, and a
+        Map identity (docs/reliability/identity.md): every upload carries this Robot DB's map session, and a
         version counts as delivered only when the server answers that it holds it in this session. A 409
         never marks anything delivered: a delta of another session than the server's, or from another
         base, is followed by a snapshot; a server ahead of this robot in the same session (the Robot DB was

@@ -1,4 +1,4 @@
-"""Which agent process speaks for a robot (docs/reliability/server.md, "Map identity").
+"""Which agent process speaks for a robot (docs/reliability/identity.md).
 
 Every agent sends its process's instance id (a UUID it makes at start) in the ``X-Linemap-Agent-Instance``
 header. The robot's current instance is ``robots.agent_instance``; a request from a new instance takes over

@@ -1,4 +1,4 @@
-"""A robot's mapping sessions (docs/reliability/server.md, "Map identity"): one map per (robot, session).
+"""A robot's mapping sessions (docs/reliability/identity.md): one map per (robot, session).
 
 The current session's map lives in ``map_segments`` / ``trajectory_points`` / ``map_states`` (the hot
 upload path, :mod:`server.mapstore`, is unchanged by sessions); when a snapshot of a new session arrives

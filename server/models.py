@@ -250,7 +250,7 @@ class AuditEntry(Base):
 
 
 class MapSession(Base):
-    """One mapping session of a robot (docs/reliability/server.md, "Map identity"): the current one
+    """One mapping session of a robot (docs/reliability/identity.md): the current one
     (``ended_at`` None; its walls are in ``map_segments``) or an ended one, whose map was moved to
     ``map_session_segments`` / ``map_session_trajectory`` when a new session began. ``session_id`` None:
     the map of a robot from before sessions. ``last_version``, ``last_upload_at``, ``wall_count`` and

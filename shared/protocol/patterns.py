@@ -45,7 +45,7 @@ SHA256_PATTERN = r"[0-9a-fA-F]{64}"
 SHA256_RE = re.compile(SHA256_PATTERN)
 
 
-#: A map session id (docs/reliability/agent.md, "Map identity"): a UUID in its canonical lower-case
+#: A map session id (docs/reliability/identity.md): a UUID in its canonical lower-case
 #: 8-4-4-4-12 spelling, created by the robot when its Robot DB starts a new map.
 MAP_SESSION_PATTERN = r"[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}"
 MAP_SESSION_RE = re.compile(MAP_SESSION_PATTERN)

@@ -1,4 +1,4 @@
-"""Map identity through the real thing (docs/reliability/agent.md, "Map identity"): real ``linemap agent``
+"""Map identity through the real thing (docs/reliability/identity.md): real ``linemap agent``
 processes against a real server on 127.0.0.1 (uvicorn in-process, or ``linemap server`` processes for the
 restore from a backup). A Robot DB deleted and started again makes a new map on the server (the old one
 kept and listed, the new one holding only its own walls); of two agents started with one token the later

@@ -1,4 +1,4 @@
-"""Map identity in the uploader (robot_agent/uploader.py, docs/reliability/agent.md "Map identity"): every
+"""Map identity in the uploader (robot_agent/uploader.py, docs/reliability/identity.md): every
 upload carries the Robot DB's map session, a version is marked delivered only when the server confirms it
 holds it in that session, a replaced Robot DB starts a new map on the server (the old one kept, never
 mixed), and a server ahead of the robot in the same session makes the robot start a new session. The

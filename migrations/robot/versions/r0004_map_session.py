@@ -1,7 +1,7 @@
 """robot db: the map session id (meta ``map_session``), shared with the server
 
-A Robot DB holds one map; the session id names it on the server (docs/reliability/agent.md, "Map
-identity"). A new Robot DB gets a new id here; an existing one gets one too (its map continues under it).
+A Robot DB holds one map; the session id names it on the server (docs/reliability/identity.md). A new
+Robot DB gets a new id here; an existing one gets one too (its map continues under it).
 The agent starts another session (a new id) when the server proves to be ahead of it in this one.
 
 Revision ID: r0004
