@@ -67,8 +67,8 @@ def test_the_maps_tab_lists_sessions_and_identity_events(live: Live) -> None:
         expect(rows.nth(0)).to_have_attribute("data-session", S2)
         expect(rows.nth(0)).to_have_attribute("data-current", "true")
         expect(rows.nth(1)).to_have_attribute("data-session", S1)
-        expect(rows.nth(1).get_by_test_id("map-walls")).to_have_text("3")
-        expect(rows.nth(1).get_by_test_id("map-last-version")).to_have_text("7")
+        expect(rows.nth(1).get_by_test_id("session-walls")).to_have_text("3")
+        expect(rows.nth(1).get_by_test_id("session-last-version")).to_have_text("7")
         events = page.get_by_test_id("robot-event")
         for action in ("map.session.start", "agent.takeover", "agent.refused", "messages.resync"):
             expect(page.locator(f'[data-testid="robot-event"][data-action="{action}"]').first).to_be_visible()

@@ -70,8 +70,8 @@ export class RobotMapsTab {
         h("code", null, short(m.map_session)), " ", m.current ? badge("current") : null,
         m.reason ? h("div", { class: "muted small" }, m.reason) : null),
       h("td", { class: "num" }, m.first_version == null ? "" : `${m.first_version}–`,
-        h("span", { "data-testid": "map-last-version" }, String(m.last_version ?? "—"))),
-      h("td", { class: "num", "data-testid": "map-walls" }, String(m.wall_count)),
+        h("span", { "data-testid": "session-last-version" }, String(m.last_version ?? "—"))),
+      h("td", { class: "num", "data-testid": "session-walls" }, String(m.wall_count)),
       h("td", { title: `started ${when(m.started_at)}, last upload ${when(m.last_upload_at)}` },
         m.last_upload_at ? ago(m.last_upload_at) : "—"),
       h("td", null, m.current ? "" : h("a", {
