@@ -164,7 +164,7 @@ class Agent:
                 self.link.close()
         for sup in self.threads.values():
             if sup.name != "mapping" and sup.fatal_error is not None:
-                raise sup.fatal_error  # another agent took over this robot: the CLI shows why, exit status 1
+                raise sup.fatal_error  # another agent took over this robot: the CLI shows why, exit status 2
 
     def _thread_died(self, name: str, exc: BaseException) -> None:
         """A supervised loop died unexpectedly (restarted after a backoff): report it."""

@@ -88,7 +88,7 @@ def test_of_two_agents_on_one_token_the_later_takes_over(live: Live, tmp_path: P
         if a.proc.poll() is None:
             a.kill()
     out = a.output()
-    assert code != 0, out
+    assert code == 2, out
     assert "another agent with robot" in out and "took over at" in out, out
     assert "Traceback" not in out
     wait_for("B uploads", lambda: (robot_db_meta(db_b, "uploaded_version") or 0) >= 10)
@@ -111,7 +111,7 @@ def test_two_agents_on_one_robot_db_are_refused_at_start(live: Live, tmp_path: P
         second = AgentProcess(db, server=live.base_url, robot_id=rid, token=token, extra=["--rate", "30"])
         code = second.proc.wait(60)
         out = second.output()
-        assert code != 0, out
+        assert code == 2, out
         assert f"another agent (pid {first.proc.pid}) is running on the Robot DB" in out, out
         assert "Traceback" not in out
         assert first.proc.poll() is None, "the first agent goes on"
