@@ -57,16 +57,17 @@ def _conflict(error: str, version: int, session: str | None) -> httpx.Response:
     )
 
 
-def test_a_200_for_another_version_or_session_marks_nothing(tmp_path: Path) -> None:
-    for wrong in ({"version": 4}, {"version": 5, "map_session": "00000000-0000-4000-8000-000000000000"}):
-        folder = tmp_path / str(len(wrong))
-        folder.mkdir()
-        up, db, _sent = _setup(
-            folder, lambda _b, w=wrong: httpx.Response(200, json={"duplicate": False, **w})
-        )
-        with pytest.raises(LinkError, match="not marked delivered"):
-            up.send_maps()
-        assert db.get("uploaded_version") is None and db.outbox_size() == 5
+@pytest.mark.parametrize(
+    "wrong", [{"version": 4}, {"version": 5, "map_session": "00000000-0000-4000-8000-000000000000"}]
+)
+def test_a_200_for_another_version_or_session_marks_nothing(tmp_path: Path, wrong: dict[str, Any]) -> None:
+    def answer(_body: dict[str, Any]) -> httpx.Response:
+        return httpx.Response(200, json={"duplicate": False, **wrong})
+
+    up, db, _sent = _setup(tmp_path, answer)
+    with pytest.raises(LinkError, match="not marked delivered"):
+        up.send_maps()
+    assert db.get("uploaded_version") is None and db.outbox_size() == 5
 
 
 def test_a_snapshot_confirmed_in_this_session_is_marked_and_a_delta_follows(tmp_path: Path) -> None:
