@@ -239,11 +239,7 @@ async def list_messages(
     (long-poll; at most the server's ``long_poll_max_s``), or with an empty list when the wait is over.
     The robot's own ``after`` is the highest message it applied: when the server's numbering is behind it
     (a database restored from a backup) the numbering continues after it (see ``_resync``)."""
-    if who.kind == "robot" and after > 0:
-        first = await run_in_threadpool(_read, state, robot_id, after, 1)
-        if after > int(first["last_seq"]):  # type: ignore[call-overload]
-            await run_in_threadpool(_resync, state, robot_id, after, who)
-            state.hub.publish(f"messages:{robot_id}", after)
+    resync = who.kind == "robot" and after > 0  # the robot's own poll: is the server's numbering behind?
     loop = asyncio.get_running_loop()
     deadline = loop.time() + min(wait, state.settings.long_poll_max_s)
     recheck = state.settings.poll_recheck_s
@@ -251,6 +247,11 @@ async def list_messages(
         waited = False
         while True:
             out = await run_in_threadpool(_read, state, robot_id, after, limit)
+            if resync and after > int(out["last_seq"]):  # type: ignore[call-overload]
+                await run_in_threadpool(_resync, state, robot_id, after, who)
+                state.hub.publish(f"messages:{robot_id}", after)
+                out = await run_in_threadpool(_read, state, robot_id, after, limit)
+            resync = False
             remaining = deadline - loop.time()
             if out["messages"] and waited and not await still_valid(request, state):
                 raise AuthError("unknown or revoked token")  # revoked while the poll waited
