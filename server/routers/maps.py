@@ -154,7 +154,9 @@ def _read(
                 return m
     if version is not None:
         kept = state.recent_maps.get(robot_id, version)
-        if kept is not None:
+        # versions count anew in each map session: a kept map serves only while its session is current
+        # (another server process may have started a new one)
+        if kept is not None and _version(state, robot_id)[0] == kept.map_session:
             return _tail_of(kept, tail)
     with state.db.read() as s:
         m = read_map(s, robot_id, tail)

@@ -170,3 +170,15 @@ def test_numbering_continues_after_the_robots_when_the_server_is_behind(live: Li
         assert (
             op.get(f"/robots/{rid}/messages", params={"after": 4}).json()["last_seq"] == 6
         )  # operators: no resync
+
+
+def test_a_version_number_of_a_replaced_map_names_the_new_maps_version(live: Live) -> None:
+    """Versions count anew in each session: ``?version=5`` after a new session's version 5 is the new map,
+    never the replaced one the server read before."""
+    rid, token = live.new_robot()
+    with _robot(live, token) as robot, live.operator() as op:
+        robot.post(f"/robots/{rid}/maps", json=_snap(S1, 5, [1, 2]))
+        assert op.get(f"/robots/{rid}/maps/latest").json()["map_session"] == S1  # read whole: kept
+        robot.post(f"/robots/{rid}/maps", json=_snap(S2, 5, [9]))
+        got = op.get(f"/robots/{rid}/maps/latest", params={"version": 5}).json()
+        assert got["map_session"] == S2 and [s[0] for s in got["segments"]] == [9]
