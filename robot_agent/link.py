@@ -267,7 +267,9 @@ class ServerLink:
         if resp.status_code == 409:
             got = self._json(resp, _Conflict)
             return UploadConflict(got.current_version, got.error, got.current_session)
-        return self._json(resp, _Uploaded).model_dump()
+        self._json(resp, _Uploaded)  # validated: version, and map_session when the server has sessions
+        out: dict[str, Any] = resp.json()
+        return out
 
     def fetch_kernel(self, name: str, version: str) -> KernelDownload:
         resp = self._call("GET", f"/kernels/{name}/{version}/artifact", expect="text/x-python")

@@ -259,10 +259,12 @@ def apply_upload(
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
     seen = conn.execute(
-        select(_UPLOADS.c.version).where(_UPLOADS.c.robot_id == robot_id, _UPLOADS.c.idempotency_key == key)
+        select(_UPLOADS.c.version, _UPLOADS.c.map_session).where(
+            _UPLOADS.c.robot_id == robot_id, _UPLOADS.c.idempotency_key == key
+        )
     ).first()
-    if seen is not None:
-        return AppliedUpload(MapUploadOut(version=seen[0], duplicate=True, map_session=up.map_session), None)
+    if seen is not None:  # answered with the session it was applied in: the robot checks it is its own
+        return AppliedUpload(MapUploadOut(version=seen[0], duplicate=True, map_session=seen[1]), None)
     current, session = robot[0], robot[1]
     new_session = up.map_session != session
     if new_session:
@@ -371,6 +373,7 @@ def apply_upload(
             idempotency_key=key,
             version=v,
             base_version=up.base_version,
+            map_session=up.map_session,
             n_segments=len(up.segments),
             n_removed=len(up.removed),
             received_at=now,

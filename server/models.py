@@ -219,6 +219,8 @@ class MapUploadRecord(Base):
     idempotency_key: Mapped[str] = mapped_column(String(100))
     version: Mapped[int] = mapped_column(BigInteger)
     base_version: Mapped[int | None] = mapped_column(BigInteger, default=None)
+    #: The map session the upload was applied in (a retry is answered with it).
+    map_session: Mapped[str | None] = mapped_column(String(36), default=None)
     n_segments: Mapped[int] = mapped_column(Integer)
     n_removed: Mapped[int] = mapped_column(Integer)
     received_at: Mapped[datetime] = mapped_column(default=utcnow)

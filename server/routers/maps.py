@@ -98,7 +98,9 @@ async def upload_map(
     idempotency_key: Annotated[
         str | None,
         Header(
-            max_length=100, description="Makes a retried upload a no-op; defaults to 'version-<version>'."
+            max_length=100,
+            description="Makes a retried upload a no-op; defaults to 'version-<version>' (with a map "
+            "session: '<map_session>-version-<version>').",
         ),
     ] = None,
 ) -> MapUploadOut:
@@ -118,7 +120,11 @@ async def upload_map(
         body, diff = await parser.parse(raw, robot_id, cap, state.settings.world_extent_m)
     else:
         body = parse_upload(raw, robot_id, cap, state.settings.world_extent_m)
-    key = idempotency_key or f"version-{body.version}"
+    key = idempotency_key or (
+        f"version-{body.version}"
+        if body.map_session is None
+        else f"{body.map_session}-version-{body.version}"
+    )
     seen = state.last_seen(robot_id)
     rows = await run_in_threadpool(prepare_rows, robot_id, body, diff) if heavy else None  # before the writer
     applied = await state.writer.submit(

@@ -179,6 +179,7 @@ def test_a_version_number_of_a_replaced_map_names_the_new_maps_version(live: Liv
     with _robot(live, token) as robot, live.operator() as op:
         robot.post(f"/robots/{rid}/maps", json=_snap(S1, 5, [1, 2]))
         assert op.get(f"/robots/{rid}/maps/latest").json()["map_session"] == S1  # read whole: kept
-        robot.post(f"/robots/{rid}/maps", json=_snap(S2, 5, [9]))
+        r = robot.post(f"/robots/{rid}/maps", json=_snap(S2, 5, [9]))
+        assert r.status_code == 200, r.text
         got = op.get(f"/robots/{rid}/maps/latest", params={"version": 5}).json()
         assert got["map_session"] == S2 and [s[0] for s in got["segments"]] == [9]

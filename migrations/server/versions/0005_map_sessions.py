@@ -1,5 +1,5 @@
 """map sessions: one map per (robot, mapping session), ended sessions' maps kept; the agent process that
-speaks for each robot (robots.agent_instance, agent_instances)
+speaks for each robot (robots.agent_instance, agent_instances); the session of each recorded upload
 
 Revision ID: 0005
 Revises: 0004
@@ -27,6 +27,8 @@ def upgrade() -> None:
         batch_op.add_column(sa.Column("map_session", sa.String(length=36), nullable=True))
         batch_op.add_column(sa.Column("agent_instance", sa.String(length=36), nullable=True))
         batch_op.add_column(sa.Column("agent_since", _WHEN, nullable=True))
+    with op.batch_alter_table("map_uploads", schema=None) as batch_op:
+        batch_op.add_column(sa.Column("map_session", sa.String(length=36), nullable=True))
     op.create_table(
         "map_sessions",
         sa.Column("id", sa.Integer(), nullable=False),
@@ -107,6 +109,8 @@ def downgrade() -> None:
     with op.batch_alter_table("map_sessions", schema=None) as batch_op:
         batch_op.drop_index("ix_map_sessions_robot_session")
     op.drop_table("map_sessions")
+    with op.batch_alter_table("map_uploads", schema=None) as batch_op:
+        batch_op.drop_column("map_session")
     with op.batch_alter_table("robots", schema=None) as batch_op:
         batch_op.drop_column("agent_since")
         batch_op.drop_column("agent_instance")
