@@ -4,20 +4,20 @@ The current session's map lives in ``map_segments`` / ``trajectory_points`` / ``
 upload path, :mod:`server.mapstore`, is unchanged by sessions); when a snapshot of a new session arrives
 :func:`start_session` moves that map into ``map_session_segments`` / ``map_session_trajectory`` under the
 ended session's ``map_sessions`` row (one ``INSERT ... SELECT`` each: O(walls + poses) in the database, no
-rows through Python) and opens a row for the new session. :func:`list_sessions` and
-:func:`read_session_map` read them back. An ended session is never reopened: an upload of it is refused
-(:class:`~server.errors.MapSessionEndedError`), so two maps are never mixed.
+rows through Python) and opens a row for the new session. :mod:`server.mapread` reads them back. An ended
+session is never reopened: an upload of it is refused (:class:`~server.errors.MapSessionEndedError`), so
+two maps are never mixed.
 """
 
 from __future__ import annotations
 
+import logging
 from datetime import datetime
 from typing import Any
 
 from sqlalchemy import Connection, Table, func, insert, literal, select, update
-from sqlalchemy.orm import Session
 
-from server.errors import MapSessionEndedError, NotFoundError
+from server.errors import MapSessionEndedError
 from server.models import (
     AuditEntry,
     MapSegment,
@@ -28,9 +28,10 @@ from server.models import (
     Robot,
     TrajectoryPoint,
 )
-from server.schemas import MapOut, MapSessionOut
 
-__all__ = ["check_not_ended", "list_sessions", "read_session_map", "start_session"]
+__all__ = ["check_not_ended", "start_session"]
+
+log = logging.getLogger(__name__)
 
 _SESS: Table = MapSession.__table__  # type: ignore[assignment]
 _SEG: Table = MapSegment.__table__  # type: ignore[assignment]
@@ -140,6 +141,15 @@ def start_session(
             robot_id=robot_id, session_id=new, started_at=now, first_version=first_version, reason=reason
         )
     )
+    log.warning(
+        "robot %d started map session %s at version %d (was %s at version %d): %s",
+        robot_id,
+        new,
+        first_version,
+        old,
+        old_version,
+        reason or "no reason given",
+    )
     conn.execute(
         insert(_AUDIT).values(
             at=now,
@@ -154,113 +164,4 @@ def start_session(
                 "previous_version": old_version,
             },
         )
-    )
-
-
-def list_sessions(s: Session, robot_id: int) -> list[MapSessionOut]:
-    """The robot's sessions, newest first: the current one's figures read live, ended ones' as stored.
-    O(sessions) plus one count of the current map's walls."""
-    robot = s.get(Robot, robot_id)
-    if robot is None:
-        raise NotFoundError(f"no robot with id {robot_id}")
-    rows = list(
-        s.scalars(select(MapSession).where(MapSession.robot_id == robot_id).order_by(MapSession.id.desc()))
-    )
-    out: list[MapSessionOut] = []
-    open_seen = False
-    for r in rows:
-        if r.ended_at is None:
-            open_seen = True
-            out.append(_live(s, robot, r.session_id, r.started_at, r.first_version, r.reason))
-        else:
-            out.append(
-                MapSessionOut(
-                    map_session=r.session_id,
-                    current=False,
-                    first_version=r.first_version,
-                    last_version=r.last_version,
-                    started_at=r.started_at,
-                    last_upload_at=r.last_upload_at,
-                    ended_at=r.ended_at,
-                    wall_count=r.wall_count or 0,
-                    reason=r.reason,
-                )
-            )
-    if not open_seen and robot.map_version > 0:  # a robot from before sessions, still on its first map
-        out.insert(0, _live(s, robot, robot.map_session, None, None, "before map sessions"))
-    return out
-
-
-def _live(
-    s: Session,
-    robot: Robot,
-    session_id: str | None,
-    started: datetime | None,
-    first: int | None,
-    reason: str | None,
-) -> MapSessionOut:
-    walls = s.scalar(select(func.count()).select_from(MapSegment).where(MapSegment.robot_id == robot.id))
-    state = s.get(MapState, robot.id)
-    return MapSessionOut(
-        map_session=session_id,
-        current=True,
-        first_version=first,
-        last_version=robot.map_version,
-        started_at=started,
-        last_upload_at=state.updated_at if state else None,
-        ended_at=None,
-        wall_count=int(walls or 0),
-        reason=reason,
-    )
-
-
-def read_session_map(s: Session, robot_id: int, session_id: str, trajectory_tail: int | None) -> MapOut:
-    """An ended session's map as it was when the session ended (404 naming the sessions held otherwise).
-    O(walls + poses)."""
-    row = s.scalars(
-        select(MapSession)
-        .where(MapSession.robot_id == robot_id, MapSession.session_id == session_id)
-        .order_by(MapSession.id.desc())
-    ).first()
-    if row is None:
-        held = [
-            x for x in s.scalars(select(MapSession.session_id).where(MapSession.robot_id == robot_id)) if x
-        ]
-        raise NotFoundError(
-            f"robot {robot_id} has no map session {session_id}"
-            + (f" (its sessions: {', '.join(held)})" if held else " (it has no sessions yet)")
-        )
-    segs = s.execute(
-        select(
-            MapSessionSegment.segment_id,
-            MapSessionSegment.x0_m,
-            MapSessionSegment.y0_m,
-            MapSessionSegment.x1_m,
-            MapSessionSegment.y1_m,
-        )
-        .where(MapSessionSegment.session_pk == row.id)
-        .order_by(MapSessionSegment.segment_id)
-    )
-    tq = select(
-        MapSessionTrajectoryPoint.stamp_s,
-        MapSessionTrajectoryPoint.x_m,
-        MapSessionTrajectoryPoint.y_m,
-        MapSessionTrajectoryPoint.theta_rad,
-    ).where(MapSessionTrajectoryPoint.session_pk == row.id)
-    if trajectory_tail is not None:
-        traj = list(s.execute(tq.order_by(MapSessionTrajectoryPoint.id.desc()).limit(trajectory_tail)))[::-1]
-    else:
-        traj = list(s.execute(tq.order_by(MapSessionTrajectoryPoint.id)))
-    st = row.state or {}
-    pose = st.get("pose") or {"x_m": 0.0, "y_m": 0.0, "theta_rad": 0.0}
-    return MapOut(
-        robot_id=robot_id,
-        version=row.last_version or 0,
-        map_session=row.session_id,
-        stamp_s=float(st.get("stamp_s", 0.0)),
-        segments=[[float(i), x0, y0, x1, y1] for i, x0, y0, x1, y1 in segs],
-        centroids=list((st.get("centroids") or {}).get("xy", [])),
-        pose=[pose["x_m"], pose["y_m"], pose["theta_rad"]],
-        trajectory=[list(t) for t in traj],
-        wall_time_s=st.get("wall_time_s"),
     )

@@ -17,12 +17,12 @@ from typing import Any
 
 from sqlalchemy import Connection, Table, delete, func, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
-from sqlalchemy.orm import Session
 
 from server.errors import ConflictError, InvalidRequestError, MapSessionMismatchError, NotFoundError
+from server.mapread import map_version, read_map  # the read side, importable from here as before
 from server.mapsessions import check_not_ended, start_session
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
-from server.schemas import MapOut, MapUpload, MapUploadOut
+from server.schemas import MapUpload, MapUploadOut
 from server.snapdiff import SnapshotDiff
 from shared.protocol import MAP_FIELDS, STATUS_FIELDS, RobotStatus
 
@@ -283,15 +283,6 @@ def apply_upload(
             actor=actor,
             now=utcnow(),
         )
-        log.warning(
-            "robot %d started map session %s at version %d (was %s at version %d): %s",
-            robot_id,
-            up.map_session,
-            up.version,
-            session,
-            current,
-            up.map_session_reason or "no reason given",
-        )
         if prepared is not None and prepared.diff_base is not None:
             prepared = prepare_rows(robot_id, up)  # the diff was against the other session's map
         conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id))
@@ -400,40 +391,3 @@ def _status_columns(st: RobotStatus) -> dict[str, Any]:
         if value is not None or name == "last_error":
             columns[name] = value
     return columns
-
-
-def map_version(s: Session, robot_id: int) -> tuple[str | None, int]:
-    """The robot's current (map session, map version)."""
-    robot = s.get(Robot, robot_id)
-    if robot is None:
-        raise NotFoundError(f"no robot with id {robot_id}")
-    return robot.map_session, robot.map_version
-
-
-def read_map(s: Session, robot_id: int, trajectory_tail: int | None = None) -> MapOut:
-    """The robot's whole current map (version 0 and empty before its first upload). O(walls + poses)."""
-    session, version = map_version(s, robot_id)
-    segs = s.execute(
-        select(MapSegment.segment_id, MapSegment.x0_m, MapSegment.y0_m, MapSegment.x1_m, MapSegment.y1_m)
-        .where(MapSegment.robot_id == robot_id)
-        .order_by(MapSegment.segment_id)
-    )
-    tq = select(
-        TrajectoryPoint.stamp_s, TrajectoryPoint.x_m, TrajectoryPoint.y_m, TrajectoryPoint.theta_rad
-    ).where(TrajectoryPoint.robot_id == robot_id)
-    if trajectory_tail is not None:
-        traj = list(s.execute(tq.order_by(TrajectoryPoint.id.desc()).limit(trajectory_tail)))[::-1]
-    else:
-        traj = list(s.execute(tq.order_by(TrajectoryPoint.id)))
-    state = s.get(MapState, robot_id)
-    return MapOut(
-        robot_id=robot_id,
-        version=version,
-        map_session=session,
-        stamp_s=state.stamp_s if state else 0.0,
-        segments=[[float(i), x0, y0, x1, y1] for i, x0, y0, x1, y1 in segs],
-        centroids=list(state.centroids.get("xy", [])) if state else [],
-        pose=[state.pose["x_m"], state.pose["y_m"], state.pose["theta_rad"]] if state else [0.0, 0.0, 0.0],
-        trajectory=[list(t) for t in traj],
-        wall_time_s=state.wall_time_s if state else None,
-    )

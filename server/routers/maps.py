@@ -36,8 +36,8 @@ from server.deps import AgentChecked, AppState, Principal, RobotSelf, StateDep, 
 from server.errors import ConflictError, InvalidRequestError, RateLimitedError
 from server.hub import OVERFLOW
 from server.mapbounds import screen_stored
-from server.mapsessions import list_sessions, read_session_map
-from server.mapstore import apply_upload, map_version, prepare_rows, read_map
+from server.mapread import list_sessions, map_version, read_held
+from server.mapstore import apply_upload, prepare_rows
 from server.parsepool import UploadParser, parse_upload
 from server.quota import UploadQuota
 from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapSessionOut, MapUpload, MapUploadOut
@@ -139,52 +139,6 @@ async def upload_map(
     return applied.out
 
 
-def _read(
-    state: AppState, robot_id: int, tail: int | None, version: int | None = None, session: str | None = None
-) -> MapOut:
-    """The current map (``version`` None) or version ``version`` if it is the current one or this process
-    read it lately (:mod:`server.recentmaps`); 409 naming the versions held otherwise. ``tail``: only the
-    last N trajectory poses. ``session``: that mapping session's map (an ended one as it ended; 404 naming
-    the robot's sessions when it has no such session)."""
-    if session is not None:
-        with state.db.read() as s:
-            current, _v = map_version(s, robot_id)
-            if session != current:
-                m = read_session_map(s, robot_id, session, tail)
-                if version is not None and m.version != version:
-                    raise ConflictError(
-                        f"map session {session} of robot {robot_id} ended at version {m.version}, "
-                        f"not {version}",
-                        current_version=m.version,
-                    )
-                return m
-    if version is not None:
-        kept = state.recent_maps.get(robot_id, version)
-        # versions count anew in each map session: a kept map serves only while its session is current
-        # (another server process may have started a new one)
-        if kept is not None and _version(state, robot_id)[0] == kept.map_session:
-            return _tail_of(kept, tail)
-    with state.db.read() as s:
-        m = read_map(s, robot_id, tail)
-    if tail is None:
-        state.recent_maps.put(m)
-    if version is not None and m.version != version:
-        held = [v for v in state.recent_maps.held(robot_id) if v != m.version]
-        raise ConflictError(
-            f"version {version} of robot {robot_id}'s map is not held here (the current is {m.version}"
-            + (f"; also held: {', '.join(map(str, held))}" if held else "")
-            + "): ask again without version, or with the current one",
-            current_version=m.version,
-        )
-    return m
-
-
-def _tail_of(m: MapOut, tail: int | None) -> MapOut:
-    if tail is None or tail >= len(m.trajectory):
-        return m
-    return m.model_copy(update={"trajectory": m.trajectory[len(m.trajectory) - tail :] if tail else []})
-
-
 #: ``?version=N``: one version of the map (the current one, or one this process served lately)
 VersionQuery = Annotated[
     int | None,
@@ -234,7 +188,7 @@ async def latest_map(
     """The whole current map (version 0 and empty before the first upload); with ``version``, that
     version (409 with ``current_version`` when the server no longer holds it); with ``session``, that
     mapping session's map."""
-    return await run_in_threadpool(_read, state, robot_id, trajectory, version, session)
+    return await run_in_threadpool(read_held, state, robot_id, trajectory, version, session)
 
 
 def _sse(event: str, data: Any, version: int) -> bytes:
@@ -263,7 +217,7 @@ async def stream_map(
         loop = asyncio.get_running_loop()
         recheck = state.settings.poll_recheck_s
         with state.hub.subscribe(f"maps:{robot_id}") as queue:
-            snap = await run_in_threadpool(_read, state, robot_id, trajectory)
+            snap = await run_in_threadpool(read_held, state, robot_id, trajectory)
             yield _sse("snapshot", snap, snap.version)
             last, last_session, quiet_since = snap.version, snap.map_session, loop.time()
             authed_at = reread_at = loop.time()
@@ -295,7 +249,7 @@ async def stream_map(
                 if item is not OVERFLOW and not other and item["version"] <= last:
                     continue
                 if item is OVERFLOW or other or (item["kind"] == "delta" and item["base_version"] != last):
-                    snap = await run_in_threadpool(_read, state, robot_id, trajectory)
+                    snap = await run_in_threadpool(read_held, state, robot_id, trajectory)
                     yield _sse("snapshot", snap, snap.version)
                     last, last_session = snap.version, snap.map_session
                 else:
@@ -417,7 +371,7 @@ async def export_map(
     map is asked of a map without walls, when the stored map has items outside the declared bounds
     (unless ``out_of_bounds=skip``), or when the version asked for is no longer held (with
     ``current_version``); 422 when the resolution would make a grid of more than 16 M cells."""
-    m = await run_in_threadpool(_read, state, robot_id, None, version, session)
+    m = await run_in_threadpool(read_held, state, robot_id, None, version, session)
     extent_m = state.settings.world_extent_m
     body, skipped = await run_in_threadpool(_export, m, fmt, resolution, extent_m, out_of_bounds == "skip")
     headers = {
