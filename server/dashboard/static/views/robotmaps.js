@@ -11,7 +11,7 @@ const EVENTS = {
     `New map session ${short(d.session)} from version ${d.first_version}` +
     (d.previous_session !== undefined && d.previous_version ? ` (replaces ${short(d.previous_session)} at version ${d.previous_version})` : "") +
     (d.reason ? `: ${d.reason}` : ""),
-  "agent.takeover": (d) => `Agent ${short(d.instance)} took over from agent ${short(d.previous_instance)} (another agent with this robot's token)`,
+  "agent.takeover": (d) => `Agent ${short(d.instance)} took over from agent ${short(d.previous_instance)} (the agent restarted, or another one with this robot's token)`,
   "agent.refused": (d) => `Agent ${short(d.instance)} refused: agent ${short(d.current_instance)} took over at ${d.since}`,
   "messages.resync": (d) =>
     `Message numbering re-synchronised: the robot had applied up to ${d.robot_applied}, the server was at ${d.server_last_seq}` +
