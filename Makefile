@@ -7,15 +7,17 @@ NUMBA_STAMP := $(VENV)/.numba-cache-stamp
 
 .PHONY: demo demo-map map test install lint typecheck pytest bench report worlds soak clean
 
-demo: install $(NUMBA_STAMP)  ## server + simulated robot + dashboard on http://127.0.0.1:8000 until Ctrl-C
-	$(BIN)/linemap demo
+# PORT: the server's port (make demo PORT=8080).
+PORT ?= 8000
+demo: install $(NUMBA_STAMP)  ## server + simulated robot + dashboard on http://127.0.0.1:$(PORT) until Ctrl-C
+	$(BIN)/linemap demo --port $(PORT)
 
 # The demo left running, pictured: after DEMO_S seconds of patrol its map (as the server holds it) over the
 # true walls, then it stops. DEMO_WORLD: room (the paper's room) or a scenario-suite kind.
 DEMO_S ?= 600
 DEMO_WORLD ?= room
 demo-map: install $(NUMBA_STAMP)  ## the demo for DEMO_S s (600), then its map as demo-map.png
-	$(BIN)/linemap demo --dir .demo-map --world $(DEMO_WORLD) --for-s $(DEMO_S) --png demo-map.png
+	$(BIN)/linemap demo --dir .demo-map --port $(PORT) --world $(DEMO_WORLD) --for-s $(DEMO_S) --png demo-map.png
 
 map: install $(NUMBA_STAMP)  ## offline: map the simulated world, draw it, print the accuracy
 	$(BIN)/linemap map sim --out map.geojson --svg map.svg --png map.png --trajectory-out trajectory.csv

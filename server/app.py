@@ -178,21 +178,25 @@ async def _http_error(_request: Request, exc: Exception) -> JSONResponse:
 
 async def _validation_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
+    errors = _jsonable(exc.errors())
     problems = []
-    for err in exc.errors():
-        where = ".".join(str(p) for p in err.get("loc", ()) if p != "body")
-        problems.append(f"{where}: {err.get('msg', 'invalid')}")
+    for err in errors:
+        where = ".".join(str(p) for p in err["loc"] if p != "body")
+        problems.append(f"{where}: {err['msg'] or 'invalid'}")
     return JSONResponse(
-        {"error": "invalid", "detail": "; ".join(problems), "errors": _jsonable(exc.errors())},
-        status_code=422,
+        {"error": "invalid", "detail": "; ".join(problems), "errors": errors}, status_code=422
     )
 
 
 def _jsonable(errors: Any) -> list[dict[str, Any]]:
-    return [
-        {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))}
-        for e in errors
-    ]
+    """The validation errors, each once: a path parameter read by the route and by a dependency (the
+    robot id) is validated twice and would be reported twice."""
+    out: list[dict[str, Any]] = []
+    for e in errors:
+        item = {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", "")), "type": str(e.get("type", ""))}
+        if item not in out:
+            out.append(item)
+    return out
 
 
 async def _unexpected_error(request: Request, exc: Exception) -> JSONResponse:

@@ -164,6 +164,10 @@ class KernelArtifact(Base):
     uploaded_at: Mapped[datetime] = mapped_column(default=utcnow)
     uploaded_by: Mapped[str] = mapped_column(String(100))
     deleted_at: Mapped[datetime | None] = mapped_column(default=None)
+    #: The kernel's parameters as a JSON Schema, as declared at upload (``linemap kernels describe``):
+    #: what the server checks a message's parameters for this kernel against before queueing it (the
+    #: robot checks them again against the code). None: not declared.
+    parameters: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
 
 
 class MapState(Base):

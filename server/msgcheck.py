@@ -17,20 +17,29 @@ provides cannot exist on the robot and is refused here.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Mapping
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from server.errors import InvalidRequestError
 from server.models import KernelArtifact, Robot
-from shared.control import ControlMessage, ControlMessageError, OperationKind, to_config
+from server.paramschema import parameter_problems
+from shared.control import ControlMessage, ControlMessageError, KernelSpec, OperationKind, to_config
 from shared.errors import LinemapError
 from shared.kernels import REGISTRY, Stage
 from shared.kernels.base import parse_version
+from shared.kernels.stages import STAGES
 from shared.pipeline.config import PipelineConfig
 
-__all__ = ["builtin_only", "check_like_robot", "robot_checkable"]
+__all__ = [
+    "builtin_only",
+    "check_declared",
+    "check_like_robot",
+    "robot_checkable",
+    "server_checkable",
+    "uploaded_artifacts",
+]
 
 Version = tuple[int, int, int]
 
@@ -54,10 +63,34 @@ def _builtin_versions() -> dict[tuple[str, str], set[Version]]:
 
 
 def builtin_only(stage: Stage, name: str, version: str | None) -> bool:
-    """The ``checkable`` without a robot (``/control/xml``): build a kernel here when it is built in at
-    that version (at all, for no version); other kernels are the robot's to check."""
+    """Build a kernel here when it is built in at that version (at all, for no version); other kernels
+    are the robot's to check."""
     versions = _builtin_versions().get((stage.value, name), set())
     return bool(versions) and (version is None or _version(version) in versions)
+
+
+def server_checkable(
+    artifacts: Iterable[KernelArtifact], msg: ControlMessage
+) -> Callable[[Stage, str, str | None], bool]:
+    """The ``checkable`` without a robot (``/control/xml``): built-in kernel versions are built here; a
+    kernel name that is built in at another version, held uploaded (not deleted) or installed by ``msg``
+    itself is the robot's to check; a name that exists nowhere is built here, which refuses it by name
+    ("no kernel named ..."). O(artifacts)."""
+    known = {(art.stage, art.name) for art in artifacts if art.deleted_at is None}
+    known |= {key[0] for key in _builtin_versions().items()}
+    for op in msg.operations:
+        if op.kind in (OperationKind.INSTALL, OperationKind.UPDATE):
+            known.add((op.stage.value, op.name))
+
+    def checkable(stage: Stage, name: str, version: str | None) -> bool:
+        return builtin_only(stage, name, version) or (stage.value, name) not in known
+
+    return checkable
+
+
+def uploaded_artifacts(s: Session) -> list[KernelArtifact]:
+    """Every kernel artifact the server holds (deleted ones included). O(artifacts)."""
+    return list(s.scalars(select(KernelArtifact)).all())
 
 
 class _RobotKernels:
@@ -120,8 +153,63 @@ def _base_config(robot: Robot) -> PipelineConfig:
 def check_like_robot(s: Session, robot: Robot, msg: ControlMessage) -> None:
     """Raise :class:`InvalidRequestError` (422) when the robot would refuse ``msg``'s settings, naming the
     element, the parameter and its allowed range. O(kernel artifacts + message)."""
-    artifacts = s.scalars(select(KernelArtifact)).all()
+    artifacts = uploaded_artifacts(s)
+    kernels = robot_checkable(robot, artifacts, msg)
     try:
-        to_config(msg, _base_config(robot), checkable=robot_checkable(robot, artifacts, msg))
+        to_config(msg, _base_config(robot), checkable=kernels)
+        check_declared(artifacts, msg, kernels.present)
     except ControlMessageError as exc:
         raise InvalidRequestError(str(exc), element=exc.element, line=exc.line, reason=exc.reason) from None
+
+
+def _specs(msg: ControlMessage) -> list[tuple[Stage, KernelSpec]]:
+    out: list[tuple[Stage, KernelSpec]] = []
+    for stage, spec in STAGES.items():
+        given = getattr(msg, spec.field)
+        for one in given if isinstance(given, tuple) else [given]:
+            if isinstance(one, KernelSpec):
+                out.append((stage, one))
+    return out
+
+
+def check_declared(
+    artifacts: Iterable[KernelArtifact],
+    msg: ControlMessage,
+    present: Mapping[tuple[str, str], set[Version]] | None = None,
+) -> None:
+    """Check the parameters ``msg`` gives each uploaded kernel against the schema declared at its upload
+    (:mod:`server.paramschema`); :class:`ControlMessageError` naming the parameter, its line and the
+    kernel. The version checked is the one named, else the highest the robot holds (``present``) or the
+    message installs, else the highest uploaded. Built-in versions were checked by building them."""
+    live = [a for a in artifacts if a.deleted_at is None]
+    installs = {
+        (op.stage.value, op.name, op.version)
+        for op in msg.operations
+        if op.kind in (OperationKind.INSTALL, OperationKind.UPDATE)
+    }
+    for stage, spec in _specs(msg):
+        if builtin_only(stage, spec.name, spec.version):
+            continue
+        mine = {a.version: a for a in live if a.stage == stage.value and a.name == spec.name}
+        if spec.version is not None:
+            art = mine.get(spec.version)
+        else:
+            held = set((present or {}).get((stage.value, spec.name), set()))
+            for st, n, v in installs:
+                parsed = _version(v)
+                if st == stage.value and n == spec.name and parsed is not None:
+                    held.add(parsed)
+            pool = [a for v, a in mine.items() if _version(v) in held] or list(mine.values())
+            art = max(pool, key=lambda a: _version(a.version) or (0, 0, 0), default=None)
+        if art is None or art.parameters is None:
+            continue
+        problems = parameter_problems(art.parameters, spec.params_dict())
+        if problems:
+            param, reason = problems[0]
+            given = param in dict(spec.params)
+            raise ControlMessageError(
+                f"invalid parameters for kernel '{spec.name}' {art.version} (as declared at its upload): "
+                f"{param}: {reason}",
+                element=f'<param name="{param}">' if given else f'<kernel name="{spec.name}">',
+                line=spec.param_line(param) if given else spec.line,
+            )

@@ -129,7 +129,13 @@ class SigningKeyOut(BaseModel):
 
 
 class KernelOut(KernelMeta):
-    """A kernel artifact (:class:`shared.protocol.KernelMeta`)."""
+    """A kernel artifact (:class:`shared.protocol.KernelMeta`) and its declared parameter schema."""
+
+    parameters: dict[str, Any] | None = Field(
+        default=None,
+        description="The kernel's parameters as a JSON Schema, as declared at upload (null: not declared); "
+        "messages choosing this kernel are checked against it before they are queued.",
+    )
 
 
 class MapUploadOut(BaseModel):

@@ -52,6 +52,8 @@ class Source:
     #: For a log: its path and format name (what "no scans found" names).
     log_path: Path | None = None
     log_format: str | None = None
+    #: For a log: the share of it read so far, in [0, 1] (None when it cannot be told).
+    progress: Callable[[], float | None] | None = None
 
 
 def open_source(
@@ -94,6 +96,7 @@ def open_source(
         closer=reader,
         log_path=Path(spec),
         log_format=reader.info.format,
+        progress=reader.progress,
     )
 
 

@@ -14,9 +14,9 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter
 from pydantic import BaseModel, ConfigDict, Field
 
-from server.deps import OperatorDep
+from server.deps import OperatorDep, StateDep
 from server.errors import InvalidRequestError
-from server.msgcheck import builtin_only
+from server.msgcheck import check_declared, server_checkable, uploaded_artifacts
 from shared.control import (
     NO_SCAN_MATCHING,
     ControlMessage,
@@ -157,7 +157,7 @@ def draft_message(draft: ControlDraft) -> ControlMessage:
 
 
 @router.post("/xml", response_model=ControlXml)
-def control_xml(draft: ControlDraft, who: OperatorDep) -> ControlXml:
+def control_xml(draft: ControlDraft, who: OperatorDep, state: StateDep) -> ControlXml:
     """Canonical XML for a tuning-form draft (lengths written in metres with ``unit="m"``); 422 names the
     parameter or element that is wrong. Nothing is queued: post the XML to ``/robots/{id}/messages``."""
     if draft.noise_removal is not None and not draft.noise_removal:
@@ -168,8 +168,11 @@ def control_xml(draft: ControlDraft, who: OperatorDep) -> ControlXml:
     msg = draft_message(draft)
     try:
         xml = build_message(msg)
-        # what the robot will read must be what we meant, and valid as the robot will check it
-        to_config(parse_message(xml), PipelineConfig(), checkable=builtin_only)
+        with state.db.session() as s:
+            artifacts = uploaded_artifacts(s)
+            # what the robot will read must be what we meant, and valid as the robot will check it
+            to_config(parse_message(xml), PipelineConfig(), checkable=server_checkable(artifacts, msg))
+            check_declared(artifacts, msg)
     except ControlMessageError as exc:
         raise InvalidRequestError(str(exc)) from None
     return ControlXml(xml=xml.decode("utf-8"))

@@ -22,6 +22,7 @@ from server.audit import record
 from server.deps import AppState, OperatorDep, Principal, PrincipalDep, StateDep
 from server.errors import ConflictError, GoneError, InvalidRequestError, NotFoundError, TooLargeError
 from server.models import KernelArtifact, SigningKey, utcnow
+from server.paramschema import read_declared_schema
 from server.schemas import KernelOut, SigningKeyIn, SigningKeyOut
 from shared.errors import KernelSourceError
 from shared.kernels import Stage
@@ -57,6 +58,7 @@ def _kernel_out(k: KernelArtifact) -> KernelOut:
         uploaded_at=k.uploaded_at,
         uploaded_by=k.uploaded_by,
         deleted=k.deleted_at is not None,
+        parameters=k.parameters,
     )
 
 
@@ -178,7 +180,14 @@ def _refuse_same_number(s: Session, name: str, version: str) -> None:
 
 
 def _store(
-    state: AppState, who: Principal, name: str, stage: str, version: str, source: bytes, signature: str
+    state: AppState,
+    who: Principal,
+    name: str,
+    stage: str,
+    version: str,
+    source: bytes,
+    signature: str,
+    parameters: dict[str, Any] | None,
 ) -> tuple[KernelOut, bool]:
     digest = sha256_hex(source)
     with state.db.session() as s:
@@ -208,6 +217,7 @@ def _store(
             signature=signature,
             key_id=kid,
             uploaded_by=who.actor,
+            parameters=parameters,
         )
         s.add(art)
         s.flush()
@@ -225,14 +235,22 @@ async def upload_kernel(
     stage: Annotated[str, Form(description=f"One of {', '.join(_STAGES)}.")],
     version: Annotated[str, Form(description="MAJOR.MINOR.PATCH")],
     signature: Annotated[str, Form(description="Base64 Ed25519 signature over the file's SHA-256.")],
+    parameters: Annotated[
+        str | None,
+        Form(
+            description="Optional: the kernel's parameters as a JSON Schema (`linemap kernels describe FILE` "
+            "prints it); messages choosing this kernel are then checked against it before they are queued."
+        ),
+    ] = None,
 ) -> KernelOut:
     """Upload a signed kernel version (201; 200 when the identical artifact is there already)."""
     limit = state.settings.max_kernel_bytes
     source = await file.read(limit + 1)
     _validate(name, stage, version, source, limit)
+    declared = read_declared_schema(parameters)
     await run_in_threadpool(_check_source, name, version, source)
     out, created = await run_in_threadpool(
-        _store, state, who, name, stage, version, source, signature.strip()
+        _store, state, who, name, stage, version, source, signature.strip(), declared
     )
     if not created:
         response.status_code = status.HTTP_200_OK

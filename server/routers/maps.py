@@ -9,7 +9,7 @@ The stream re-checks its credential every ``AUTH_RECHECK_S`` (:func:`server.deps
 read from the database at most 0.5 s before) and ends when it no longer works (token revoked or rotated, on
 any server process; session closed or expired).
 
-``GET /export?format=geojson|svg|dxf|pgm|yaml`` returns the latest map as a file (the same writers as
+``GET /export?format=geojson|svg|dxf|mcap|pgm|yaml`` returns the latest map as a file (the same writers as
 ``linemap map``; ``session=<id>``: that mapping session's map); ``pgm`` and ``yaml`` are the two halves
 of a ROS map_server map at ``resolution`` metres per pixel, named
 ``robot-<id>-map-v<version>-<resolution>m.pgm/.yaml`` so that the YAML names its image.
@@ -261,11 +261,12 @@ async def stream_map(
     return StreamingResponse(events(), media_type="text/event-stream", headers=headers)
 
 
-_ExportFormat = Literal["geojson", "svg", "dxf", "pgm", "yaml"]
+_ExportFormat = Literal["geojson", "svg", "dxf", "mcap", "pgm", "yaml"]
 _MEDIA_TYPES: dict[str, str] = {
     "geojson": "application/geo+json",
     "svg": "image/svg+xml",
     "dxf": "image/vnd.dxf",
+    "mcap": "application/x-mcap",
     "pgm": "image/x-portable-graymap",
     "yaml": "application/yaml",
 }
@@ -294,7 +295,14 @@ def _export_name(m: MapOut, fmt: str, resolution_m: float) -> str:
 
 def _write(m: MapOut, fmt: str, resolution_m: float) -> bytes:
     """The map in ``fmt`` as bytes, written by :mod:`shared.export`."""
-    from shared.export import encode_dxf, occupancy_files, rasterise_segments, render_map, write_geojson
+    from shared.export import (
+        encode_dxf,
+        occupancy_files,
+        rasterise_segments,
+        render_map,
+        write_geojson,
+        write_map_mcap,
+    )
 
     snap = _snapshot(m)
     if fmt == "dxf":
@@ -316,6 +324,8 @@ def _write(m: MapOut, fmt: str, resolution_m: float) -> bytes:
         target = Path(folder) / f"map.{fmt}"
         if fmt == "geojson":
             write_geojson(target, snap, extra_properties={"robot_id": m.robot_id})
+        elif fmt == "mcap":
+            write_map_mcap(target, snap)
         else:
             render_map(snap, target, title=f"linemap: robot {m.robot_id}, map version {m.version}")
         return target.read_bytes()
@@ -354,7 +364,11 @@ async def export_map(
     state: StateDep,
     fmt: Annotated[
         _ExportFormat,
-        Query(alias="format", description="geojson, svg, dxf, or pgm / yaml (a ROS map_server map)."),
+        Query(
+            alias="format",
+            description="geojson, svg, dxf, mcap (ROS 2 messages, as `linemap map --mcap` writes), or "
+            "pgm / yaml (a ROS map_server map).",
+        ),
     ] = "geojson",
     resolution: Annotated[
         float, Query(gt=0.0, le=10.0, description="Metres per pixel of the pgm / yaml occupancy map.")

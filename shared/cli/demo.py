@@ -86,7 +86,9 @@ def _tail(path: Path, lines: int = 15) -> str:
 class _Child:
     """A ``linemap`` subprocess with its output in a log file."""
 
-    def __init__(self, name: str, args: list[str], log: Path) -> None:
+    def __init__(self, name: str, args: list[str], log: Path, env: dict[str, str] | None = None) -> None:
+        """``env``: variables added to this process's environment for the child (secrets go there, not
+        into ``args``: a command line is visible to every local user in ``ps``)."""
         self.name, self.log = name, log
         self._out = log.open("ab")
         # Own session: a Ctrl-C at the terminal reaches only the demo, which stops the children in order.
@@ -96,6 +98,7 @@ class _Child:
             stderr=subprocess.STDOUT,
             start_new_session=True,
             preexec_fn=_die_with_parent,
+            env={**os.environ, **env} if env else None,
         )
 
     def alive(self) -> bool:
@@ -145,6 +148,7 @@ def _wait_healthy(base: str, server: _Child, timeout_s: float = 60.0) -> None:
 def _setup(base: str, op_token: str, directory: Path) -> tuple[int, str, str, str, str | None, str | None]:
     """Register the robot and a signing key; pre-sign the example kernel. Returns (robot id, robot token,
     private key file, public key, example kernel file, its signature)."""
+    from shared.cli.kernelfile import describe_kernel_file
     from shared.signing import generate_keypair, load_private_key, sha256_hex, sign_digest
 
     pair = generate_keypair()
@@ -164,14 +168,19 @@ def _setup(base: str, op_token: str, directory: Path) -> tuple[int, str, str, st
                 f"could not register the demo signing key: HTTP {r.status_code} {r.text[:300]}"
             )
     example = signature = None
-    if EXAMPLE_KERNEL.is_file():
-        kernels = directory / "kernels"
+    kernels = directory / "kernels"
+    # every example kernel artifact, signed, ready to upload (docs/examples: a new version of a built-in
+    # kernel, and a kernel of a new name)
+    for source in sorted(EXAMPLE_KERNEL.parent.glob("*.py")):
         kernels.mkdir(exist_ok=True)
-        copy = kernels / EXAMPLE_KERNEL.name
-        shutil.copyfile(EXAMPLE_KERNEL, copy)
-        signature = sign_digest(load_private_key(pair.private_pem), sha256_hex(copy.read_bytes()))
-        copy.with_suffix(".sig").write_text(signature + "\n", encoding="utf-8")
-        example = str(copy)
+        copy = kernels / source.name
+        shutil.copyfile(source, copy)
+        signed = sign_digest(load_private_key(pair.private_pem), sha256_hex(copy.read_bytes()))
+        copy.with_suffix(".sig").write_text(signed + "\n", encoding="utf-8")
+        declared = describe_kernel_file(source)["parameters"]  # the upload's optional `parameters`
+        copy.with_suffix(".params.json").write_text(json.dumps(declared, indent=2) + "\n", encoding="utf-8")
+        if source == EXAMPLE_KERNEL:
+            example, signature = str(copy), signed
     return int(robot["id"]), str(robot["token"]), str(key_file), pair.public_b64, example, signature
 
 
@@ -292,12 +301,12 @@ def demo_cmd(
                 "--laps", str(laps),
                 "--server", base,
                 "--robot-id", str(robot_id),
-                "--token", robot_token,
                 "--db", str(directory / "robot.db"),
                 "--trust-key", public_key,
                 *(["--loop-closure"] if loop_closure else []),
             ],
             directory / "agent.log",
+            env={"LINEMAP_ROBOT_TOKEN": robot_token},  # not on the command line: ps shows that to all
         )  # fmt: skip
         info = DemoInfo(
             f"{base}/", op_token, world, robot_id, ROBOT_NAME, key_file, public_key, example, signature,
@@ -376,8 +385,8 @@ def _banner(info: DemoInfo, directory: Path) -> None:
     ]
     if info.example_kernel:
         lines.append(
-            f"Example kernel: {info.example_kernel} with its signature in "
-            f"{Path(info.example_kernel).with_suffix('.sig').name} (upload it on the Kernels page)"
+            f"Example kernels: {Path(info.example_kernel).parent}/*.py, each with its signature (.sig) and "
+            "parameter schema (.params.json) (upload them on the Kernels page)"
         )
     lines.append(f"Logs:           {directory / 'server.log'}, {directory / 'agent.log'}")
     lines.append("Stop with Ctrl-C.")

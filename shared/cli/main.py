@@ -6,7 +6,6 @@ import json
 import logging
 import math
 import sys
-import time
 from pathlib import Path
 from typing import Annotated
 
@@ -61,11 +60,31 @@ def kernels_cmd(
     markdown: Annotated[
         bool, typer.Option("--markdown", help="Print the catalogue as a Markdown table.")
     ] = False,
+    describe: Annotated[
+        Path | None,
+        typer.Option(
+            "--describe",
+            help="Print the parameter JSON Schema of the kernel defined in this module (your own file: it is "
+            "imported here), for the `parameters` field of its upload.",
+        ),
+    ] = None,
 ) -> None:
     """List the registered kernels with their parameters, units, ranges and defaults."""
     from shared.cli.render import kernel_markdown, kernel_table
     from shared.kernels import REGISTRY
 
+    if describe is not None:
+        from shared.cli.kernelfile import describe_kernel_file
+
+        try:
+            info = describe_kernel_file(describe)
+        except LinemapError as exc:
+            err_console.print(f"[red]error:[/red] {exc}")
+            raise typer.Exit(2) from None
+        what = f"{info['name']} {info['version']} ({info['stage']})"
+        err_console.print(f"{what}: its parameters as JSON Schema")
+        typer.echo(json.dumps(info["parameters"], indent=2))
+        return
     if markdown:
         typer.echo(kernel_markdown(REGISTRY.list()), nl=False)
         return
@@ -229,8 +248,7 @@ def map_cmd(
     ] = None,
 ) -> None:
     """Map a simulated world or a laser log into straight walls; print the accuracy when truth is known."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
+    from shared.cli.progress import mapping_progress
     from shared.cli.render import accuracy_table, run_summary
     from shared.control import load_config
     from shared.mapping import MappingStoppedError, loop_settings, map_scans, open_source, write_outputs
@@ -243,22 +261,7 @@ def map_cmd(
         cfg = load_config(config)
         loop = loop_settings(loop_closure, loop_radius, loop_min_inliers)
         src = open_source(source, log_format=log_format, seed=seed, scan_topic=topic, odom_topic=odom_topic)
-        columns = [
-            TextColumn("mapping {task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("{task.fields[rate]}"),
-            TimeElapsedColumn(),
-        ]
-        with Progress(*columns, console=err_console, transient=True) as progress:
-            task = progress.add_task(src.name, total=limit or src.total, rate="")
-            started = time.perf_counter()
-
-            def on_step(n: int) -> None:
-                if n % 25 == 0:
-                    rate = n / max(time.perf_counter() - started, 1e-9)
-                    progress.update(task, completed=n, rate=f"{rate:,.0f} scans/s")
-
+        with mapping_progress(err_console, src.name, limit or src.total, src.progress) as on_step:
             try:
                 run = map_scans(src, cfg, limit=limit, on_step=on_step, loop_closure=loop)
             except MappingStoppedError as stop:

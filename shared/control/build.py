@@ -18,6 +18,8 @@ from shared.control.errors import ControlMessageError
 from shared.control.model import NO_SCAN_MATCHING, ControlMessage, KernelSpec, ParamValue
 from shared.control.vocabulary import (
     CLUSTERING_KERNELS,
+    GENERIC_KERNEL,
+    KERNEL_NAME,
     LOOP_CLOSURE,
     NOISE_KERNELS,
     SCAN_MATCHERS,
@@ -72,7 +74,7 @@ def build_message(msg: ControlMessage) -> bytes:
     if msg.scan_matching == NO_SCAN_MATCHING:
         _leaf(m, "scan-matching", NO_SCAN_MATCHING)
     elif isinstance(msg.scan_matching, KernelSpec):
-        _method(m, "scan-matching", msg.scan_matching, SCAN_MATCHERS)
+        _method(m, "scan-matching", msg.scan_matching, {k: k for k in SCAN_MATCHERS})
     if msg.schedule is not None:
         schedule = etree.SubElement(m, "schedule")
         for entry in msg.schedule:
@@ -118,26 +120,31 @@ def _number(value: object, element: str) -> str:
         raise ControlMessageError(str(exc), element=element) from None
 
 
-def _entry(spec: KernelSpec, table: dict[str, Any]) -> KernelElement:
-    entry = table.get(spec.name)
-    if entry is None:
-        known = ", ".join(table)
+def _generic(parent: _Element, spec: KernelSpec) -> None:
+    """``<kernel name="..">`` for a kernel the paper's vocabulary has no element for."""
+    if not KERNEL_NAME.fullmatch(spec.name):
         raise ControlMessageError(
-            f"kernel {spec.name!r} has no element in the control vocabulary here: expected one of {known}",
-            element=f"<{spec.name}>",
+            f"{spec.name!r} is not a kernel name: expected lowercase words joined by '-'",
+            element=f"<{GENERIC_KERNEL}>",
         )
-    return entry if isinstance(entry, KernelElement) else KernelElement(spec.name)
+    _body(etree.SubElement(parent, GENERIC_KERNEL, name=spec.name), spec, KernelElement(spec.name))
 
 
 def _kernel(parent: _Element, spec: KernelSpec, table: dict[str, KernelElement]) -> None:
-    entry = _entry(spec, table)
+    entry = table.get(spec.name)
+    if entry is None:
+        _generic(parent, spec)
+        return
     _body(etree.SubElement(parent, entry.name), spec, entry)
 
 
 def _method(parent: _Element, tag: str, spec: KernelSpec, spelling: dict[str, str]) -> None:
-    entry = _entry(spec, spelling)
+    """The method's text (the paper's spelling), or one ``<kernel name="..">`` for any other kernel."""
+    if spec.name not in spelling:
+        _generic(etree.SubElement(parent, tag), spec)
+        return
     el = _leaf(parent, tag, spelling[spec.name])
-    _body(el, spec, entry)
+    _body(el, spec, KernelElement(spec.name))
 
 
 def _body(el: _Element, spec: KernelSpec, entry: KernelElement) -> None:

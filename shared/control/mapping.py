@@ -9,7 +9,8 @@ carried the bad value, followed by the kernel's own message. Kernel operations a
 are left to the caller (the robot agent's kernel store).
 
 :func:`from_config` is the inverse: a message stating the whole configuration, so
-``to_config(from_config(c), base) == c`` for any ``base`` when every kernel of ``c`` is in the vocabulary.
+``to_config(from_config(c), base) == c`` for any ``base`` when every kernel of ``c`` is registered (a kernel
+without a paper element is stated as ``<kernel name="..">``).
 """
 
 from __future__ import annotations
@@ -21,7 +22,13 @@ from pydantic import ValidationError
 
 from shared.control.errors import ControlMessageError
 from shared.control.model import NO_SCAN_MATCHING, ControlMessage, KernelSpec, ParamValue, ScheduleEntry
-from shared.control.vocabulary import LOOP_CLOSURE, is_length_param, kernel_element, param_element
+from shared.control.vocabulary import (
+    GENERIC_KERNEL,
+    LOOP_CLOSURE,
+    is_length_param,
+    kernel_element,
+    param_element,
+)
 from shared.errors import KernelParameterError, UnknownKernelError
 from shared.kernels import Stage
 from shared.kernels.stages import STAGES, StageSpec
@@ -121,7 +128,7 @@ def _stand_ins(fields: dict[str, Any], left: list[KernelChoice]) -> dict[str, An
 
 
 def from_config(config: PipelineConfig, seq: int | None = None) -> ControlMessage:
-    """A message that states all of ``config``; :class:`ControlMessageError` if the vocabulary cannot."""
+    """A message that states all of ``config``; :class:`ControlMessageError` if a value cannot be carried."""
     schedule = []
     for stage in SCHEDULED:
         if stage in config.schedule:
@@ -174,6 +181,8 @@ def _built_choice(spec: KernelSpec, stage: Stage) -> KernelChoice:
 
 
 def _kernel_display(spec: KernelSpec, stage: Stage) -> str:
+    if kernel_element(stage, spec.name) is None:
+        return f'<{GENERIC_KERNEL} name="{spec.name}">'
     if stage in (Stage.STRAIGHT_LINE, Stage.SCAN_MATCHING):
         return f"<{STAGES[stage].element}>"
     return f"<{spec.name}>"
@@ -212,11 +221,6 @@ def _stage_schedule(entry: ScheduleEntry) -> StageSchedule:
 
 
 def _spec(choice: KernelChoice, stage: Stage) -> KernelSpec:
-    if kernel_element(stage, choice.name) is None:
-        raise ControlMessageError(
-            f"kernel {choice.name!r} of stage {stage.value} has no element in the control vocabulary",
-            element=f"<{STAGES[stage].element}>",
-        )
     return KernelSpec(choice.name, tuple(_params(choice.name, choice.params).items()), choice.version)
 
 

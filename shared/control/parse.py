@@ -26,6 +26,7 @@ from shared.control.model import (
 from shared.control.safe_xml import MAX_MESSAGE_BYTES, load_xml
 from shared.control.vocabulary import (
     CLUSTERING_KERNELS,
+    GENERIC_KERNEL,
     KERNEL_NAME,
     LOOP_CLOSURE,
     NOISE_KERNELS,
@@ -258,13 +259,28 @@ def _param(el: _Element) -> tuple[str, ParamValue]:
     return name, lex_value(text)
 
 
+def _generic(el: _Element) -> KernelSpec:
+    """``<kernel name="..">``: any kernel by its registry name, parameters by ``<param>`` only."""
+    name = _attributes(el, ("name",)).get("name", "")
+    if not KERNEL_NAME.fullmatch(name):
+        _fail(
+            el,
+            f"name={name[:40]!r} is not a kernel name: expected lowercase words joined by '-' "
+            "(e.g. radius-outlier)",
+        )
+    return _kernel_body(el, KernelElement(name), _elements(el))
+
+
 def _kernels(el: _Element, table: Mapping[str, KernelElement]) -> list[KernelSpec]:
     _attributes(el, ())
     specs: list[KernelSpec] = []
     for child in _elements(el):
+        if child.tag == GENERIC_KERNEL:
+            specs.append(_generic(child))
+            continue
         entry = table.get(child.tag)
         if entry is None:
-            _unknown(child, el, list(table))
+            _unknown(child, el, [*table, f'{GENERIC_KERNEL} name=".."'])
         _attributes(child, ())
         specs.append(_kernel_body(child, entry, _elements(child)))
     return specs
@@ -273,7 +289,8 @@ def _kernels(el: _Element, table: Mapping[str, KernelElement]) -> list[KernelSpe
 def _one_kernel(el: _Element, table: Mapping[str, KernelElement]) -> KernelSpec:
     specs = _kernels(el, table)
     if not specs:
-        _fail(el, f"is empty: expected one of {', '.join(f'<{k}>' for k in table)}")
+        expected = ", ".join(f"<{k}>" for k in table)
+        _fail(el, f'is empty: expected one of {expected} or <{GENERIC_KERNEL} name="..">')
     if len(specs) > 1:
         _fail(_elements(el)[1], f"a second kernel: <{el.tag}> takes exactly one")
     return specs[0]
@@ -285,8 +302,17 @@ def _method(el: _Element, table: Mapping[str, str], expected: str, allow_none: b
     for child in children:
         _check_node(child, el)
     text = "".join([el.text or "", *(child.tail or "" for child in children)]).strip()
+    generic = [child for child in children if child.tag == GENERIC_KERNEL]
+    if generic:
+        if text or len(children) > 1:
+            _fail(
+                generic[0],
+                f"<{el.tag}> names its kernel either by its text or by one <{GENERIC_KERNEL}> "
+                "element (holding the parameters), not both",
+            )
+        return _generic(generic[0])
     if not text:
-        _fail(el, f"is empty: expected {expected}")
+        _fail(el, f'is empty: expected {expected}, or <{GENERIC_KERNEL} name=".."> for any other kernel')
     key = text.lower()
     if allow_none and key == "none":
         if children:
@@ -294,7 +320,11 @@ def _method(el: _Element, table: Mapping[str, str], expected: str, allow_none: b
         return NO_SCAN_MATCHING
     kernel = table.get(key)
     if kernel is None:
-        _fail(el, f"{text!r} is not a known method: expected {expected} (any case)")
+        _fail(
+            el,
+            f"{text!r} is not a known method: expected {expected} (any case), "
+            f'or <{GENERIC_KERNEL} name=".."> for any other kernel',
+        )
     return _kernel_body(el, KernelElement(kernel), children)
 
 

@@ -11,6 +11,13 @@ Paper elements (Listing 1) and their kernels:
 ``<straight-line-method>``  Hough | SVD | CentroidJoin | HoughCluster (any case; also the kernel names)
 =====================  ==============================================================================
 
+Any other kernel, built in or installed from the server, is named in its stage's element by
+``<kernel name="radius-outlier">`` holding ``<version>`` and ``<param name="..">`` elements (inside
+``<straight-line-method>`` and ``<scan-matching>`` in place of the method's text): the vocabulary of kernels
+is whatever the registry and the robot's kernel store hold, and only the paper's own elements are listed
+here. Which names exist is checked where the kernels are known (:func:`shared.control.to_config` builds
+each one; the server checks against the robot's reported store).
+
 Lengths are centimetres unless the element carries ``unit="m|cm|mm"``; a generic ``<param name=".."/>`` is a
 length iff its name ends in ``_m`` (the project's naming rule). Value lexing here is pure and raises
 ``ValueError`` with the reason alone; the parser adds the element and line.
@@ -32,6 +39,7 @@ __all__ = [
     "CLUSTERING_KERNELS",
     "DEFAULT_ANGLE_UNIT",
     "DEFAULT_LENGTH_UNIT",
+    "GENERIC_KERNEL",
     "KERNEL_NAME",
     "LENGTH_UNITS",
     "LOOP_CLOSURE",
@@ -176,8 +184,13 @@ _STAGE_KERNELS: dict[Stage, dict[str, KernelElement]] = {
 }
 
 
+#: The element that names any kernel by its registry name: ``<kernel name="radius-outlier">``.
+GENERIC_KERNEL = "kernel"
+
+
 def kernel_element(stage: Stage, kernel: str) -> KernelElement | None:
-    """The vocabulary entry of ``kernel`` in ``stage``, or ``None`` when the vocabulary cannot name it."""
+    """The paper's element for ``kernel`` in ``stage`` (``<dbscan>``, ``Hough``), or ``None`` when the kernel
+    has none and is named by ``<kernel name="..">``."""
     return _STAGE_KERNELS[stage].get(kernel)
 
 

@@ -158,6 +158,17 @@ class LogReader(ABC):
         """What the log says about itself (format, path, geometry, laser offset, robot model)."""
         return self._info
 
+    def progress(self) -> float | None:
+        """The share of the file read so far, in [0, 1] (bytes of the file as stored, compressed or not;
+        the reader reads ahead a little); ``None`` when it cannot be told. O(1)."""
+        try:
+            size = self.path.stat().st_size
+            raw = getattr(self._file.buffer, "fileobj", None) or self._file.buffer  # gzip: the file below
+            done = raw.tell()
+        except (OSError, ValueError, AttributeError):
+            return None
+        return min(1.0, done / size) if size > 0 else None
+
     def _lines(self) -> Iterator[tuple[int, str]]:
         """``(line_no, text)`` for every line, 1-based; read errors become :class:`LogFormatError`."""
         line_no = 0

@@ -103,6 +103,12 @@ class RosbagReader(LogReader):
             self.close()
             raise
 
+    def progress(self) -> float | None:
+        """The share of the bag's scan messages read so far (from the bag's message counts); ``None``
+        when the bag does not count them. O(connections)."""
+        total = sum(int(getattr(c, "msgcount", 0) or 0) for c in self._scan_conns)
+        return min(1.0, self.scans_read / total) if total > 0 else None
+
     def _setup(
         self, scan_topic: str | None, odom_topic: str | None, odom_frame: str, base_frame: str
     ) -> None:

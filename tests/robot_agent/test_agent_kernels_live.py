@@ -58,13 +58,13 @@ def key() -> KeyPair:
     return generate_keypair()
 
 
-def _upload(op: httpx.Client, key: KeyPair, source: bytes, version: str) -> str:
+def _upload(op: httpx.Client, key: KeyPair, source: bytes, version: str, name: str = "dbscan") -> str:
     digest = sha256_hex(source)
     sig = sign_digest(load_private_key(key.private_pem), digest)
     r = op.post(
         "/kernels",
-        data={"name": "dbscan", "stage": "noise-removal", "version": version, "signature": sig},
-        files={"file": ("dbscan.py", source, "text/x-python")},
+        data={"name": name, "stage": "noise-removal", "version": version, "signature": sig},
+        files={"file": (f"{name}.py", source, "text/x-python")},
     )
     assert r.status_code in (200, 201), r.text
     return digest
@@ -120,6 +120,66 @@ def test_install_use_and_roll_back_a_signed_kernel(live: Live, tmp_path: Path, k
         wait_for("dbscan 1.0.0 back in use", lambda: _noise(op, rid) == "dbscan@1.0.0")
         # The robot reports its kernel store: 1.1.0 stays there, ready, but no longer runs.
         wait_for("1.1.0 kept, not active", lambda: _state(op, rid, "1.1.0") == "verified")
+    finally:
+        assert agent.stop() == 0, agent.output()
+
+
+EXAMPLE = Path(__file__).parents[2] / "docs" / "examples" / "radius_outlier.py"
+
+
+def test_a_kernel_of_a_new_name_is_installed_chosen_and_runs(
+    live: Live, tmp_path: Path, key: KeyPair
+) -> None:
+    """The README's "Writing your own" path: the example radius-outlier filter, signed and uploaded, is
+    installed, put into the noise-removal chain by name with its own parameters, and runs; its parameters
+    are checked against its own model on the robot (the server has no model of uploaded code)."""
+    with live.operator() as op:
+        assert op.post("/keys", json={"name": "ops", "public_key": key.public_b64}).status_code in (201, 409)
+        digest = _upload(op, key, EXAMPLE.read_bytes(), "1.0.0", name="radius-outlier")
+    agent, rid, op = _start(live, tmp_path, key)
+    try:
+        unknown = op.post(
+            f"/robots/{rid}/messages",
+            content='<xml><message><noise-removal><kernel name="median-filter"/></noise-removal>'
+            "</message></xml>",
+            headers=XML,
+        )
+        assert unknown.status_code == 422, unknown.text
+        assert "median-filter" in unknown.json()["detail"] and "dbscan" in unknown.json()["detail"]
+        install = (
+            '<kernel-install stage="noise-removal" name="radius-outlier" version="1.0.0" '
+            f'sha256="{digest}"/>'
+        )
+        # uploaded without a declared parameter schema: the robot alone checks the parameters, against
+        # the code, and refuses the whole message (install included), keeping the settings it had
+        too_wide = _send(
+            op,
+            rid,
+            install + '<noise-removal><kernel name="radius-outlier"><param name="radius_m" unit="m">9</param>'
+            "</kernel></noise-removal>",
+        )
+        assert too_wide["status"] == "rejected", too_wide
+        assert "radius_m" in too_wide["reason"] and "5" in too_wide["reason"], too_wide["reason"]
+        assert _noise(op, rid) == "dbscan@1.0.0"
+        # one message installs the kernel and puts it into the chain
+        chosen = _send(
+            op,
+            rid,
+            install + '<noise-removal><kernel name="radius-outlier">'
+            '<param name="radius_m" unit="cm">6</param><param name="min_neighbours">2</param>'
+            "</kernel></noise-removal>",
+        )
+        assert chosen["status"] == "applied", chosen
+        wait_for("radius-outlier in use", lambda: _noise(op, rid) == "radius-outlier@1.0.0")
+        robot = op.get(f"/robots/{rid}").json()
+        assert robot["config"]["noise_removal"][0]["params"]["radius_m"] == pytest.approx(0.06)
+        used_from = robot["map_version"]
+        wait_for(
+            "steps with radius-outlier",
+            lambda: op.get(f"/robots/{rid}").json()["map_version"] > used_from + 10,
+        )
+        walls = op.get(f"/robots/{rid}/maps/latest").json()["segments"]
+        assert len(walls) > 0
     finally:
         assert agent.stop() == 0, agent.output()
 

@@ -134,3 +134,21 @@ def test_a_bad_loop_closure_setting_is_named(live: Live) -> None:
     code, body = _xml(live, {"loop_closure": {"params": {"radius": 2}}})
     assert code == 422
     assert "unknown loop-closure setting(s) radius" in str(body)
+
+
+def test_a_kernel_of_a_new_name_is_written_once_the_server_holds_it(live: Live) -> None:
+    """Any kernel the server holds uploaded (or the draft installs) is named by ``<kernel name="..">``;
+    its parameters are the robot's to check (the server runs no uploaded code). A name held nowhere is
+    refused, naming it."""
+    draft = {"noise_removal": [{"name": "radius-outlier", "version": "1.0.0", "params": {"radius_m": 0.06}}]}
+    code, body = _xml(live, draft)
+    assert code == 422 and "radius-outlier" in body["detail"], body
+    digest = "cd" * 32
+    install = {"kind": "install", "stage": "noise-removal", "name": "radius-outlier", "version": "1.0.0",
+               "sha256": digest}  # fmt: skip
+    code, body = _xml(live, {**draft, "operations": [install]})
+    assert code == 200, body
+    assert '<kernel name="radius-outlier">' in body["xml"]
+    assert '<param name="radius_m" unit="m">0.06</param>' in body["xml"]
+    msg = parse_message(body["xml"])
+    assert msg.noise_removal is not None and msg.noise_removal[0].params_dict() == {"radius_m": 0.06}

@@ -13,6 +13,7 @@ from shared.export import (
     rasterise_segments,
     read_dxf,
     read_geojson_segments,
+    read_map_mcap,
     read_occupancy,
     read_svg_segments,
 )
@@ -57,6 +58,7 @@ def test_every_format_round_trips(live: Live, tmp_path: Path) -> None:
             ("geojson", "application/geo+json"),
             ("svg", "image/svg+xml"),
             ("dxf", "image/vnd.dxf"),
+            ("mcap", "application/x-mcap"),
             ("pgm", "image/x-portable-graymap"),
             ("yaml", "application/yaml"),
         ]:
@@ -73,6 +75,9 @@ def test_every_format_round_trips(live: Live, tmp_path: Path) -> None:
     np.testing.assert_array_equal(dxf.segments, room)
     assert dxf.segment_ids.tolist() == [1, 2, 3, 4]
     np.testing.assert_array_equal(dxf.trajectory, np.array(TRAJECTORY)[:, 1:3])
+    mcap = read_map_mcap(files["mcap"])  # the same messages as `linemap map --mcap` writes
+    np.testing.assert_allclose(mcap.segments, room, atol=1e-9)
+    np.testing.assert_allclose(mcap.trajectory[:, 1:3], np.array(TRAJECTORY)[:, 1:3], atol=1e-9)
     # the YAML names the PGM it was downloaded beside
     assert files["pgm"].name == f"robot-{rid}-map-v1-0.05m.pgm"
     assert f"image: {files['pgm'].name}\n" in files["yaml"].read_text()

@@ -202,3 +202,14 @@ def test_status_reports_configuration_and_kernel_store(live: Live) -> None:
     with live.client(token) as robot:
         r = robot.post(f"/robots/{rid}/maps", json=bad)
     assert r.status_code == 422 and "state" in r.json()["detail"]
+
+
+def test_a_bad_robot_id_in_the_path_is_named_once(live: Live) -> None:
+    """The robot id is read by the route and by its access check: its error is reported once."""
+    with live.operator() as op:
+        r = op.get("/robots/abc/maps/latest")
+    assert r.status_code == 422
+    body = r.json()
+    once = "path.robot_id: Input should be a valid integer, unable to parse string as an integer"
+    assert body["detail"] == once
+    assert len(body["errors"]) == 1

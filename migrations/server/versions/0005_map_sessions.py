@@ -2,7 +2,7 @@
 speaks for each robot (robots.agent_instance, agent_instances); the session of each recorded upload
 
 Revision ID: 0005
-Revises: 0004
+Revises: 0008
 Create Date: 2026-12-05 16:20:00
 """
 
@@ -14,7 +14,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision: str = "0005"
-down_revision: str | None = "0004"
+down_revision: str | None = "0008"  # after main's 0008 (kernels.parameters), which revises 0004
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

@@ -130,6 +130,8 @@ export const api = {
   robotEvents: (id, limit = 50) => request("GET", `/audit${q({ limit, target: `robot:${id}` })}`),
   robotMaps: (id) => request("GET", `/robots/${encodeURIComponent(id)}/maps`),
 
+  mapLatest: (id, trajectory = 300) =>
+    request("GET", `/robots/${encodeURIComponent(id)}/maps/latest?trajectory=${trajectory}`),
   streamUrl: (id, trajectory = 5000) =>
     `${BASE}/robots/${encodeURIComponent(id)}/maps/stream?trajectory=${trajectory}`,
 };

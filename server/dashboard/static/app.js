@@ -9,6 +9,7 @@ import { renderRobots } from "./views/robots.js";
 import { renderRobot } from "./views/robot.js";
 import { renderKernels } from "./views/kernels.js";
 import { renderHistory } from "./views/history.js";
+import { renderFleet } from "./views/fleet.js";
 
 stats(); // window.linemapStats exists from the start
 
@@ -75,7 +76,8 @@ function renderTopbar(active) {
     h("a", { class: "brand", href: "#/robots" }, h("span", { class: "brand-mark" }, "◢"), " linemap"),
     state.who
       ? [
-        h("nav", null, link("robots", "Robots", "#/robots"), link("kernels", "Kernels", "#/kernels"),
+        h("nav", null, link("robots", "Robots", "#/robots"), link("fleet", "Fleet", "#/fleet"),
+          link("kernels", "Kernels", "#/kernels"),
           link("history", "History", "#/history")),
         h("span", { class: "spacer" }),
         h("span", { class: "who", "data-testid": "operator-name", title: `${state.who.kind} #${state.who.id}` }, state.who.name),
@@ -180,6 +182,9 @@ async function route() {
   } else if (page === "history") {
     renderTopbar("history");
     renderHistory(main, c);
+  } else if (page === "fleet") {
+    renderTopbar("fleet");
+    renderFleet(main, c);
   } else if (page === "robots") {
     renderTopbar("robots");
     renderRobots(main, c);

@@ -1,4 +1,7 @@
-// Canvas drawing helpers of the live map: colours, grid, robot marker, scale bar.
+// Canvas drawing helpers of the live map: colours, grid, trajectory, centroids, robot marker, scale bar.
+// Screen = (x * scale + ox, oy - y * scale); everything is clipped or culled to the view.
+
+import { clipSegment, drawable } from "./maplayer.js";
 
 export const NICE = [0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
 export const COLORS = {
@@ -12,6 +15,7 @@ export const COLORS = {
   robot: "#3ddc84",
   robotEdge: "#0f151c",
   text: "#d8dee6",
+  measure: "#ff7ab6",
 };
 
 // At most this many grid lines per axis: a loop over x += step never ends where step is below the
@@ -97,4 +101,37 @@ function niceAtLeast(v) {
 function isMultiple(v, step) {
   const r = Math.abs(v / step - Math.round(v / step));
   return r < 1e-6;
+}
+
+/** The trajectory [stamp_s, x, y, theta] rows as one path, each step clipped to the view (absurd points
+ * never reach the canvas). */
+export function drawTrajectory(ctx, tr, scale, ox, oy, w, hgt) {
+  if (tr.length < 2) return;
+  const xa = -20, ya = -20, xb = w + 20, yb = hgt + 20;
+  ctx.beginPath();
+  for (let i = 1; i < tr.length; i++) {
+    const a = tr[i - 1], b = tr[i];
+    if (!drawable(a[1], a[2]) || !drawable(b[1], b[2])) continue;
+    const c = clipSegment(a[1] * scale + ox, oy - a[2] * scale, b[1] * scale + ox, oy - b[2] * scale, xa, ya, xb, yb);
+    if (c) { ctx.moveTo(c[0], c[1]); ctx.lineTo(c[2], c[3]); }
+  }
+  ctx.strokeStyle = COLORS.trajectory;
+  ctx.lineWidth = 1.25;
+  ctx.lineJoin = "round";
+  ctx.stroke();
+}
+
+/** Centroids [x, y] as small squares inside the view, one path, one fill. */
+export function drawCentroids(ctx, cs, scale, ox, oy, w, hgt) {
+  if (!cs.length) return;
+  const r = 2;
+  ctx.beginPath();
+  for (const p of cs) {
+    if (!drawable(p[0], p[1])) continue;
+    const sx = p[0] * scale + ox, sy = oy - p[1] * scale;
+    if (sx < -20 || sx > w + 20 || sy < -20 || sy > hgt + 20) continue;
+    ctx.rect(sx - r, sy - r, 2 * r, 2 * r);
+  }
+  ctx.fillStyle = COLORS.centroid;
+  ctx.fill();
 }

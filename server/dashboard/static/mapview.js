@@ -1,5 +1,6 @@
 // Live map: keeps the robot's map from the SSE stream (snapshot + deltas) and draws it on a canvas
-// (walls, centroids, trajectory, pose, grid, scale bar) with pan, zoom, fit and follow.
+// (walls, centroids, trajectory, pose, grid, scale bar) with pan, zoom, fit and follow, layers switched on
+// and off, click-to-measure and downloads of the shown version (the controls: maptools.js).
 // Redraws only when something changed, at most once per animation frame; records latency and frame
 // times in window.linemapStats (see brief: tests and a benchmark read them). Walls are drawn by
 // maplayer.js in bounded slices; nothing non-finite or beyond ±FAR_M reaches the canvas, and every
@@ -7,8 +8,11 @@
 
 import { h } from "./dom.js";
 import { api } from "./api.js";
-import { COLORS, drawGrid, drawRobot, scaleBarLength } from "./mapdraw.js";
-import { FAR_M, WallLayer, clipSegment, drawable } from "./maplayer.js";
+import { downloadMap } from "./downloads.js";
+import { COLORS, drawCentroids, drawGrid, drawRobot, drawTrajectory, scaleBarLength } from "./mapdraw.js";
+import { FAR_M, WallLayer, drawable } from "./maplayer.js";
+import { MapOverlay, poseText } from "./maptools.js";
+import { MEASURE_POINTS, drawMeasure, measureText } from "./measure.js";
 import { clampScale, drawnBounds, fittedView, screenToWorld } from "./viewport.js";
 
 const TRAJECTORY_KEEP = 5000;
@@ -54,31 +58,21 @@ export class MapView {
     this.closed = false;
     this.status = "connecting";
 
+    this.layers = { walls: true, centroids: true, trajectory: true, robot: true };
+    this.measuring = false;
+    this.measurePoints = []; // world [x, y] of the clicks, at most MEASURE_POINTS
+
     this.canvas = h("canvas", { class: "map-canvas", "data-testid": "map-canvas" });
-    this.hudVersion = h("span", { "data-testid": "map-version" }, "—");
-    this.hudWalls = h("span", { "data-testid": "map-walls" }, "0");
-    this.hudLatency = h("span", { "data-testid": "map-latency" }, "—");
-    this.hudStatus = h("span", { class: "hud-status", "data-testid": "map-status" }, "connecting…");
-    this.hudFar = h("div", { class: "hud-far", "data-testid": "map-far", hidden: true });
-    this.scaleText = h("span", { class: "map-scale-text" });
-    this.scaleBarEl = h("div", { class: "map-scale", "data-testid": "map-scale" }, this.scaleText);
-    this.followBox = h("input", { type: "checkbox", "data-testid": "map-follow", onchange: (e) => this.setFollow(e.target.checked) });
-    this.el = h("div", { class: "map-wrap" },
-      this.canvas,
-      h("div", { class: "map-hud" },
-        h("div", null, "map v", this.hudVersion, " · ", this.hudWalls, " walls"),
-        h("div", null, "link latency ", this.hudLatency),
-        this.hudFar,
-        this.hudStatus),
-      h("div", { class: "map-tools" },
-        h("button", { type: "button", "data-testid": "map-fit", title: "Fit the whole map (double-click the map too)", onclick: () => this.fit() }, "Fit"),
-        h("label", { class: "map-follow", title: "Keep the robot in the centre" }, this.followBox, " Follow robot"),
-        h("button", { type: "button", title: "Zoom in", onclick: () => this.zoomBy(1.5) }, "+"),
-        h("button", { type: "button", title: "Zoom out", onclick: () => this.zoomBy(1 / 1.5) }, "−")),
-      this.scaleBarEl,
-      h("div", { class: "map-legend" },
-        legendItem("wall", "walls"), legendItem("centroid", "centroids"),
-        legendItem("trajectory", "trajectory"), legendItem("robot", "robot")));
+    this.overlay = new MapOverlay({
+      fit: () => this.fit(),
+      zoomBy: (f) => this.zoomBy(f),
+      setFollow: (on) => this.setFollow(on),
+      setLayer: (key, on) => { this.layers[key] = on; this.invalidate(); },
+      setMeasuring: (on) => this.setMeasuring(on),
+      clearMeasure: () => { this.measurePoints = []; this.setMeasuring(true); },
+      download: (key) => this.download(key),
+    });
+    this.el = h("div", { class: "map-wrap" }, this.canvas, this.overlay.el);
     this.ctx = this.canvas.getContext("2d", { alpha: false });
     this.bindInput();
     this.resizeObserver = new ResizeObserver(() => this.invalidate());
@@ -128,8 +122,33 @@ export class MapView {
 
   setStatus(text) {
     this.status = text;
-    this.hudStatus.textContent = text;
-    this.hudStatus.hidden = !text;
+    this.overlay.setStatus(text);
+  }
+
+  setMeasuring(on) {
+    this.measuring = on;
+    if (!on) this.measurePoints = [];
+    this.canvas.classList.toggle("measuring", on);
+    this.overlay.setMeasuring(on, measureText(this.measurePoints));
+    this.invalidate();
+  }
+
+  /** A click (no drag) at screen (sx, sy) while measuring: the next point (a fourth starts again). */
+  addMeasurePoint(sx, sy) {
+    if (this.measurePoints.length >= MEASURE_POINTS) this.measurePoints = [];
+    this.measurePoints.push(this.toWorld(sx, sy));
+    this.overlay.setMeasuring(true, measureText(this.measurePoints));
+    this.invalidate();
+  }
+
+  async download(key) {
+    this.overlay.showDownload(`Preparing map v${this.version ?? "—"}…`);
+    try {
+      const got = await downloadMap(this.robotId, key, this.version);
+      this.overlay.showDownload(`${got.note || `Downloaded map v${got.version}`}: ${got.files.join(", ")}`);
+    } catch (e) {
+      this.overlay.showDownload(`Download failed: ${e.detail || e.message}`, true);
+    }
   }
 
   onSnapshot(m) {
@@ -184,7 +203,7 @@ export class MapView {
 
   setFollow(on) {
     this.follow = on;
-    this.followBox.checked = on;
+    this.overlay.followBox.checked = on;
     this.invalidate();
   }
 
@@ -234,20 +253,27 @@ export class MapView {
     let drag = null;
     c.addEventListener("pointerdown", (e) => {
       if (e.button !== 0) return;
-      drag = { x: e.clientX, y: e.clientY, cx: this.view.cx, cy: this.view.cy };
+      drag = { x: e.clientX, y: e.clientY, cx: this.view.cx, cy: this.view.cy, moved: false };
       c.setPointerCapture(e.pointerId);
       c.classList.add("dragging");
     });
+    c.addEventListener("click", (e) => {
+      if (!this.measuring || this.lastDragMoved) return;
+      const r = c.getBoundingClientRect();
+      this.addMeasurePoint(e.clientX - r.left, e.clientY - r.top);
+    });
+    window.addEventListener("keydown", (e) => { if (e.key === "Escape" && this.measuring) this.setMeasuring(false); });
     c.addEventListener("pointermove", (e) => {
       if (!drag) return;
       const dx = e.clientX - drag.x;
       const dy = e.clientY - drag.y;
-      if (this.follow && Math.hypot(dx, dy) > 3) this.setFollow(false);
+      if (Math.hypot(dx, dy) > 3) drag.moved = true;
+      if (this.follow && drag.moved) this.setFollow(false);
       this.view.cx = drag.cx - dx / this.view.scale;
       this.view.cy = drag.cy + dy / this.view.scale;
       this.invalidate();
     });
-    const end = () => { drag = null; c.classList.remove("dragging"); };
+    const end = () => { this.lastDragMoved = Boolean(drag?.moved); drag = null; c.classList.remove("dragging"); };
     c.addEventListener("pointerup", end);
     c.addEventListener("pointercancel", end);
     c.addEventListener("wheel", (e) => {
@@ -274,6 +300,7 @@ export class MapView {
     if (this.lastFrameAt !== undefined && more) this.walls.feedback(t0 - this.lastFrameAt - 16.7 + (t1 - t0));
     this.lastFrameAt = more ? t1 : undefined;
     st.version = this.version;
+    st.scale = this.view.scale;
     st.segments = this.segments.size;
     st.drawn_at = performance.timeOrigin + t1;
     const p = this.walls.progress();
@@ -284,8 +311,8 @@ export class MapView {
       if (st.first_frame_ms === null) st.first_frame_ms = t1 - this.receivedAt;
       if (p.complete && st.complete_ms === null) st.complete_ms = t1 - this.receivedAt;
     }
-    this.hudFar.hidden = !p.far;
-    this.hudFar.textContent = p.far ? `${p.far} walls not drawn: a coordinate beyond ±${FAR_M.toExponential(0)} m` : "";
+    this.overlay.far.hidden = !p.far;
+    this.overlay.far.textContent = p.far ? `${p.far} walls not drawn: a coordinate beyond ±${FAR_M.toExponential(0)} m` : "";
     if (more) this.invalidate(); // the next slice of walls
     if (this.pendingWallTimes.length) {
       const now = performance.timeOrigin + performance.now();
@@ -301,16 +328,18 @@ export class MapView {
     if (this.scaleLen === len && this.scalePx === px) return;
     this.scaleLen = len;
     this.scalePx = px;
-    this.scaleBarEl.style.width = `${px}px`;
-    this.scaleText.textContent = `${len} m`;
-    this.scaleBarEl.dataset.metres = String(len);
+    this.overlay.scaleBar.style.width = `${px}px`;
+    this.overlay.scaleText.textContent = `${len} m`;
+    this.overlay.scaleBar.dataset.metres = String(len);
   }
 
   updateHud() {
-    this.hudVersion.textContent = this.version === null ? "—" : String(this.version);
-    this.hudWalls.textContent = String(this.segments.size);
+    const o = this.overlay;
+    o.version.textContent = this.version === null ? "—" : String(this.version);
+    o.walls.textContent = String(this.segments.size);
+    o.pose.textContent = poseText(this.pose);
     const lat = median(stats().latencies_ms.slice(-50));
-    this.hudLatency.textContent = lat === null ? "—" : `${Math.round(lat)} ms`;
+    o.latency.textContent = lat === null ? "—" : `${Math.round(lat)} ms`;
   }
 
   draw() {
@@ -339,55 +368,22 @@ export class MapView {
 
     // Walls: a small map in one path; else the progressive layer (maplayer.js) and what it has so far.
     let more = false;
-    if (!this.walls.direct(ctx, this.segments, this.view, w, hgt)) {
+    if (this.layers.walls && !this.walls.direct(ctx, this.segments, this.view, w, hgt)) {
       more = this.walls.step(this.segments, this.view, w, hgt, dpr);
       this.walls.composite(ctx, this.view, w, hgt);
     }
-
-    // Trajectory: one path, each step clipped to the view (absurd points never reach the canvas).
-    const tr = this.trajectory;
-    const xa = -20, ya = -20, xb = w + 20, yb = hgt + 20;
-    if (tr.length > 1) {
-      ctx.beginPath();
-      for (let i = 1; i < tr.length; i++) {
-        const a = tr[i - 1], b = tr[i];
-        if (!drawable(a[1], a[2]) || !drawable(b[1], b[2])) continue;
-        const c = clipSegment(a[1] * scale + ox, oy - a[2] * scale, b[1] * scale + ox, oy - b[2] * scale, xa, ya, xb, yb);
-        if (c) { ctx.moveTo(c[0], c[1]); ctx.lineTo(c[2], c[3]); }
-      }
-      ctx.strokeStyle = COLORS.trajectory;
-      ctx.lineWidth = 1.25;
-      ctx.lineJoin = "round";
-      ctx.stroke();
-    }
-
-    // Centroids: small squares inside the view, one path, one fill.
-    const cs = this.centroids;
-    if (cs.length) {
-      const r = 2;
-      ctx.beginPath();
-      for (const p of cs) {
-        if (!drawable(p[0], p[1])) continue;
-        const sx = p[0] * scale + ox, sy = oy - p[1] * scale;
-        if (sx < xa || sx > xb || sy < ya || sy > yb) continue;
-        ctx.rect(sx - r, sy - r, 2 * r, 2 * r);
-      }
-      ctx.fillStyle = COLORS.centroid;
-      ctx.fill();
-    }
-
-    if (this.pose && drawable(this.pose[0], this.pose[1])) {
+    if (this.layers.trajectory) drawTrajectory(ctx, this.trajectory, scale, ox, oy, w, hgt);
+    if (this.layers.centroids) drawCentroids(ctx, this.centroids, scale, ox, oy, w, hgt);
+    if (this.layers.robot && this.pose && drawable(this.pose[0], this.pose[1])) {
       const sx = this.pose[0] * scale + ox, sy = oy - this.pose[1] * scale;
       const theta = Number.isFinite(this.pose[2]) ? this.pose[2] : 0;
-      if (sx >= xa && sx <= xb && sy >= ya && sy <= yb) drawRobot(ctx, sx, sy, theta);
+      if (sx >= -20 && sx <= w + 20 && sy >= -20 && sy <= hgt + 20) drawRobot(ctx, sx, sy, theta);
     }
+    if (this.measuring) drawMeasure(ctx, this.measurePoints, scale, ox, oy);
+    stats().layers = { ...this.layers };
     this.updateScaleBar(scale);
     return more;
   }
 
 
-}
-
-function legendItem(kind, label) {
-  return h("span", { class: `legend-item legend-${kind}` }, h("i"), label);
 }

@@ -155,6 +155,64 @@ def test_live_map_grows_and_latency_is_measured(page: Any, demo: dict[str, Any])
     shot(page, "02-live-map")
 
 
+def test_map_tools_pose_layers_measure_and_downloads(page: Any, demo: dict[str, Any]) -> None:
+    """What people reach for on a map: a pose readout, layers switched off and on, a measured distance and
+    angle, and the map downloaded as files of the version on screen."""
+    open_robot(page, demo)
+    expect(tid(page, "map-version")).to_have_text(re.compile(r"^[1-9][0-9]*$"))
+    pose = re.compile(r"^x -?[0-9.]+ m · y -?[0-9.]+ m · heading [0-9.]+°$")
+    expect(tid(page, "map-pose")).to_have_text(pose)
+
+    # layers: centroids off, then on again; the frame drawn says which layers it drew
+    tid(page, "map-layer-centroids").uncheck()
+    drawn = "window.linemapStats.layers.centroids"
+    wait_for("a frame without centroids", lambda: page.evaluate(drawn) is False)
+    assert page.evaluate("window.linemapStats.layers.walls") is True
+    tid(page, "map-layer-centroids").check()
+    wait_for("centroids back", lambda: page.evaluate(drawn) is True)
+
+    # measure: three clicks 150 px right, then 150 px up: a distance of 150 px in metres, bearing 0 deg,
+    # and a right angle at the middle point
+    tid(page, "map-measure").click()
+    canvas = tid(page, "map-canvas")
+    box = canvas.bounding_box()
+    x0, y0 = box["width"] / 2 - 75, box["height"] / 2 + 75
+    for dx, dy in ((0, 0), (150, 0), (150, -150)):
+        canvas.click(position={"x": x0 + dx, "y": y0 + dy})
+    scale = page.evaluate("window.linemapStats.scale")
+    text = tid(page, "map-measure-text").inner_text()
+    metres = re.match(r"^([0-9.]+) m · bearing ([0-9.]+)° · then ([0-9.]+) m · angle ([0-9.]+)°$", text)
+    assert metres is not None, text
+    assert abs(float(metres[1]) - 150 / scale) <= 0.011 and abs(float(metres[3]) - 150 / scale) <= 0.011
+    assert float(metres[2]) in (0.0, 360.0) and abs(float(metres[4]) - 90.0) <= 0.1, text
+    shot(page, "02b-measure")
+    tid(page, "map-measure").click()
+    expect(tid(page, "map-measure-readout")).to_be_hidden()
+
+    # downloads: GeoJSON of the version on screen (or, said so, the current one), then PGM + YAML of one
+    tid(page, "map-download").click()
+    with page.expect_download() as got:
+        tid(page, "map-download-geojson").click()
+    name = got.value.suggested_filename
+    assert name.endswith(".geojson"), name
+    note = tid(page, "map-download-note")
+    expect(note).to_contain_text(re.compile(r"(Downloaded map v[0-9]+|no longer held)"))
+    tid(page, "map-download").click()
+    with page.expect_download() as got:
+        tid(page, "map-download-pgm+yaml").click()
+    pgm = got.value.suggested_filename
+    expect(note).to_contain_text(pgm.removesuffix(".pgm") + ".yaml")
+    version = re.search(r"-map-v([0-9]+)-", pgm)
+    assert version is not None, pgm
+    # a version the server no longer holds: the current one is downloaded, and the note says so
+    got = page.evaluate(
+        """async (rid) => { const m = await import('/static/downloads.js');
+                            return await m.downloadMap(rid, 'geojson', 1); }""",
+        demo["robot_id"],
+    )
+    assert got["version"] > 1 and "map v1 is no longer held" in got["note"], got
+
+
 def test_tuning_dbscan_epsilon_is_acknowledged_and_in_force(page: Any, demo: dict[str, Any]) -> None:
     open_robot(page, demo)
     tid(page, "tab-tune").click()
@@ -214,21 +272,29 @@ def test_loop_closure_switched_on_and_off_from_the_form(page: Any, demo: dict[st
 
 
 def test_out_of_range_value_is_refused_with_its_name(page: Any, demo: dict[str, Any]) -> None:
-    before = robot_state(demo)["last_seq"]
     open_robot(page, demo)
     tid(page, "tab-tune").click()
+    tid(page, "param-noise-removal-0-epsilon_m").fill("0.045")
+    tid(page, "tune-send").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    before = robot_state(demo)["last_seq"]
     tid(page, "param-noise-removal-0-epsilon_m").fill("-1")
     tid(page, "tune-send").click()
     expect(tid(page, "form-error")).to_contain_text("epsilon")
+    # the earlier "applied" panel is gone: under the error it would make the bad value look applied
+    expect(tid(page, "ack")).to_be_hidden()
     assert robot_state(demo)["last_seq"] == before, "nothing was queued"
 
 
 def test_listing_1_pasted_as_is(page: Any, demo: dict[str, Any]) -> None:
     open_robot(page, demo)
     tid(page, "tab-tune").click()
+    tid(page, "tune-preview").click()
+    expect(tid(page, "xml-preview")).to_be_visible()
     tid(page, "raw-xml").fill(LISTING_1)
     tid(page, "raw-send").click()
     expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    expect(tid(page, "xml-preview")).to_be_hidden()  # the form's preview is not what was sent
 
     def in_force() -> bool:
         config = robot_state(demo)["config"]
@@ -286,6 +352,49 @@ def test_upload_install_and_roll_back_a_signed_kernel(page: Any, demo: dict[str,
     )
 
 
+def test_a_kernel_of_a_new_name_is_chosen_in_the_tune_form(page: Any, demo: dict[str, Any]) -> None:
+    """The example radius-outlier filter (a kernel no built-in has the name of) is uploaded, installed,
+    and chosen for the noise-removal chain in the Tune form; the message names it by <kernel name="..">
+    and the robot runs it."""
+    source = Path(demo["example_kernel"]).parent / "radius_outlier.py"
+    page.goto(f"{demo['url']}#/kernels")
+    tid(page, "kernel-upload-file").set_input_files(str(source))
+    tid(page, "kernel-upload-name").fill("radius-outlier")
+    tid(page, "kernel-upload-stage").select_option("noise-removal")
+    tid(page, "kernel-upload-version").fill("1.0.0")
+    tid(page, "kernel-upload-signature").fill(source.with_suffix(".sig").read_text().strip())
+    tid(page, "kernel-upload-parameters-file").set_input_files(str(source.with_suffix(".params.json")))
+    tid(page, "kernel-upload-submit").click()
+    row = page.locator('[data-testid="kernel-row"][data-name="radius-outlier"][data-version="1.0.0"]')
+    expect(row).to_be_visible()
+    row.get_by_test_id("kernel-install").click()
+    tid(page, "kernel-install-robot").select_option(str(demo["robot_id"]))
+    tid(page, "kernel-install-confirm").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+
+    open_robot(page, demo)
+    tid(page, "tab-tune").click()
+    tid(page, "tune-kernel-noise-removal-0").select_option("radius-outlier@1.0.0")
+    # its parameters as fields, from the schema declared at upload, range-checked before anything is sent
+    tid(page, "param-noise-removal-0-radius_m").fill("9")
+    tid(page, "tune-send").click()
+    expect(tid(page, "form-error")).to_contain_text("radius_m")
+    tid(page, "param-noise-removal-0-radius_m").fill("0.06")
+    tid(page, "param-noise-removal-0-min_neighbours").fill("2")
+    tid(page, "tune-preview").click()
+    expect(tid(page, "xml-preview")).to_contain_text('<kernel name="radius-outlier">')
+    shot(page, "06b-tune-new-kernel")
+    tid(page, "tune-send").click()
+    expect(tid(page, "ack")).to_have_attribute("data-status", "applied", timeout=ACK_TIMEOUT_MS)
+    wait_for(
+        "radius-outlier running",
+        lambda: robot_state(demo)["active_kernels"].get("noise-removal") == "radius-outlier@1.0.0",
+        60,
+    )
+    params = robot_state(demo)["config"]["noise_removal"][0]["params"]
+    assert params == {"radius_m": 0.06, "min_neighbours": 2}
+
+
 def test_history_shows_audit_and_acknowledgements(page: Any, demo: dict[str, Any]) -> None:
     page.goto(f"{demo['url']}#/history")
     audit = tid(page, "audit-row")
@@ -312,7 +421,9 @@ def test_a_5000_wall_map_draws_in_full(page: Any, demo: dict[str, Any]) -> None:
         [i, (i % 100) * 0.5, (i // 100) * 0.5, (i % 100) * 0.5 + 0.4, (i // 100) * 0.5 + 0.1]
         for i in range(5000)
     ]
-    with httpx.Client(base_url=demo["url"] + "api/v1", headers={"Authorization": f"Bearer {token}"}) as robot:
+    # 30 s: a 5,000-wall upload on a loaded 2-core machine can take longer than httpx's default 5 s
+    auth = {"Authorization": f"Bearer {token}"}
+    with httpx.Client(base_url=demo["url"] + "api/v1", headers=auth, timeout=30) as robot:
         snap = {"version": 1, "base_version": None, "segments": segments, "pose": [25.0, 12.0, 0.0]}
         assert robot.post(f"/robots/{rid}/maps", json=snap).status_code == 200
         page.goto(f"{demo['url']}#/robots/{rid}")
@@ -331,3 +442,24 @@ def test_a_5000_wall_map_draws_in_full(page: Any, demo: dict[str, Any]) -> None:
     print("dashboard 5,000-wall map:", figures)
     save_figures("big-map", figures)
     shot(page, "08-big-map")
+
+
+def test_fleet_view_shows_every_robots_map_and_pose(page: Any, demo: dict[str, Any]) -> None:
+    """Both robots (the demo's and the 5,000-wall one) with their maps drawn and their poses."""
+    with operator_client(demo) as op:
+        robots = op.get("/robots").json()
+    page.goto(f"{demo['url']}#/fleet")
+    cards = tid(page, "fleet-card")
+    expect(cards).to_have_count(len(robots))
+    sim = page.locator(f'[data-testid="fleet-card"][data-robot-id="{demo["robot_id"]}"]')
+    expect(sim).not_to_have_attribute("data-version", "0")
+    assert int(sim.get_attribute("data-drawn") or 0) > 0, "walls drawn in the card"
+    pose = re.compile(r"^x -?[0-9.]+ m · y -?[0-9.]+ m · heading")
+    expect(sim.get_by_test_id("fleet-pose")).to_have_text(pose)
+    big = next(r for r in robots if r["name"] == "big-map")
+    expect(page.locator(f'[data-testid="fleet-card"][data-robot-id="{big["id"]}"]')).to_have_attribute(
+        "data-drawn", re.compile(r"^[1-9][0-9]{3}$")
+    )
+    shot(page, "09-fleet")
+    sim.click()
+    expect(tid(page, "map-canvas")).to_be_visible()

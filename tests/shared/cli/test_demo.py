@@ -53,6 +53,12 @@ def test_demo_serves_a_live_robot_and_stops_cleanly(tmp_path: Path) -> None:
             assert [k["key_id"] for k in op.get("/keys").json()], "the demo's signing key is registered"
         assert httpx.get(info["url"]).status_code == 200  # the dashboard page
         assert Path(info["example_kernel"]).is_file() and info["example_signature"]
+        kernels = Path(info["example_kernel"]).parent
+        assert (kernels / "radius_outlier.py").is_file() and (kernels / "radius_outlier.sig").is_file()
+        # the robot's token is not on the agent's command line (ps shows that to every local user)
+        token = (tmp_path / "d" / "robot.token").read_text().strip()
+        cmdline = Path(f"/proc/{info['agent_pid']}/cmdline").read_bytes().decode()
+        assert token and token not in cmdline and "--token" not in cmdline, cmdline
         proc.send_signal(signal.SIGINT)
         assert proc.wait(90) == 0
     finally:

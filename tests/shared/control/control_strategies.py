@@ -1,4 +1,5 @@
-"""Hypothesis strategies for control messages (any the vocabulary can write) and pipeline configurations."""
+"""Hypothesis strategies for control messages (any the builder can write, any kernel name) and pipeline
+configurations."""
 
 from __future__ import annotations
 
@@ -81,8 +82,13 @@ def kernel_specs(draw: st.DrawFn, entry: KernelElement) -> KernelSpec:
     return KernelSpec.of(entry.name, params, draw(versions))
 
 
+kernel_names = st.from_regex(r"[a-z][a-z0-9]{0,6}(-[a-z0-9]{1,4}){0,2}", fullmatch=True)
+
+
 def _from_table(table: dict[str, KernelElement]) -> st.SearchStrategy[KernelSpec]:
-    return st.sampled_from(list(table.values())).flatmap(kernel_specs)
+    """A kernel of the paper's vocabulary, or any other name (written as ``<kernel name="..">``)."""
+    other = kernel_names.filter(lambda n: n not in table).map(KernelElement)
+    return (st.sampled_from(list(table.values())) | other).flatmap(kernel_specs)
 
 
 schedule_entries = st.lists(st.sampled_from(SCHEDULED), unique=True, max_size=3).flatmap(
@@ -102,7 +108,7 @@ operations = st.builds(
     KernelOperation,
     st.sampled_from(OperationKind),
     st.sampled_from(Stage),
-    st.from_regex(r"[a-z][a-z0-9]{0,6}(-[a-z0-9]{1,4}){0,2}", fullmatch=True),
+    kernel_names,
     versions.filter(lambda v: v is not None),
     st.from_regex(r"[0-9a-f]{64}", fullmatch=True),
 )
@@ -121,13 +127,12 @@ def messages(draw: st.DrawFn) -> ControlMessage:
         noise_removal=draw(st.none() | st.lists(_from_table(NOISE_KERNELS), max_size=3).map(tuple)),
         clustering=draw(st.none() | _from_table(CLUSTERING_KERNELS)),
         straight_line=draw(
-            st.none()
-            | st.sampled_from([KernelElement(k) for k in STRAIGHT_LINE_SPELLING]).flatmap(kernel_specs)
+            st.none() | _from_table({k: KernelElement(k) for k in STRAIGHT_LINE_SPELLING})
         ),
         scan_matching=draw(
             st.none()
             | st.just(NO_SCAN_MATCHING)
-            | st.sampled_from([KernelElement(k) for k in SCAN_MATCHERS]).flatmap(kernel_specs)
+            | _from_table({k: KernelElement(k) for k in SCAN_MATCHERS})
         ),
         schedule=draw(st.none() | schedule_entries),
         loop_closure=draw(st.none() | kernel_specs(LOOP_CLOSURE).map(lambda s: replace(s, version=None))),

@@ -87,8 +87,8 @@ def test_build_writes_lengths_in_metres_and_paper_spellings() -> None:
 @pytest.mark.parametrize(
     ("msg", "fragment"),
     [
-        (ControlMessage(clustering=KernelSpec("dbscan")), "kernel 'dbscan' has no element"),
-        (ControlMessage(straight_line=KernelSpec("ransac")), "kernel 'ransac' has no element"),
+        (ControlMessage(clustering=KernelSpec("Radius_Outlier")), "'Radius_Outlier' is not a kernel name"),
+        (ControlMessage(straight_line=KernelSpec("ransac lines")), "'ransac lines' is not a kernel name"),
         (ControlMessage(n_smax=9.5), "<n-smax>: 9.5 is not an integer"),  # type: ignore[arg-type]
         (ControlMessage(heading_flush_deg=float("inf")), "<heading-flush>: inf is not a finite number"),
         (ControlMessage(clustering=KernelSpec.of("kmeans", {"n_clusters": 2.0})), "<cluster-no>"),

@@ -132,3 +132,22 @@ def test_reader_is_a_closing_context_manager_and_info_is_frozen(tmp_path: Path) 
     with pytest.raises(dataclasses.FrozenInstanceError):
         info.format = "x"  # type: ignore[misc]
     assert info.path == path and info.geometry is not None and info.geometry.beam_count == 3
+
+
+@pytest.mark.parametrize("packed", [False, True])
+def test_progress_is_the_share_of_the_file_read(tmp_path: Path, packed: bool) -> None:
+    """What ``linemap map``'s progress bar shows for a log: it grows with the scans read, from near 0 to
+    1 at the end, for plain and gzip files (bytes as stored)."""
+    text = ("# CARMEN\n" + "".join(FLASER.format(t=i) + "\n" for i in range(50_000))).encode()
+    path = tmp_path / ("big.clf.gz" if packed else "big.clf")
+    path.write_bytes(gzip.compress(text) if packed else text)
+    seen: list[float] = []
+    with open_log(path) as reader:
+        for i, _scan in enumerate(reader):
+            if i % 5000 == 0:
+                share = reader.progress()
+                assert share is not None
+                seen.append(share)
+        end = reader.progress()
+    assert seen == sorted(seen) and seen[0] < 0.5 and seen[-1] > seen[0]
+    assert end == 1.0

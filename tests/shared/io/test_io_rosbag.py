@@ -306,6 +306,7 @@ def test_bag_reads_back_the_scans_stamps_odometry_and_laser_offset(
     )
     assert info.params["scan_topic"] == "/scan" and info.params["odometry"].startswith("/odom")
     assert reader.clamped_scans == 0 and reader.scans_read == len(sim_scans)
+    assert reader.progress() == 1.0  # the share of the bag's scan messages read (its message counts)
 
 
 @pytest.mark.parametrize("kind", ["sqlite3", "mcap"])

@@ -11,7 +11,8 @@ export function kernelOptions(stage, builtins, uploaded, extraChoice) {
   const opts = builtins.filter((k) => k.stage === stage)
     .map((k) => ({ value: k.name, label: k.name, builtin: true, name: k.name, version: null, desc: k }));
   const up = uploaded.filter((k) => k.stage === stage && !k.deleted)
-    .map((k) => ({ value: `${k.name}@${k.version}`, label: `${k.name}@${k.version}`, builtin: false, name: k.name, version: k.version }));
+    .map((k) => ({ value: `${k.name}@${k.version}`, label: `${k.name}@${k.version}`, builtin: false, name: k.name, version: k.version,
+      declared: k.parameters ? { parameters: k.parameters } : null }));
   if (extraChoice && !optionFor([...opts, ...up], extraChoice)) {
     up.push({ value: `${extraChoice.name}@${extraChoice.version}`, label: `${extraChoice.name}@${extraChoice.version}`,
       builtin: false, name: extraChoice.name, version: extraChoice.version });
@@ -75,11 +76,12 @@ export class KernelEditor {
       mount(this.params, h("p", { class: "muted small" }, "No kernel: this stage is skipped."));
       return;
     }
-    // An uploaded version of a built-in kernel (same name) takes the built-in's parameter schema.
-    const desc = o.builtin ? o.desc : this.builtinNamed(o.name);
+    // An uploaded version: the parameter schema declared at its upload, else the built-in's of the same name.
+    const desc = o.builtin ? o.desc : o.declared || this.builtinNamed(o.name);
     mount(this.summary, o.builtin ? o.desc?.summary || ""
-      : desc ? `Uploaded version ${o.version}; parameters as the built-in ${o.name}.`
-        : "Uploaded kernel: its parameters are not described here; give them as a JSON object.");
+      : o.declared ? `Uploaded version ${o.version}; parameters as declared at its upload.`
+        : desc ? `Uploaded version ${o.version}; parameters as the built-in ${o.name}.`
+          : "Uploaded kernel without a declared parameter schema: give its parameters as a JSON object.");
     const same = this.configured && this.configured.name === o.name &&
       (o.builtin ? !this.configured.version || this.configured.version === o.desc?.version : this.configured.version === o.version);
     const given = same ? this.configured.params || {} : {};

@@ -60,6 +60,10 @@ function uploadForm(reload) {
     const f = sigFile.files[0];
     if (f) sig.value = (await f.text()).trim();
   } });
+  const params = h("textarea", { rows: 3, spellcheck: "false", "data-testid": "kernel-upload-parameters",
+    placeholder: "optional: the JSON Schema `linemap kernels --describe module.py` prints" });
+  const paramsFile = h("input", { type: "file", accept: ".json,application/json", "data-testid": "kernel-upload-parameters-file",
+    onchange: async () => { const f = paramsFile.files[0]; if (f) params.value = (await f.text()).trim(); } });
   const err = h("div", { class: "error", "data-testid": "kernel-upload-error", role: "alert", hidden: true });
   const ok = h("div", { class: "ok", "data-testid": "kernel-upload-ok", hidden: true });
   const submit = h("button", { type: "submit", class: "primary", "data-testid": "kernel-upload-submit" }, "Upload");
@@ -87,6 +91,7 @@ function uploadForm(reload) {
     fd.append("stage", stage.value);
     fd.append("version", version.value.trim());
     fd.append("signature", sig.value.trim());
+    if (params.value.trim()) fd.append("parameters", params.value.trim());
     submit.disabled = true;
     try {
       const k = await api.uploadKernel(fd);
@@ -95,6 +100,8 @@ function uploadForm(reload) {
       file.value = "";
       sigFile.value = "";
       sig.value = "";
+      params.value = "";
+      paramsFile.value = "";
       version.value = "";
       reload();
     } catch (ex) {
@@ -111,11 +118,15 @@ function uploadForm(reload) {
   h("label", { class: "field" }, h("span", { class: "field-label" }, "Stage"), stage),
   h("label", { class: "field" }, h("span", { class: "field-label" }, "Signature (base64)"), sig),
   h("label", { class: "field" }, h("span", { class: "field-label" }, "…or the .sig file"), sigFile),
+  h("label", { class: "field", title: "With it, messages choosing this kernel are checked before they are queued, and the Tune form shows its parameters as fields" },
+    h("span", { class: "field-label" }, "Parameter schema (JSON, optional)"), params),
+  h("label", { class: "field" }, h("span", { class: "field-label" }, "…or its .json file"), paramsFile),
   h("div", { class: "button-row" }, submit),
   err, ok,
   h("p", { class: "hint" }, "Sign with ", h("code", null, "linemap keys sign --key linemap-signing.pem module.py"),
     " (prints the sha256 and the signature); make a key pair with ", h("code", null, "linemap keys generate"),
-    " and add its public key under Signing keys."));
+    " and add its public key under Signing keys; ", h("code", null, "linemap kernels --describe module.py"),
+    " prints its parameter schema."));
   return form;
 }
 

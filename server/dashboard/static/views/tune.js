@@ -237,6 +237,7 @@ export class TuneTab {
   showError(text) {
     this.formError.textContent = text;
     this.formError.hidden = false;
+    this.ack.hide(); // the panel is about an earlier message: under this error it would look like its answer
   }
 
   hideError() { this.formError.hidden = true; }
@@ -284,6 +285,7 @@ export class TuneTab {
 
   async sendRaw() {
     this.hideError();
+    this.xmlPreview.hidden = true; // the form's preview is not what is sent here
     const xml = this.raw.value;
     if (!xml.trim()) { this.showError("Raw XML: paste a message first."); return; }
     try {
