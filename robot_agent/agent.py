@@ -18,6 +18,8 @@ import queue
 import threading
 
 from robot_agent.control import Prepared, kernels_in_use
+from robot_agent.dblock import RobotDBLock
+from robot_agent.errors import SupersededError
 from robot_agent.health import AgentStats, ErrorReport
 from robot_agent.link import ServerLink
 from robot_agent.mapping import MappingLoop, PipelineSlot, RecentScans
@@ -49,7 +51,12 @@ class Agent:
 
     def __init__(self, settings: AgentSettings, link: ServerLink | None = None) -> None:
         self.s = settings
-        self.db = RobotDB(settings.db_path)
+        self._db_lock = RobotDBLock(settings.db_path)  # a second agent on this Robot DB stops here
+        try:
+            self.db = RobotDB(settings.db_path)
+        except BaseException:
+            self._db_lock.release()
+            raise
         self.link = link
         if link is None and settings.server_url:
             self.link = ServerLink(
@@ -123,7 +130,12 @@ class Agent:
         if self.poller is not None and self.uploader is not None:
             for name, loop in (("poller", self.poller.run), ("uploader", self.uploader.run)):
                 self.threads[name] = supervise(
-                    name, loop, stop, self._thread_died, retry_base_s=self.s.retry_base_s
+                    name,
+                    loop,
+                    stop,
+                    self._thread_died,
+                    retry_base_s=self.s.retry_base_s,
+                    fatal=(SupersededError,),
                 )
         mapping = self.threads["mapping"] = Supervised("mapping", threading.current_thread())
         try:
@@ -147,8 +159,12 @@ class Agent:
                 if name != "mapping":
                     sup.join(2.0 if name == "poller" else self.s.poll_wait_s + 15)
             self.db.close()
+            self._db_lock.release()
             if self.link is not None:
                 self.link.close()
+        for sup in self.threads.values():
+            if sup.name != "mapping" and sup.fatal_error is not None:
+                raise sup.fatal_error  # another agent took over this robot: the CLI shows why, exit status 2
 
     def _thread_died(self, name: str, exc: BaseException) -> None:
         """A supervised loop died unexpectedly (restarted after a backoff): report it."""

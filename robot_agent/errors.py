@@ -57,5 +57,10 @@ class UnexpectedAnswerError(LinkError):
         self.http_status = resp.status_code
 
 
+class SupersededError(AgentError):
+    """Another agent with this robot's token took over (the server answered 409 ``agent_superseded``), or
+    another agent holds this Robot DB: this agent must stop, not retry (docs/reliability/identity.md)."""
+
+
 class SourceError(AgentError):
     """The scan source (simulator, log file, serial scanner) cannot be opened or read."""

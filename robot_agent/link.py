@@ -16,6 +16,7 @@ import logging
 import math
 import random
 import time
+import uuid
 from dataclasses import dataclass
 from email.utils import parsedate_to_datetime
 from typing import Any, TypeVar
@@ -23,8 +24,9 @@ from typing import Any, TypeVar
 import httpx
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from robot_agent.errors import LinkError, UnexpectedAnswerError
+from robot_agent.errors import LinkError, SupersededError, UnexpectedAnswerError
 from shared.protocol import (
+    AGENT_INSTANCE_HEADER,
     ARTIFACT_SHA256_HEADER,
     ARTIFACT_SIGNATURE_HEADER,
     ARTIFACT_STAGE_HEADER,
@@ -72,9 +74,14 @@ class Backoff:
 
 @dataclass(frozen=True, slots=True)
 class UploadConflict:
-    """The server refused a delta (its map is at ``current_version``): send a snapshot instead."""
+    """The server refused an upload (409): its map is at ``current_version`` of ``current_session``;
+    ``code`` says why: ``conflict`` (a version conflict in the same map session),
+    ``map_session_mismatch`` (a delta of another session than the server's current one) or
+    ``map_session_ended`` (the upload's session was replaced by another on the server)."""
 
     current_version: int
+    code: str = "conflict"
+    current_session: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,10 +107,13 @@ class _Messages(_Answer):
 
 class _Uploaded(_Answer):
     version: int = Field(ge=0)
+    map_session: str | None = None
 
 
 class _Conflict(_Answer):
-    current_version: int = Field(ge=0)
+    error: str = "conflict"
+    current_version: int = Field(0, ge=0)
+    current_session: str | None = None
 
 
 def is_transient(exc: LinkError) -> bool:
@@ -141,7 +151,10 @@ def parse_retry_after(value: str | None, cap_s: float, now_s: float | None = Non
 
 
 class ServerLink:
-    """Calls to one server as one robot (``Authorization: Bearer`` robot token)."""
+    """Calls to one server as one robot (``Authorization: Bearer`` robot token), each with this agent
+    process's ``instance_id`` (a new UUID unless given) in the ``X-Linemap-Agent-Instance`` header. Any
+    call the server refuses as from a superseded agent (409 ``agent_superseded``) raises
+    :class:`SupersededError`, which is not retried."""
 
     def __init__(
         self,
@@ -152,13 +165,19 @@ class ServerLink:
         timeout_s: float = 10.0,
         max_retry_after_s: float = DEFAULT_MAX_RETRY_AFTER_S,
         transport: httpx.BaseTransport | None = None,
+        instance_id: str | None = None,
     ) -> None:
         self.robot_id = robot_id
+        self.instance_id = instance_id or str(uuid.uuid4())
         self.max_retry_after_s = max_retry_after_s
         self._base = base_url.rstrip("/") + "/api/v1"
         self._client = httpx.Client(
             base_url=self._base,
-            headers={"Authorization": f"Bearer {token}", "User-Agent": "linemap-agent"},
+            headers={
+                "Authorization": f"Bearer {token}",
+                "User-Agent": "linemap-agent",
+                AGENT_INSTANCE_HEADER: self.instance_id,
+            },
             timeout=httpx.Timeout(timeout_s),
             transport=transport,
         )
@@ -173,8 +192,10 @@ class ServerLink:
         *,
         timeout_s: float | None = None,
         expect: str = "application/json",
+        answers: tuple[int, ...] = (409,),
         **kwargs: Any,
     ) -> httpx.Response:
+        """One request; a 4xx in ``answers`` is returned (with JSON), not raised."""
         where = f"{method} {path}"
         try:
             if timeout_s is not None:
@@ -184,7 +205,9 @@ class ServerLink:
             raise LinkError(f"{where}: {type(exc).__name__}: {exc or 'no response'}") from None
         retry = parse_retry_after(resp.headers.get("retry-after"), self.max_retry_after_s)
         ours = _content_type(resp) == "application/json"
-        if resp.status_code >= 400 and resp.status_code != 409:
+        if resp.status_code == 409 and ours and _error_code(resp) == "agent_superseded":
+            raise SupersededError(f"{where}: the server refused this agent: {_detail(resp)}")
+        if resp.status_code >= 400 and resp.status_code not in answers:
             if not ours and resp.status_code not in (408, 429) and resp.status_code < 500:
                 # A 4xx that is not the API's JSON: something between the robot and the server answered.
                 raise UnexpectedAnswerError(where, resp, "a JSON error", retry_after_s=retry)
@@ -193,9 +216,9 @@ class ServerLink:
                 status=resp.status_code,
                 retry_after_s=retry,
             )
-        if not 200 <= resp.status_code < 300 and resp.status_code != 409:
+        if not 200 <= resp.status_code < 300 and resp.status_code not in answers:
             raise UnexpectedAnswerError(where, resp, f"2xx with {expect}", retry_after_s=retry)
-        if _content_type(resp) != (expect if resp.status_code != 409 else "application/json"):
+        if _content_type(resp) != (expect if resp.status_code < 300 else "application/json"):
             raise UnexpectedAnswerError(where, resp, expect, retry_after_s=retry)
         return resp
 
@@ -223,19 +246,28 @@ class ServerLink:
         return [m.model_dump() for m in self._json(resp, _Messages).messages]
 
     def ack(self, seq: int, outcome: str, reason: str | None) -> None:
-        """Report a message's outcome; a conflicting earlier acknowledgement (409) is logged, not retried."""
+        """Report a message's outcome; a conflicting earlier acknowledgement (409) is logged, not retried,
+        and so is a message the server does not hold (404: its database was restored from a backup older
+        than the message)."""
         body = MessageAck.model_validate({"outcome": outcome, "reason": reason}).model_dump(mode="json")
-        resp = self._call("POST", f"/robots/{self.robot_id}/messages/{seq}/ack", json=body)
+        resp = self._call(
+            "POST", f"/robots/{self.robot_id}/messages/{seq}/ack", json=body, answers=(404, 409)
+        )
         if resp.status_code == 409:
             log.warning("message %d was acknowledged differently before: %s", seq, _detail(resp))
+        elif resp.status_code == 404:
+            log.warning(
+                "the server does not hold message %d (restored from a backup?): %s", seq, _detail(resp)
+            )
 
     def upload(self, payload: dict[str, Any], key: str) -> dict[str, Any] | UploadConflict:
         resp = self._call(
             "POST", f"/robots/{self.robot_id}/maps", json=payload, headers={"Idempotency-Key": key}
         )
         if resp.status_code == 409:
-            return UploadConflict(self._json(resp, _Conflict).current_version)
-        self._json(resp, _Uploaded)
+            got = self._json(resp, _Conflict)
+            return UploadConflict(got.current_version, got.error, got.current_session)
+        self._json(resp, _Uploaded)  # validated: version, and map_session when the server has sessions
         out: dict[str, Any] = resp.json()
         return out
 
@@ -251,6 +283,16 @@ class ServerLink:
 
 def _content_type(resp: httpx.Response) -> str:
     return str(resp.headers.get("content-type", "")).split(";")[0].strip().lower()
+
+
+def _error_code(resp: httpx.Response) -> str | None:
+    """The API's machine-readable ``error`` code of a JSON error answer, if any."""
+    try:
+        body = resp.json()
+    except ValueError:
+        return None
+    code = body.get("error") if isinstance(body, dict) else None
+    return code if isinstance(code, str) else None
 
 
 def _detail(resp: httpx.Response) -> str:

@@ -1,5 +1,6 @@
 """The Robot DB's map tables as the agent uses them: each step's map version, walls, pose and outbox entry
-(recorded in one transaction), the current map and trajectory, and the outbox folded into uploads.
+(recorded in one transaction), the current map and trajectory, the outbox folded into uploads, and the
+map session id the uploads carry.
 
 Walls are ``[id, x0, y0, x1, y1]`` (m), poses ``[stamp_s, x_m, y_m, theta_rad]``. A step is O(walls
 changed); folding the outbox is O(versions x walls changed).
@@ -7,6 +8,7 @@ changed); folding the outbox is O(versions x walls changed).
 
 from __future__ import annotations
 
+import uuid
 from dataclasses import dataclass
 from typing import Any
 
@@ -183,6 +185,30 @@ class MapTables(RobotDBFile):
         with self.tx() as s:
             s.execute(delete(OutboxEntry).where(OutboxEntry.version <= up_to_version))
             put_meta(s, "uploaded_version", up_to_version)
+
+    # ------------------------------------------------------------ map session
+    def map_session(self) -> str:
+        """The id of the map session this Robot DB's map belongs to (docs/reliability/identity.md): made
+        by the migration that created the Robot DB, or by :meth:`new_map_session`."""
+        value = self.get("map_session")
+        if value is None:  # a Robot DB whose meta lost it: a new session, never a guess
+            return self.new_map_session("the Robot DB had no map session id")
+        return str(value)
+
+    def map_session_reason(self) -> str | None:
+        """Why the current map session began (sent with its snapshots)."""
+        value = self.get("map_session_reason")
+        return None if value is None else str(value)
+
+    def new_map_session(self, reason: str) -> str:
+        """Start a new map session (a new UUID): the map goes on, the server gets it as a new map from the
+        next snapshot. Nothing counts as uploaded in the new session."""
+        session = str(uuid.uuid4())
+        with self.tx() as s:
+            put_meta(s, "map_session", session)
+            put_meta(s, "map_session_reason", reason[:300])
+            put_meta(s, "uploaded_version", None)
+        return session
 
     def note_attempt(self, version: int) -> None:
         with self.tx() as s:

@@ -84,12 +84,21 @@ def supervise(
     *,
     retry_base_s: float = 0.5,
     retry_cap_s: float = 30.0,
+    fatal: tuple[type[BaseException], ...] = (),
 ) -> Supervised:
-    """Start ``loop`` on a daemon thread named ``name`` under :func:`run_supervised`; return its handle."""
+    """Start ``loop`` on a daemon thread named ``name`` under :func:`run_supervised`; return its handle. A
+    ``fatal`` error ends the thread: it is kept in :attr:`Supervised.fatal_error`, logged, and ``stop`` is
+    set, so the owner stops and reports it."""
     sup = Supervised(name)
 
     def body() -> None:
-        run_supervised(sup, loop, stop, on_death, retry_base_s=retry_base_s, retry_cap_s=retry_cap_s)
+        try:
+            run_supervised(
+                sup, loop, stop, on_death, retry_base_s=retry_base_s, retry_cap_s=retry_cap_s, fatal=fatal
+            )
+        except fatal as exc:
+            log.error("thread %s stopped the agent: %s", name, exc)
+            stop.set()
 
     sup.thread = threading.Thread(target=body, name=name, daemon=True)
     sup.thread.start()

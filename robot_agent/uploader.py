@@ -1,5 +1,6 @@
 """The agent's uploader: sends acknowledgements of control messages and the outbox (map versions as deltas,
-or a snapshot when the server's base differs) from the Robot DB, in rounds.
+or a snapshot when the server's base differs) from the Robot DB, in rounds. A version is marked delivered
+only when the server confirms it holds it in this Robot DB's map session (see :meth:`Uploader.send_maps`).
 
 A link fault is reported and the round retried after a backoff (the server's ``Retry-After``, validated
 and capped by :mod:`robot_agent.link`, is honoured); an unexpected exception in a round is logged and
@@ -15,8 +16,9 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
-from robot_agent.errors import LinkError
+from robot_agent.errors import LinkError, SupersededError
 from robot_agent.health import ErrorReport
 from robot_agent.link import Backoff, ServerLink, UploadConflict
 from robot_agent.store import RobotDB
@@ -69,6 +71,8 @@ class Uploader:
                 sent = self.send_maps()
                 busy = acked or sent
                 backoff.reset()
+            except SupersededError:
+                raise  # another agent took over: this one stops (the supervisor's fatal path)
             except LinkError as exc:
                 self._errors.report(str(exc))
                 if self._give_up(stop, backoff.next_delay(exc.retry_after_s)):
@@ -115,13 +119,23 @@ class Uploader:
         return bool(rows)
 
     def send_maps(self) -> bool:
+        """Send what the outbox holds: a delta from the version the server confirmed, or a snapshot.
+
+        Map identity (docs/reliability/identity.md): every upload carries this Robot DB's map session, and a
+        version counts as delivered only when the server answers that it holds it in this session. A 409
+        never marks anything delivered: a delta of another session than the server's, or from another
+        base, is followed by a snapshot; a server ahead of this robot in the same session (the Robot DB was
+        restored from an older copy, or another agent uploaded there), or one that ended this session,
+        makes the robot start a new session, so the server keeps the old map and starts a new one."""
         up = self.db.pending_upload(self.upload_batch)
         if up is None:
             return False
         base = self.db.get("uploaded_version")
         if self.need_snapshot or base is None or int(base) != up.first_version - 1:
             return self._send_snapshot()
+        session = self.db.map_session()
         delta = MapDelta(
+            map_session=session,
             version=up.version,
             base_version=int(base),
             stamp_s=up.stamp_s,
@@ -133,33 +147,80 @@ class Uploader:
             status=self._status(),
             wall_time_s=self._wall_time(up.version),
         )
-        got = self.link.upload(delta.model_dump(mode="json"), f"r{self.robot_id}-{base}-{up.version}")
+        got = self.link.upload(
+            delta.model_dump(mode="json"), f"r{self.robot_id}-{session}-{base}-{up.version}"
+        )
         if isinstance(got, UploadConflict):
-            if got.current_version >= up.version:
-                self.db.mark_uploaded(got.current_version)
-            else:
-                self.need_snapshot = True
+            self._conflict(got, session, up.version)
             return True
-        self.db.mark_uploaded(up.version)
+        self._confirmed(got, session, up.version)
         return True
 
     def _send_snapshot(self) -> bool:
         snap = self.db.snapshot()
         if snap is None:
             return False
+        session = self.db.map_session()
+        version = int(snap["version"])
         body = MapSnapshot.model_validate(
-            {**snap, "status": self._status(), "wall_time_s": self._wall_time(int(snap["version"]))}
+            {
+                **snap,
+                "map_session": session,
+                "map_session_reason": self.db.map_session_reason(),
+                "status": self._status(),
+                "wall_time_s": self._wall_time(version),
+            }
         )
-        got = self.link.upload(body.model_dump(mode="json"), f"r{self.robot_id}-snapshot-{snap['version']}")
+        got = self.link.upload(body.model_dump(mode="json"), f"r{self.robot_id}-{session}-snapshot-{version}")
         if isinstance(got, UploadConflict):
-            if got.current_version >= snap["version"]:
-                self.db.mark_uploaded(got.current_version)
-                self.need_snapshot = False
-                return True
-            raise LinkError(
-                f"the server's map of robot {self.robot_id} is at version {got.current_version}, "
-                f"ahead of this robot's {snap['version']}: was the Robot DB replaced?"
-            )
-        self.db.mark_uploaded(int(snap["version"]))
+            self._conflict(got, session, version)
+            return True
+        self._confirmed(got, session, version)
         self.need_snapshot = False
         return True
+
+    def _confirmed(self, got: dict[str, Any], session: str, version: int) -> None:
+        """Mark ``version`` delivered if the server's answer says it holds it in ``session``; else the
+        answer is not the server's word on this upload (a link fault: retried)."""
+        held, in_session = got.get("version"), got.get("map_session")
+        if held != version or (in_session is not None and in_session != session):
+            raise LinkError(
+                f"the server answered an upload of version {version} of map session {session} with version "
+                f"{held} of session {in_session}: not marked delivered"
+            )
+        self.db.mark_uploaded(version)
+
+    def _conflict(self, got: UploadConflict, session: str, version: int) -> None:
+        """What a 409 to an upload of ``version`` in ``session`` means for the next upload (nothing is
+        marked delivered)."""
+        if got.code == "map_session_mismatch" or (got.code == "conflict" and got.current_version < version):
+            log.info(
+                "the server's map of robot %d is at version %d of session %s; sending a snapshot of "
+                "version %d of session %s",
+                self.robot_id,
+                got.current_version,
+                got.current_session,
+                version,
+                session,
+            )
+            self.need_snapshot = True
+            return
+        if got.code == "map_session_ended":
+            reason = (
+                f"the server ended map session {session} (its current map is session {got.current_session}): "
+                "another map replaced it"
+            )
+        else:  # the same session, and the server holds this version or a later one already
+            reason = (
+                f"the server's map of session {session} is at version {got.current_version}, at or ahead "
+                f"of this robot's {version}: the Robot DB was restored from an older copy, or another "
+                "agent uploaded in this session"
+            )
+        new = self.db.new_map_session(reason)
+        log.warning(
+            "robot %d starts a new map session %s (the server keeps the old map): %s",
+            self.robot_id,
+            new,
+            reason,
+        )
+        self.need_snapshot = True

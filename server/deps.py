@@ -19,10 +19,11 @@ from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Annotated
 
-from fastapi import Depends, Request
+from fastapi import Depends, Header, Request
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import Connection, bindparam, update
 
+from server.agents import InstanceCheck
 from server.credcache import CredentialCache, Principal, credential_kind, find_principals
 from server.csrf import CSRF_HEADER, require_csrf_token
 from server.database import Database
@@ -34,9 +35,11 @@ from server.recentmaps import RecentMaps
 from server.security import SESSION_PREFIX, hash_token
 from server.settings import Settings
 from server.writer import WriteBatcher
+from shared.protocol import AGENT_INSTANCE_HEADER, MAP_SESSION_PATTERN, anchored
 
 __all__ = [
     "SESSION_COOKIE",
+    "AgentChecked",
     "AppState",
     "AuthLimiter",
     "OperatorDep",
@@ -44,6 +47,7 @@ __all__ = [
     "PrincipalDep",
     "RobotSelf",
     "StateDep",
+    "check_instance",
     "presence",
     "require_operator",
     "retry_after_header",
@@ -67,6 +71,7 @@ class AppState:
     hub: Hub = field(default_factory=Hub)
     recent_maps: RecentMaps = field(default_factory=RecentMaps)
     limiter: AuthLimiter = field(init=False)
+    instances: InstanceCheck = field(init=False)  # the agent process speaking for each robot
     credentials: CredentialCache = field(init=False)
     _seen: dict[int, datetime] = field(default_factory=dict)
     _seen_mono: dict[int, float] = field(default_factory=dict)  # time.monotonic() when last heard from
@@ -75,6 +80,7 @@ class AppState:
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def __post_init__(self) -> None:
+        self.instances = InstanceCheck(self.db)
         self.limiter = AuthLimiter.from_settings(self.settings, self.db)
         self.credentials = CredentialCache(self.settings.credential_cache_s)
 
@@ -269,3 +275,27 @@ async def robot_self(robot_id: int, who: PrincipalDep) -> Principal:
 
 
 RobotSelf = Annotated[Principal, Depends(robot_self)]
+
+
+async def check_instance(
+    robot_id: int,
+    who: PrincipalDep,
+    state: StateDep,
+    instance: Annotated[
+        str | None,
+        Header(
+            alias=AGENT_INSTANCE_HEADER,
+            pattern=anchored(MAP_SESSION_PATTERN),
+            description="The agent process's instance id (a lower-case UUID).",
+        ),
+    ] = None,
+) -> None:
+    """Dependency of the robot's own routes (uploads, polls, acknowledgements): refuse a superseded agent."""
+    if instance is None or who.kind != "robot" or who.id != robot_id:
+        return
+    if state.instances.fresh(robot_id, instance):
+        return
+    await run_in_threadpool(state.instances.check, robot_id, instance, who.actor)
+
+
+AgentChecked = Depends(check_instance)

@@ -11,11 +11,14 @@ from typing import Any
 from shared.errors import LinemapError
 
 __all__ = [
+    "AgentSupersededError",
     "AuthError",
     "ConflictError",
     "ForbiddenError",
     "GoneError",
     "InvalidRequestError",
+    "MapSessionEndedError",
+    "MapSessionMismatchError",
     "NotFoundError",
     "RateLimitedError",
     "ServerError",
@@ -68,6 +71,25 @@ class ConflictError(ServerError):
 
     status = 409
     code = "conflict"
+
+
+class MapSessionMismatchError(ConflictError):
+    """A delta of a mapping session that is not the server's current one for the robot: send a snapshot."""
+
+    code = "map_session_mismatch"
+
+
+class MapSessionEndedError(ConflictError):
+    """An upload of a mapping session the server ended (another session replaced it): the robot must start
+    a new session, never add to the ended map or bring it back."""
+
+    code = "map_session_ended"
+
+
+class AgentSupersededError(ConflictError):
+    """A request from an agent process after another agent with the robot's token took over."""
+
+    code = "agent_superseded"
 
 
 class GoneError(ServerError):

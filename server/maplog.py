@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 
 from server.models import MapDeltaRecord
 
-__all__ = ["KEEP_VERSIONS", "LoggedUpload", "append", "chain_from", "read_after"]
+__all__ = ["KEEP_VERSIONS", "LoggedUpload", "append", "chain_from", "clear", "read_after"]
 
 #: Versions kept per robot: 25 s of uploads at 10 Hz (the agent uploads at 2 Hz: two minutes).
 KEEP_VERSIONS = 256
@@ -28,11 +28,20 @@ _LOG: Table = MapDeltaRecord.__table__  # type: ignore[assignment]
 
 @dataclass(frozen=True, slots=True)
 class LoggedUpload:
-    """One logged upload: a delta (``body``: its event as JSON) or a snapshot (``body`` None)."""
+    """One logged upload: a delta (``body``: its event as JSON) or a snapshot (``body`` None), of map
+    session ``session`` (known for an upload to this process; the log itself holds the robot's current
+    session only, see :func:`clear`)."""
 
     version: int
     base_version: int | None
     body: str | None
+    session: str | None = None
+
+
+def clear(conn: Connection, robot_id: int) -> None:
+    """Drop the robot's logged uploads (a new mapping session began: its versions count anew, and a delta
+    of the old map must never continue the new one). In ``conn``'s transaction."""
+    conn.execute(delete(_LOG).where(_LOG.c.robot_id == robot_id))
 
 
 def append(conn: Connection, robot_id: int, event: dict[str, Any], keep: int = KEEP_VERSIONS) -> LoggedUpload:
@@ -46,7 +55,7 @@ def append(conn: Connection, robot_id: int, event: dict[str, Any], keep: int = K
         base, body = None, None
     conn.execute(insert(_LOG).values(robot_id=robot_id, version=version, base_version=base, body=body))
     conn.execute(delete(_LOG).where(_LOG.c.robot_id == robot_id, _LOG.c.version <= version - keep))
-    return LoggedUpload(version, base, body)
+    return LoggedUpload(version, base, body, event.get("map_session"))
 
 
 def read_after(s: Session, robot_id: int, after: int, limit: int = KEEP_VERSIONS) -> list[LoggedUpload]:

@@ -17,11 +17,12 @@ from typing import Any
 
 from sqlalchemy import Connection, Table, delete, func, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
-from sqlalchemy.orm import Session
 
-from server.errors import ConflictError, InvalidRequestError, NotFoundError
+from server.errors import ConflictError, InvalidRequestError, MapSessionMismatchError, NotFoundError
+from server.mapread import map_version, read_map  # the read side, importable from here as before
+from server.mapsessions import check_not_ended, start_session
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
-from server.schemas import MapOut, MapUpload, MapUploadOut
+from server.schemas import MapUpload, MapUploadOut
 from server.snapdiff import SnapshotDiff
 from shared.protocol import MAP_FIELDS, STATUS_FIELDS, RobotStatus
 
@@ -40,10 +41,13 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True, slots=True)
 class AppliedUpload:
-    """What the upload returned, and the event for stream subscribers (``None`` for a retry)."""
+    """What the upload returned, and the event for stream subscribers (``None`` for a retry);
+    ``new_session``: it started a new mapping session (the previous map is kept:
+    :mod:`server.mapsessions`)."""
 
     out: MapUploadOut
     event: dict[str, Any] | None
+    new_session: bool = False
 
 
 _SEG: Table = MapSegment.__table__  # type: ignore[assignment]
@@ -228,19 +232,25 @@ def apply_upload(
     seen_at: datetime | None = None,
     max_walls: int | None = None,
     prepared: PreparedRows | None = None,
+    actor: str = "robot",
 ) -> AppliedUpload:
     """Apply one upload in the caller's transaction (SQLAlchemy Core: a robot sends one every few hundred
     milliseconds); ``max_walls``: refuse (422, before writing) a delta after which the map would hold more
     walls (:func:`check_wall_cap`); ``prepared``: its rows from :func:`prepare_rows`, built before the
     transaction (else here). A snapshot's rows prepared as a diff are applied as such only if the stored
     map is still at the diff's version; otherwise (another upload of the robot came between) the map is
-    replaced whole, with the same result. O(rows in the upload, or in the diff)."""
+    replaced whole, with the same result. O(rows in the upload, or in the diff).
+
+    Map sessions: a snapshot of a session that is not the robot's current one starts a new map (the current
+    one is kept, :func:`server.mapsessions.start_session`; ``actor`` names the robot in the audit entry),
+    whatever its version; a delta of another session is refused (409 ``map_session_mismatch``), and an
+    upload of a session that ended (409 ``map_session_ended``)."""
     # Serialise the robot's uploads first: concurrent uploads of one robot (a retry racing its original)
     # queue here, so the idempotency check below sees every upload committed before it. PostgreSQL: a
     # per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts seconds, and
     # the row lock held all along stalled every write batch that touched the row (last-seen times). The
     # row itself is updated at the end of the transaction only. SQLite: its one write lock serialises.
-    q = select(_ROBOTS.c.map_version).where(_ROBOTS.c.id == robot_id)
+    q = select(_ROBOTS.c.map_version, _ROBOTS.c.map_session).where(_ROBOTS.c.id == robot_id)
     if conn.dialect.name == "postgresql":
         conn.exec_driver_sql(f"SELECT pg_advisory_xact_lock({_UPLOAD_LOCK_CLASS}, %s)", (int(robot_id),))
     elif conn.dialect.name != "sqlite":
@@ -249,16 +259,41 @@ def apply_upload(
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
     seen = conn.execute(
-        select(_UPLOADS.c.version).where(_UPLOADS.c.robot_id == robot_id, _UPLOADS.c.idempotency_key == key)
+        select(_UPLOADS.c.version, _UPLOADS.c.map_session).where(
+            _UPLOADS.c.robot_id == robot_id, _UPLOADS.c.idempotency_key == key
+        )
     ).first()
-    if seen is not None:
-        return AppliedUpload(MapUploadOut(version=seen[0], duplicate=True), None)
-    current = robot[0]
-    if up.base_version is None:
+    if seen is not None:  # answered with the session it was applied in: the robot checks it is its own
+        return AppliedUpload(MapUploadOut(version=seen[0], duplicate=True, map_session=seen[1]), None)
+    current, session = robot[0], robot[1]
+    new_session = up.map_session != session
+    if new_session:
+        check_not_ended(conn, robot_id, up.map_session, session)
+    if up.base_version is None and new_session:
+        if max_walls is not None:
+            check_wall_cap(conn, robot_id, up, max_walls)
+        start_session(
+            conn,
+            robot_id,
+            old=session,
+            old_version=current,
+            new=up.map_session,
+            first_version=up.version,
+            reason=up.map_session_reason,
+            actor=actor,
+            now=utcnow(),
+        )
+        if prepared is not None and prepared.diff_base is not None:
+            prepared = prepare_rows(robot_id, up)  # the diff was against the other session's map
+        conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id))
+        conn.execute(delete(_TRAJ).where(_TRAJ.c.robot_id == robot_id))
+    elif up.base_version is None:
         if up.version <= current:
             raise ConflictError(
-                f"snapshot version {up.version} is not newer than the server's map version {current}",
+                f"snapshot version {up.version} is not newer than the server's map version {current} "
+                f"of the same map session {session}",
                 current_version=current,
+                current_session=session,
             )
         if max_walls is not None:
             check_wall_cap(conn, robot_id, up, max_walls)
@@ -277,11 +312,19 @@ def apply_upload(
         if prepared is None or prepared.replace_trajectory:
             conn.execute(delete(_TRAJ).where(_TRAJ.c.robot_id == robot_id))
     else:
+        if new_session:
+            raise MapSessionMismatchError(
+                f"delta of map session {up.map_session}, but the server's current map of robot {robot_id} "
+                f"is session {session} (version {current}): send a snapshot (base_version null)",
+                current_version=current,
+                current_session=session,
+            )
         if up.base_version != current:
             raise ConflictError(
                 f"delta from version {up.base_version}, but the server's map is at version {current}: "
                 "send a snapshot (base_version null)",
                 current_version=current,
+                current_session=session,
             )
         if max_walls is not None:
             check_wall_cap(conn, robot_id, up, max_walls)
@@ -309,7 +352,7 @@ def apply_upload(
             }
         ],
     )
-    changes: dict[str, Any] = {"map_version": v}
+    changes: dict[str, Any] = {"map_version": v, "map_session": up.map_session}
     if seen_at is not None:
         changes["last_seen_at"] = seen_at
     if up.status is not None:
@@ -321,6 +364,7 @@ def apply_upload(
             idempotency_key=key,
             version=v,
             base_version=up.base_version,
+            map_session=up.map_session,
             n_segments=len(up.segments),
             n_removed=len(up.removed),
             received_at=now,
@@ -331,7 +375,9 @@ def apply_upload(
         "robot_id": robot_id,
         **{name: getattr(up, name) for name in MAP_FIELDS},  # the lists themselves, not copies
     }
-    return AppliedUpload(MapUploadOut(version=v, duplicate=False), event)
+    return AppliedUpload(
+        MapUploadOut(version=v, duplicate=False, map_session=up.map_session), event, new_session
+    )
 
 
 def _status_columns(st: RobotStatus) -> dict[str, Any]:
@@ -345,38 +391,3 @@ def _status_columns(st: RobotStatus) -> dict[str, Any]:
         if value is not None or name == "last_error":
             columns[name] = value
     return columns
-
-
-def map_version(s: Session, robot_id: int) -> int:
-    robot = s.get(Robot, robot_id)
-    if robot is None:
-        raise NotFoundError(f"no robot with id {robot_id}")
-    return robot.map_version
-
-
-def read_map(s: Session, robot_id: int, trajectory_tail: int | None = None) -> MapOut:
-    """The robot's whole current map (version 0 and empty before its first upload). O(walls + poses)."""
-    version = map_version(s, robot_id)
-    segs = s.execute(
-        select(MapSegment.segment_id, MapSegment.x0_m, MapSegment.y0_m, MapSegment.x1_m, MapSegment.y1_m)
-        .where(MapSegment.robot_id == robot_id)
-        .order_by(MapSegment.segment_id)
-    )
-    tq = select(
-        TrajectoryPoint.stamp_s, TrajectoryPoint.x_m, TrajectoryPoint.y_m, TrajectoryPoint.theta_rad
-    ).where(TrajectoryPoint.robot_id == robot_id)
-    if trajectory_tail is not None:
-        traj = list(s.execute(tq.order_by(TrajectoryPoint.id.desc()).limit(trajectory_tail)))[::-1]
-    else:
-        traj = list(s.execute(tq.order_by(TrajectoryPoint.id)))
-    state = s.get(MapState, robot_id)
-    return MapOut(
-        robot_id=robot_id,
-        version=version,
-        stamp_s=state.stamp_s if state else 0.0,
-        segments=[[float(i), x0, y0, x1, y1] for i, x0, y0, x1, y1 in segs],
-        centroids=list(state.centroids.get("xy", [])) if state else [],
-        pose=[state.pose["x_m"], state.pose["y_m"], state.pose["theta_rad"]] if state else [0.0, 0.0, 0.0],
-        trajectory=[list(t) for t in traj],
-        wall_time_s=state.wall_time_s if state else None,
-    )

@@ -29,7 +29,7 @@ from fastapi.concurrency import run_in_threadpool
 from server.deps import AppState, still_valid
 from server.hub import OVERFLOW
 from server.maplog import LoggedUpload, chain_from, read_after
-from server.mapstore import map_version
+from server.mapread import map_version
 from server.notices import Notice
 from server.schemas import MapOut
 
@@ -56,20 +56,24 @@ def sse(event: str, data: Any, version: int) -> bytes:
     return f"event: {event}\nid: {version}\ndata: {text}\n\n".encode()
 
 
-def _logged(state: AppState, robot_id: int, after: int) -> tuple[int, list[LoggedUpload]]:
-    """(the robot's map version now, its logged uploads above ``after``): one short read."""
+Current = tuple[str | None, int]  # the robot's (map session, map version)
+
+
+def _logged(state: AppState, robot_id: int, after: int) -> tuple[Current, list[LoggedUpload]]:
+    """((the robot's map session, its version) now, its logged uploads above ``after``): one short read.
+    The log holds the current session's uploads only (:func:`server.maplog.clear`)."""
     with state.db.read() as s:
         return map_version(s, robot_id), read_after(s, robot_id, after)
 
 
 #: Reads of the log in flight, shared by the streams one notice woke at the same version: (app state,
 #: robot, after, the notice's version) -> the read. Every stream of a process runs on its event loop.
-_shared: dict[tuple[int, int, int, int], asyncio.Future[tuple[int, list[LoggedUpload]]]] = {}
+_shared: dict[tuple[int, int, int, int], asyncio.Future[tuple[Current, list[LoggedUpload]]]] = {}
 
 
 async def read_log(
     state: AppState, robot_id: int, after: int, notice: int | None
-) -> tuple[int, list[LoggedUpload]]:
+) -> tuple[Current, list[LoggedUpload]]:
     """:func:`_logged` off the event loop. Woken by a notice, a stream joins a read that another stream
     woken by the same notice began (it began after that notice, so it sees that version): N viewers of a
     robot on a process cost one read per notice, not N."""
@@ -103,24 +107,29 @@ async def map_events(
     loop = asyncio.get_running_loop()
     recheck = state.settings.poll_recheck_s
     last = -1
+    session: str | None = None  # the map session of what the viewer holds (known once sent a snapshot)
+    known = False
 
     async def catch_up(notice: int | None = None) -> AsyncIterator[bytes]:
-        """The deltas after ``last`` from the log, then a snapshot if they do not reach the current map;
-        ``notice``: the version of the notice that woke the stream."""
-        nonlocal last
+        """The deltas after ``last`` from the log, then a snapshot if they do not reach the current map
+        or the map is another session's; ``notice``: the version of the notice that woke the stream."""
+        nonlocal last, session, known
         start, current = last, -1
         if last >= 0:  # (a new viewer gets the whole map: no log to read)
-            current, logged = await read_log(state, robot_id, last, notice)
-            for entry in chain_from(last, logged):
-                yield sse("delta", entry.body, entry.version)
-                last = entry.version
+            (now_session, current), logged = await read_log(state, robot_id, last, notice)
+            if known and now_session != session:
+                last = -1  # a new map (mapping session): never continue the old one with its deltas
+            else:
+                for entry in chain_from(last, logged):
+                    yield sse("delta", entry.body, entry.version)
+                    last = entry.version
         # Behind the map still (the log does not reach back, or a snapshot upload is on the way), or at a
         # version the map never had (a Last-Event-ID from elsewhere): the whole map. (The log may also run
         # past `current`: uploads committed between the two reads.)
         if last < 0 or last < current or (last > current and last == start):
             snap = await run_in_threadpool(read_map, state, robot_id, trajectory)
             yield sse("snapshot", snap, snap.version)
-            last = snap.version
+            last, session, known = snap.version, snap.map_session, True
 
     with state.hub.subscribe(f"maps:{robot_id}") as queue:
         if last_event_id is not None:
@@ -141,7 +150,8 @@ async def map_events(
                 if loop.time() - reread_at < recheck:
                     continue
                 reread_at = loop.time()
-                if await run_in_threadpool(_version, state, robot_id) != last:  # a notice was missed
+                now_session, now = await run_in_threadpool(_version, state, robot_id)
+                if now != last or (known and now_session != session):  # a notice was missed
                     item = OVERFLOW
                 elif loop.time() - quiet_since >= KEEPALIVE_S:
                     quiet_since = loop.time()
@@ -149,9 +159,11 @@ async def map_events(
                     continue
                 else:
                     continue
-            if isinstance(item, (Notice, LoggedUpload)) and item.version <= last:
-                continue  # an upload this stream has sent already
-            if isinstance(item, LoggedUpload) and item.body is not None and item.base_version == last:
+            same = not isinstance(item, LoggedUpload) or item.session == session
+            if isinstance(item, (Notice, LoggedUpload)) and item.version <= last and same:
+                continue  # an upload this stream has sent already (a new session's is caught by the re-read)
+            follows = isinstance(item, LoggedUpload) and item.base_version == last and same
+            if follows and isinstance(item, LoggedUpload) and item.body is not None:
                 yield sse("delta", item.body, item.version)  # an upload to this process: no read
                 last = item.version
             else:  # a notice, a snapshot upload, a delta out of step, or OVERFLOW
@@ -160,6 +172,6 @@ async def map_events(
             quiet_since = loop.time()
 
 
-def _version(state: AppState, robot_id: int) -> int:
+def _version(state: AppState, robot_id: int) -> Current:
     with state.db.read() as s:
         return map_version(s, robot_id)

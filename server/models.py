@@ -28,12 +28,16 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from shared.sqltypes import NAMING, UTCDateTime, utcnow
 
 __all__ = [
+    "AgentInstance",
     "AuditEntry",
     "AuthFailure",
     "Base",
     "KernelArtifact",
     "MapDeltaRecord",
     "MapSegment",
+    "MapSession",
+    "MapSessionSegment",
+    "MapSessionTrajectoryPoint",
     "MapState",
     "MapUploadRecord",
     "Message",
@@ -108,6 +112,11 @@ class Robot(Base):
     kernels: Mapped[list[dict[str, Any]] | None] = mapped_column(JSON, default=None)
     map_version: Mapped[int] = mapped_column(BigInteger, default=0)
     last_seq: Mapped[int] = mapped_column(Integer, default=0)
+    #: The mapping session of the current map (a UUID from the robot; None: a robot from before sessions).
+    map_session: Mapped[str | None] = mapped_column(String(36), default=None)
+    #: The agent process currently speaking for the robot (its instance id) and since when.
+    agent_instance: Mapped[str | None] = mapped_column(String(36), default=None)
+    agent_since: Mapped[datetime | None] = mapped_column(default=None)
 
 
 class Message(Base):
@@ -217,6 +226,8 @@ class MapUploadRecord(Base):
     idempotency_key: Mapped[str] = mapped_column(String(100))
     version: Mapped[int] = mapped_column(BigInteger)
     base_version: Mapped[int | None] = mapped_column(BigInteger, default=None)
+    #: The map session the upload was applied in (a retry is answered with it).
+    map_session: Mapped[str | None] = mapped_column(String(36), default=None)
     n_segments: Mapped[int] = mapped_column(Integer)
     n_removed: Mapped[int] = mapped_column(Integer)
     received_at: Mapped[datetime] = mapped_column(default=utcnow)
@@ -322,3 +333,72 @@ class RolloutRobot(Base):
     applied_at: Mapped[datetime | None] = mapped_column(default=None)
     finished_at: Mapped[datetime | None] = mapped_column(default=None)
     watch: Mapped[bool] = mapped_column(default=False)
+
+
+class MapSession(Base):
+    """One mapping session of a robot (docs/reliability/identity.md): the current one
+    (``ended_at`` None; its walls are in ``map_segments``) or an ended one, whose map was moved to
+    ``map_session_segments`` / ``map_session_trajectory`` when a new session began. ``session_id`` None:
+    the map of a robot from before sessions. ``last_version``, ``last_upload_at``, ``wall_count`` and
+    ``state`` (stamp_s, pose, centroids, wall_time_s) are filled when the session ends."""
+
+    __tablename__ = "map_sessions"
+    __table_args__ = (Index("ix_map_sessions_robot_session", "robot_id", "session_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    robot_id: Mapped[int] = mapped_column(ForeignKey("robots.id", ondelete="CASCADE"))
+    session_id: Mapped[str | None] = mapped_column(String(36), default=None)
+    started_at: Mapped[datetime] = mapped_column(default=utcnow)
+    first_version: Mapped[int | None] = mapped_column(BigInteger, default=None)
+    reason: Mapped[str | None] = mapped_column(String(300), default=None)
+    ended_at: Mapped[datetime | None] = mapped_column(default=None)
+    last_version: Mapped[int | None] = mapped_column(BigInteger, default=None)
+    last_upload_at: Mapped[datetime | None] = mapped_column(default=None)
+    wall_count: Mapped[int | None] = mapped_column(Integer, default=None)
+    state: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+
+
+class MapSessionSegment(Base):
+    """One wall of an ended session's map (as it was when the session ended)."""
+
+    __tablename__ = "map_session_segments"
+
+    session_pk: Mapped[int] = mapped_column(
+        ForeignKey("map_sessions.id", ondelete="CASCADE"), primary_key=True
+    )
+    segment_id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
+    x0_m: Mapped[float] = mapped_column(Float)
+    y0_m: Mapped[float] = mapped_column(Float)
+    x1_m: Mapped[float] = mapped_column(Float)
+    y1_m: Mapped[float] = mapped_column(Float)
+    version: Mapped[int] = mapped_column(BigInteger)
+
+
+class MapSessionTrajectoryPoint(Base):
+    """One pose of an ended session's trajectory."""
+
+    __tablename__ = "map_session_trajectory"
+    __table_args__ = (Index("ix_map_session_trajectory_session", "session_pk", "id"),)
+
+    id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"), primary_key=True)
+    session_pk: Mapped[int] = mapped_column(ForeignKey("map_sessions.id", ondelete="CASCADE"))
+    version: Mapped[int] = mapped_column(BigInteger)
+    stamp_s: Mapped[float] = mapped_column(Float)
+    x_m: Mapped[float] = mapped_column(Float)
+    y_m: Mapped[float] = mapped_column(Float)
+    theta_rad: Mapped[float] = mapped_column(Float)
+
+
+class AgentInstance(Base):
+    """An agent process that spoke for a robot (its instance id, a UUID it makes at start): the robot's
+    current one is ``robots.agent_instance``; one that another took over from gets ``superseded_at`` and
+    is refused from then on (409 ``agent_superseded``)."""
+
+    __tablename__ = "agent_instances"
+    __table_args__ = (UniqueConstraint("robot_id", "instance_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    robot_id: Mapped[int] = mapped_column(ForeignKey("robots.id", ondelete="CASCADE"))
+    instance_id: Mapped[str] = mapped_column(String(36))
+    first_seen_at: Mapped[datetime] = mapped_column(default=utcnow)
+    superseded_at: Mapped[datetime | None] = mapped_column(default=None)

@@ -30,6 +30,7 @@ __all__ = [
     "KernelOut",
     "LoginIn",
     "MapOut",
+    "MapSessionOut",
     "MapUpload",
     "MapUploadOut",
     "MessageList",
@@ -78,6 +79,9 @@ class RobotOut(BaseModel):
     )
     kernels: list[RobotKernel] | None = Field(None, description="The robot's kernel store and its states.")
     map_version: int
+    map_session: str | None = Field(None, description="The mapping session of the current map.")
+    agent_instance: str | None = Field(None, description="The agent process that speaks for the robot.")
+    agent_since: datetime | None = None
     last_seq: int = Field(description="Sequence number of the newest control message queued.")
     pending_messages: int = Field(description="Messages not yet acknowledged by the robot.")
     token_revoked_at: datetime | None = Field(
@@ -137,6 +141,21 @@ class KernelOut(KernelMeta):
 class MapUploadOut(BaseModel):
     version: int = Field(description="The server's map version after this upload.")
     duplicate: bool = Field(description="True when this idempotency key was seen before (nothing changed).")
+    map_session: str | None = Field(None, description="The mapping session the server holds this version in.")
+
+
+class MapSessionOut(BaseModel):
+    """One of a robot's maps (a mapping session): the current one or one a new session replaced."""
+
+    map_session: str | None = Field(description="The session id (None: a map from before map sessions).")
+    current: bool
+    first_version: int | None
+    last_version: int | None
+    started_at: datetime | None
+    last_upload_at: datetime | None
+    ended_at: datetime | None
+    wall_count: int
+    reason: str | None = Field(None, description="Why the robot started this session, as it said.")
 
 
 class MapOut(BaseModel):
@@ -144,6 +163,7 @@ class MapOut(BaseModel):
 
     robot_id: int
     version: int
+    map_session: str | None = None
     stamp_s: float
     segments: list[list[float]]
     centroids: list[list[float]]

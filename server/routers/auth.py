@@ -142,11 +142,23 @@ def audit_log(
     before: Annotated[
         int | None, Query(ge=1, le=DB_INT_MAX, description="Only entries with id below this (paging).")
     ] = None,
+    target: Annotated[
+        str | None, Query(max_length=200, description="Only entries on this (robot:3).")
+    ] = None,
+    action: Annotated[
+        str | None, Query(max_length=50, description="Only this action, or those starting with it and '.'.")
+    ] = None,
 ) -> list[AuditOut]:
-    """Operator actions, newest first."""
+    """Operator actions and robot events (new map sessions, agent takeovers), newest first."""
     q = select(AuditEntry).order_by(AuditEntry.id.desc()).limit(limit)
     if before is not None:
         q = q.where(AuditEntry.id < before)
+    if target is not None:
+        q = q.where(AuditEntry.target == target)
+    if action is not None:
+        q = q.where(
+            (AuditEntry.action == action) | AuditEntry.action.startswith(action + ".", autoescape=True)
+        )
     with state.db.read() as s:
         return [
             AuditOut(id=e.id, at=e.at, actor=e.actor, action=e.action, target=e.target, detail=e.detail)

@@ -1,4 +1,5 @@
-"""``/robots/{id}/maps``: the robot uploads temporary maps; operators read the latest or stream them (SSE).
+"""``/robots/{id}/maps``: the robot uploads temporary maps; operators read the latest or stream them (SSE),
+and list the robot's maps, one per mapping session (``GET /robots/{id}/maps``, :mod:`server.mapsessions`).
 
 Stream events (``text/event-stream``, :mod:`server.mapstream`): ``snapshot`` (the whole map,
 :class:`server.schemas.MapOut`) first and whenever the subscriber must resynchronise, then one ``delta``
@@ -11,8 +12,9 @@ the database at most 0.5 s before) and ends when it no longer works (token revok
 server process; session closed or expired).
 
 ``GET /export?format=geojson|svg|dxf|mcap|pgm|yaml`` returns the latest map as a file (the same writers as
-``linemap map``); ``pgm`` and ``yaml`` are the two halves of a ROS map_server map at ``resolution`` metres
-per pixel, named ``robot-<id>-map-v<version>-<resolution>m.pgm/.yaml`` so that the YAML names its image.
+``linemap map``; ``session=<id>``: that mapping session's map); ``pgm`` and ``yaml`` are the two halves
+of a ROS map_server map at ``resolution`` metres per pixel, named
+``robot-<id>-map-v<version>-<resolution>m.pgm/.yaml`` so that the YAML names its image.
 A stored map with items outside the declared bounds (:mod:`server.mapbounds`; stored before the bounds
 held) is refused with 409 naming them, or exported without them with ``out_of_bounds=skip`` (the response
 header ``X-Map-Skipped`` then counts what was left out).
@@ -30,19 +32,22 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import StreamingResponse
 from sqlalchemy import Connection
 
-from server.deps import AppState, Principal, RobotSelf, StateDep, robot_access
+from server.deps import AgentChecked, AppState, Principal, RobotSelf, StateDep, robot_access
 from server.errors import ConflictError, InvalidRequestError, RateLimitedError
 from server.mapbounds import screen_stored
 from server.maplog import LoggedUpload
 from server.maplog import append as log_upload
-from server.mapstore import AppliedUpload, apply_upload, map_version, prepare_rows, read_map
+from server.maplog import clear as clear_log
+from server.mapread import list_sessions, map_version, read_held
+from server.mapstore import AppliedUpload, apply_upload, prepare_rows
 from server.mapstream import map_events
 from server.parsepool import UploadParser, parse_upload
 from server.quota import UploadQuota
-from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapUpload, MapUploadOut
+from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapSessionOut, MapUpload, MapUploadOut
 from shared.errors import InvalidInputError
 from shared.export import EmptyMapError, ExportError
 from shared.pipeline.snapshot import MapSnapshot
+from shared.protocol import MAP_SESSION_PATTERN, anchored
 from shared.types import Pose2D
 
 __all__ = ["router"]
@@ -77,7 +82,13 @@ def _charge(request: Request, robot_id: int, n_bytes: int) -> None:
         )
 
 
-@router.post("", response_model=MapUploadOut, openapi_extra=_UPLOAD_BODY)
+@router.post(
+    "",
+    response_model=MapUploadOut,
+    response_model_exclude_none=True,
+    openapi_extra=_UPLOAD_BODY,
+    dependencies=[AgentChecked],
+)
 async def upload_map(
     robot_id: DbIdPath,
     request: Request,
@@ -86,7 +97,9 @@ async def upload_map(
     idempotency_key: Annotated[
         str | None,
         Header(
-            max_length=100, description="Makes a retried upload a no-op; defaults to 'version-<version>'."
+            max_length=100,
+            description="Makes a retried upload a no-op; defaults to 'version-<version>' (with a map "
+            "session: '<map_session>-version-<version>').",
         ),
     ] = None,
 ) -> MapUploadOut:
@@ -106,53 +119,32 @@ async def upload_map(
         body, diff = await parser.parse(raw, robot_id, cap, state.settings.world_extent_m)
     else:
         body = parse_upload(raw, robot_id, cap, state.settings.world_extent_m)
-    key = idempotency_key or f"version-{body.version}"
+    key = idempotency_key or (
+        f"version-{body.version}"
+        if body.map_session is None
+        else f"{body.map_session}-version-{body.version}"
+    )
     seen = state.last_seen(robot_id)
     rows = await run_in_threadpool(prepare_rows, robot_id, body, diff) if heavy else None  # before the writer
 
     def write(conn: Connection) -> tuple[AppliedUpload, LoggedUpload | None]:
         # the delta log and the notice to other processes commit with the map (server.maplog, server.hub)
-        applied = apply_upload(conn, robot_id, body, key, seen, cap, rows)
+        applied = apply_upload(conn, robot_id, body, key, seen, cap, rows, who.actor)
         if applied.event is None:
             return applied, None
+        if applied.new_session:  # the log holds the current session's uploads only: versions count anew
+            clear_log(conn, robot_id)
         state.hub.announce(conn, f"maps:{robot_id}", body.version)
         return applied, log_upload(conn, robot_id, applied.event)
 
     applied, logged = await state.writer.submit(write, heavy=heavy)
+    if applied.new_session:  # versions count anew: a version kept from the old session is another map
+        state.recent_maps.forget(robot_id)
     if logged is not None:
         state.hub.publish(f"maps:{robot_id}", logged)  # the stream sends its JSON as is
         if diff is not None:  # the parser process may diff the robot's next snapshot against this one
             parser.wrote(robot_id, body.version)
     return applied.out
-
-
-def _read(state: AppState, robot_id: int, tail: int | None, version: int | None = None) -> MapOut:
-    """The current map (``version`` None) or version ``version`` if it is the current one or this process
-    read it lately (:mod:`server.recentmaps`); 409 naming the versions held otherwise. ``tail``: only the
-    last N trajectory poses."""
-    if version is not None:
-        kept = state.recent_maps.get(robot_id, version)
-        if kept is not None:
-            return _tail_of(kept, tail)
-    with state.db.read() as s:
-        m = read_map(s, robot_id, tail)
-    if tail is None:
-        state.recent_maps.put(m)
-    if version is not None and m.version != version:
-        held = [v for v in state.recent_maps.held(robot_id) if v != m.version]
-        raise ConflictError(
-            f"version {version} of robot {robot_id}'s map is not held here (the current is {m.version}"
-            + (f"; also held: {', '.join(map(str, held))}" if held else "")
-            + "): ask again without version, or with the current one",
-            current_version=m.version,
-        )
-    return m
-
-
-def _tail_of(m: MapOut, tail: int | None) -> MapOut:
-    if tail is None or tail >= len(m.trajectory):
-        return m
-    return m.model_copy(update={"trajectory": m.trajectory[len(m.trajectory) - tail :] if tail else []})
 
 
 #: ``?version=N``: one version of the map (the current one, or one this process served lately)
@@ -162,9 +154,32 @@ VersionQuery = Annotated[
 ]
 
 
-def _version(state: AppState, robot_id: int) -> int:
+#: ``?session=<uuid>``: the map of that mapping session (the current one or an ended one)
+SessionQuery = Annotated[
+    str | None,
+    Query(
+        pattern=anchored(MAP_SESSION_PATTERN),
+        description="This mapping session's map (see GET /robots/{id}/maps); default: the current one.",
+    ),
+]
+
+
+def _version(state: AppState, robot_id: int) -> tuple[str | None, int]:
     with state.db.read() as s:
         return map_version(s, robot_id)
+
+
+def _sessions(state: AppState, robot_id: int) -> list[MapSessionOut]:
+    with state.db.read() as s:
+        return list_sessions(s, robot_id)
+
+
+@router.get("", response_model=list[MapSessionOut])
+async def list_maps(robot_id: DbIdPath, who: RobotAccess, state: StateDep) -> list[MapSessionOut]:
+    """The robot's maps, one per mapping session, newest first: the current one and those a new session
+    replaced (kept), each with its first and last version, when it started and was last uploaded, and its
+    wall count."""
+    return await run_in_threadpool(_sessions, state, robot_id)
 
 
 @router.get("/latest", response_model=MapOut)
@@ -176,10 +191,12 @@ async def latest_map(
         int | None, Query(ge=0, le=DB_INT_MAX, description="Only the last N trajectory poses.")
     ] = None,
     version: VersionQuery = None,
+    session: SessionQuery = None,
 ) -> MapOut:
     """The whole current map (version 0 and empty before the first upload); with ``version``, that
-    version (409 with ``current_version`` when the server no longer holds it)."""
-    return await run_in_threadpool(_read, state, robot_id, trajectory, version)
+    version (409 with ``current_version`` when the server no longer holds it); with ``session``, that
+    mapping session's map."""
+    return await run_in_threadpool(read_held, state, robot_id, trajectory, version, session)
 
 
 @router.get(
@@ -206,7 +223,7 @@ async def stream_map(
     """Server-sent events: a ``snapshot`` (or, with ``Last-Event-ID``, the deltas after that version),
     then a ``delta`` per upload (see the module docstring)."""
     await run_in_threadpool(_version, state, robot_id)  # 404 before the stream starts
-    events = map_events(request, state, robot_id, trajectory, last_event_id, _read)
+    events = map_events(request, state, robot_id, trajectory, last_event_id, read_held)
     headers = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
     return StreamingResponse(events, media_type="text/event-stream", headers=headers)
 
@@ -328,13 +345,14 @@ async def export_map(
         Query(description="Stored items outside the declared bounds: refuse (409) or skip them."),
     ] = "refuse",
     version: VersionQuery = None,
+    session: SessionQuery = None,
 ) -> Response:
     """The latest map as a file to download (``version``: that version, e.g. the YAML of the PGM just
     fetched, whose version the ``X-Map-Version`` header and the file name give). 409 when an occupancy
     map is asked of a map without walls, when the stored map has items outside the declared bounds
     (unless ``out_of_bounds=skip``), or when the version asked for is no longer held (with
     ``current_version``); 422 when the resolution would make a grid of more than 16 M cells."""
-    m = await run_in_threadpool(_read, state, robot_id, None, version)
+    m = await run_in_threadpool(read_held, state, robot_id, None, version, session)
     extent_m = state.settings.world_extent_m
     body, skipped = await run_in_threadpool(_export, m, fmt, resolution, extent_m, out_of_bounds == "skip")
     headers = {

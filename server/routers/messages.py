@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, status
@@ -21,7 +22,16 @@ from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from server.audit import record
-from server.deps import AppState, OperatorDep, Principal, RobotSelf, StateDep, robot_access, still_valid
+from server.deps import (
+    AgentChecked,
+    AppState,
+    OperatorDep,
+    Principal,
+    RobotSelf,
+    StateDep,
+    robot_access,
+    still_valid,
+)
 from server.errors import AuthError, ConflictError, InvalidRequestError, NotFoundError, TooLargeError
 from server.models import KernelArtifact, Message, Robot, utcnow
 from server.msgcheck import check_like_robot
@@ -36,6 +46,8 @@ from shared.control import (
 )
 
 __all__ = ["router"]
+
+log = logging.getLogger(__name__)
 
 router = APIRouter(prefix="/robots/{robot_id}/messages", tags=["messages"])
 
@@ -172,7 +184,49 @@ def _read(state: AppState, robot_id: int, after: int, limit: int) -> dict[str, o
         return {"messages": [_out(m) for m in rows], "last_seq": robot.last_seq}
 
 
-@router.get("", response_model=MessageList)
+def _resync(state: AppState, robot_id: int, applied: int, who: Principal) -> None:
+    """The robot has applied messages up to ``applied`` but the server's numbering is behind it (its
+    database was restored from an older backup): continue the numbering after the robot's, so that no new
+    message is skipped by the robot as one it applied. Queued messages numbered at or below ``applied``
+    get new numbers after it (in their order); an audit entry ``messages.resync`` says what changed.
+    O(queued messages)."""
+    with state.db.session() as s:
+        robot = get_robot(s, robot_id)
+        if robot.last_seq >= applied:
+            return  # another request resynchronised first
+        queued = list(
+            s.scalars(
+                select(Message)
+                .where(Message.robot_id == robot_id, Message.status == "queued", Message.seq <= applied)
+                .order_by(Message.seq)
+            )
+        )
+        moved = []
+        for i, m in enumerate(queued, start=1):
+            moved.append([m.seq, applied + i])
+            m.seq = applied + i
+        old, robot.last_seq = robot.last_seq, applied + len(queued)
+        record(
+            s,
+            who,
+            "messages.resync",
+            f"robot:{robot_id}",
+            robot_applied=applied,
+            server_last_seq=old,
+            renumbered=moved,
+        )
+    log.warning(
+        "robot %d has applied messages up to %d but the server's numbering was at %d (database restored "
+        "from a backup?): numbering continues after %d; renumbered %s",
+        robot_id,
+        applied,
+        old,
+        applied,
+        moved or "none",
+    )
+
+
+@router.get("", response_model=MessageList, dependencies=[AgentChecked])
 async def list_messages(
     robot_id: DbIdPath,
     request: Request,
@@ -183,7 +237,10 @@ async def list_messages(
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> dict[str, object]:
     """Messages after ``after`` in order; with ``wait`` > 0 the call returns as soon as one is queued
-    (long-poll; at most the server's ``long_poll_max_s``), or with an empty list when the wait is over."""
+    (long-poll; at most the server's ``long_poll_max_s``), or with an empty list when the wait is over.
+    The robot's own ``after`` is the highest message it applied: when the server's numbering is behind it
+    (a database restored from a backup) the numbering continues after it (see ``_resync``)."""
+    resync = who.kind == "robot" and after > 0  # the robot's own poll: is the server's numbering behind?
     loop = asyncio.get_running_loop()
     deadline = loop.time() + min(wait, state.settings.long_poll_max_s)
     recheck = state.settings.poll_recheck_s
@@ -191,6 +248,11 @@ async def list_messages(
         waited = False
         while True:
             out = await run_in_threadpool(_read, state, robot_id, after, limit)
+            if resync and after > int(out["last_seq"]):  # type: ignore[call-overload]
+                await run_in_threadpool(_resync, state, robot_id, after, who)
+                state.hub.publish(f"messages:{robot_id}", after)
+                out = await run_in_threadpool(_read, state, robot_id, after, limit)
+            resync = False
             remaining = deadline - loop.time()
             if out["messages"] and waited and not await still_valid(request, state):
                 raise AuthError("unknown or revoked token")  # revoked while the poll waited
@@ -232,7 +294,7 @@ def _ack(state: AppState, robot_id: int, seq: int, outcome: str, reason: str | N
         return _out(m)
 
 
-@router.post("/{seq}/ack", response_model=MessageOut)
+@router.post("/{seq}/ack", response_model=MessageOut, dependencies=[AgentChecked])
 async def acknowledge(
     robot_id: DbIdPath, seq: DbIdPath, body: AckIn, who: RobotSelf, state: StateDep
 ) -> dict[str, object]:

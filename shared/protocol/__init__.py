@@ -1,8 +1,9 @@
-"""What the robot and the server exchange: the spelling of kernel names, versions and digests
+"""What the robot and the server exchange: the spelling of kernel names, versions, digests and map session ids
 (:mod:`shared.protocol.patterns`) and the bodies of map uploads, statuses, acknowledgements and kernel
 metadata (:mod:`shared.protocol.messages`). Both sides import these; nothing here does I/O."""
 
 from shared.protocol.messages import (
+    AGENT_INSTANCE_HEADER,
     ARTIFACT_KEY_ID_HEADER,
     ARTIFACT_SHA256_HEADER,
     ARTIFACT_SIGNATURE_HEADER,
@@ -23,6 +24,8 @@ from shared.protocol.patterns import (
     KERNEL_NAME_MAX_LENGTH,
     KERNEL_NAME_PATTERN,
     KERNEL_NAME_RE,
+    MAP_SESSION_PATTERN,
+    MAP_SESSION_RE,
     SHA256_PATTERN,
     SHA256_RE,
     VERSION_PATTERN,
@@ -31,6 +34,7 @@ from shared.protocol.patterns import (
 )
 
 __all__ = [
+    "AGENT_INSTANCE_HEADER",
     "ARTIFACT_KEY_ID_HEADER",
     "ARTIFACT_SHA256_HEADER",
     "ARTIFACT_SIGNATURE_HEADER",
@@ -40,6 +44,8 @@ __all__ = [
     "KERNEL_NAME_PATTERN",
     "KERNEL_NAME_RE",
     "MAP_FIELDS",
+    "MAP_SESSION_PATTERN",
+    "MAP_SESSION_RE",
     "SHA256_PATTERN",
     "SHA256_RE",
     "STATUS_FIELDS",

@@ -17,9 +17,19 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    model_serializer,
+    model_validator,
+)
+
+from shared.protocol.patterns import MAP_SESSION_PATTERN, anchored
 
 __all__ = [
+    "AGENT_INSTANCE_HEADER",
     "ARTIFACT_KEY_ID_HEADER",
     "ARTIFACT_SHA256_HEADER",
     "ARTIFACT_SIGNATURE_HEADER",
@@ -62,6 +72,9 @@ ARTIFACT_SHA256_HEADER = "X-Linemap-Sha256"
 ARTIFACT_SIGNATURE_HEADER = "X-Linemap-Signature"
 ARTIFACT_KEY_ID_HEADER = "X-Linemap-Key-Id"
 ARTIFACT_STAGE_HEADER = "X-Linemap-Stage"
+#: Header of every request an agent makes: its process's instance id (a UUID, :data:`MAP_SESSION_PATTERN`'s
+#: spelling), so the server can tell two agents running with one robot token apart.
+AGENT_INSTANCE_HEADER = "X-Linemap-Agent-Instance"
 
 
 class _Body(BaseModel):
@@ -91,12 +104,27 @@ class RobotStatus(_Body):
     kernels: list[RobotKernel] | None = Field(None, max_length=1000, description="The robot's kernel store.")
 
 
+#: The fields of an upload that name its map session; left out of the JSON when absent.
+_SESSION_FIELDS = ("map_session", "map_session_reason")
+
+
 class MapUpload(_Body):
     """A temporary map from the robot: a full snapshot (``base_version`` null) or a delta since
     ``base_version``. ``segments`` rows are ``[segment_id, x0_m, y0_m, x1_m, y1_m]`` (all walls for a
     snapshot; new or changed walls for a delta); ``removed`` the ids that are gone; ``trajectory`` rows
-    ``[stamp_s, x_m, y_m, theta_rad]`` since ``base_version`` (all of them for a snapshot)."""
+    ``[stamp_s, x_m, y_m, theta_rad]`` since ``base_version`` (all of them for a snapshot).
 
+    ``map_session``: the id of the mapping session the versions belong to (a UUID the robot creates when
+    its Robot DB starts a new map); versions count within a session. A snapshot of a session the server has
+    not seen starts a new map there (the old one is kept); a delta must be of the server's current session.
+    Absent: a robot from before map sessions, whose uploads all go to one legacy session."""
+
+    map_session: str | None = Field(
+        None, pattern=anchored(MAP_SESSION_PATTERN), description="The mapping session (a lower-case UUID)."
+    )
+    map_session_reason: str | None = Field(
+        None, max_length=300, description="Why the robot started this session (sent with its snapshots)."
+    )
     version: int = Field(ge=1, le=INT64_MAX)
     base_version: int | None = Field(None, ge=0, le=INT64_MAX)
     stamp_s: Finite = 0.0
@@ -109,6 +137,16 @@ class MapUpload(_Body):
     pose: PoseRow = Field(default_factory=lambda: [0.0, 0.0, 0.0])
     trajectory: list[TrajRow] = Field(default_factory=list, max_length=1_000_000)
     status: RobotStatus | None = None
+
+    @model_serializer(mode="wrap")
+    def _without_absent_session(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """An upload without a map session serialises as before sessions (the legacy fields only). O(1)
+        beyond the fields' own serialisation."""
+        out: dict[str, Any] = handler(self)
+        for name in _SESSION_FIELDS:
+            if name in out and out[name] is None:
+                del out[name]
+        return out
 
     @model_validator(mode="after")
     def _consistent(self) -> MapUpload:

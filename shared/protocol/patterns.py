@@ -1,4 +1,5 @@
-"""The one spelling of each name robot and server exchange: kernel names, kernel versions, SHA-256 digests.
+"""The one spelling of each name robot and server exchange: kernel names, kernel versions, SHA-256 digests,
+map session ids.
 
 Each pattern is written once, here, unanchored (as XSD patterns are: ``shared/control/control.xsd`` repeats
 them and a test keeps the two equal). In Python use the compiled ``*_RE`` with ``fullmatch`` (``match``
@@ -16,6 +17,8 @@ __all__ = [
     "KERNEL_NAME_MAX_LENGTH",
     "KERNEL_NAME_PATTERN",
     "KERNEL_NAME_RE",
+    "MAP_SESSION_PATTERN",
+    "MAP_SESSION_RE",
     "MAX_COMPONENT_DIGITS",
     "SHA256_PATTERN",
     "SHA256_RE",
@@ -40,6 +43,12 @@ VERSION_RE = re.compile(VERSION_PATTERN)
 #: A SHA-256 digest in hexadecimal (either case on input; the server and the robot store lower case).
 SHA256_PATTERN = r"[0-9a-fA-F]{64}"
 SHA256_RE = re.compile(SHA256_PATTERN)
+
+
+#: A map session id (docs/reliability/identity.md): a UUID in its canonical lower-case
+#: 8-4-4-4-12 spelling, created by the robot when its Robot DB starts a new map.
+MAP_SESSION_PATTERN = r"[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}"
+MAP_SESSION_RE = re.compile(MAP_SESSION_PATTERN)
 
 
 def anchored(pattern: str) -> str:

@@ -36,11 +36,11 @@ def _log_reads(statements: list[str]) -> int:
 def test_streams_woken_by_one_notice_share_a_read(tmp_path: Path) -> None:
     state, rid, statements = _state(tmp_path)
 
-    async def go() -> list[tuple[int, list[Any]]]:
-        return await asyncio.gather(*(read_log(state, rid, 0, 5) for _ in range(4)))
+    async def go() -> list[tuple[tuple[str | None, int], list[Any]]]:
+        return list(await asyncio.gather(*(read_log(state, rid, 0, 5) for _ in range(4))))
 
     results = asyncio.run(go())
-    assert results == [(0, [])] * 4
+    assert results == [((None, 0), [])] * 4  # (no map session, version 0), nothing logged
     assert _log_reads(statements) == 1
     state.db.dispose()
 

@@ -5,15 +5,19 @@ from __future__ import annotations
 
 import json
 import re
+import uuid
 from datetime import UTC, datetime
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from pydantic import BaseModel, ValidationError
 
 from shared.control import xsd_text
 from shared.protocol import (
     KERNEL_NAME_PATTERN,
     KERNEL_NAME_RE,
+    MAP_SESSION_RE,
     SHA256_PATTERN,
     SHA256_RE,
     VERSION_PATTERN,
@@ -159,3 +163,27 @@ def test_every_pattern_is_written_once() -> None:
             text = path.read_text(encoding="utf-8")
             for spelling in spellings:
                 assert spelling not in text, f"{path.relative_to(root)} spells {spelling!r} again"
+
+
+@given(st.uuids())
+def test_a_map_session_is_a_lower_case_uuid(value: uuid.UUID) -> None:
+    text = str(value)
+    assert MAP_SESSION_RE.fullmatch(text)
+    assert MapSnapshot(version=1, map_session=text).model_dump(mode="json")["map_session"] == text
+    for bad in (text.upper(), text.replace("-", ""), text + "\n", "{" + text + "}", text[:-1]):
+        if bad == text:
+            continue
+        assert not MAP_SESSION_RE.fullmatch(bad)
+        with pytest.raises(ValidationError, match="map_session"):
+            MapDelta.model_validate({"version": 2, "base_version": 1, "map_session": bad})
+
+
+def test_an_upload_with_a_session_carries_it_and_one_without_keeps_the_legacy_fields() -> None:
+    session = "0b7f4a8e-3c1d-4e5f-9a6b-7c8d9e0f1a2b"
+    body = MapSnapshot(version=4, map_session=session, map_session_reason="new Robot DB")
+    dumped = body.model_dump(mode="json")
+    assert dumped["map_session"] == session and dumped["map_session_reason"] == "new Robot DB"
+    assert MapUpload.model_validate(dumped).map_session == session
+    assert "map_session" not in MapSnapshot(version=4).model_dump(mode="json")
+    with pytest.raises(ValidationError, match="map_session_reason"):
+        MapSnapshot(version=4, map_session=session, map_session_reason="x" * 301)

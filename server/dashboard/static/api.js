@@ -127,6 +127,8 @@ export const api = {
   revokeKey: (kid) => request("DELETE", `/keys/${encodeURIComponent(kid)}`),
 
   audit: (limit = 100, before) => request("GET", `/audit${q({ limit, before })}`),
+  robotEvents: (id, limit = 50) => request("GET", `/audit${q({ limit, target: `robot:${id}` })}`),
+  robotMaps: (id) => request("GET", `/robots/${encodeURIComponent(id)}/maps`),
 
   mapLatest: (id, trajectory = 300) =>
     request("GET", `/robots/${encodeURIComponent(id)}/maps/latest?trajectory=${trajectory}`),

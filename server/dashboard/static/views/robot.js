@@ -1,4 +1,4 @@
-// Robot page: live map on the left, side panel with tabs Status | Tune | Kernels | Messages.
+// Robot page: live map on the left, side panel with tabs Status | Tune | Kernels | Maps | Messages.
 
 import { h, mount, ago, when, badge, num, trunc } from "../dom.js";
 import { api, builtinKernels } from "../api.js";
@@ -6,8 +6,9 @@ import { MapView } from "../mapview.js";
 import { STAGES, configRows, showValue, isChain } from "../schema.js";
 import { TuneTab } from "./tune.js";
 import { RobotKernelsTab } from "./robotkernels.js";
+import { RobotMapsTab } from "./robotmaps.js";
 
-const TABS = [["status", "Status"], ["tune", "Tune"], ["kernels", "Kernels"], ["messages", "Messages"]];
+const TABS = [["status", "Status"], ["tune", "Tune"], ["kernels", "Kernels"], ["maps", "Maps"], ["messages", "Messages"]];
 
 export function renderRobot(root, ctx, robotId, initialTab) {
   const map = new MapView();
@@ -28,6 +29,7 @@ export function renderRobot(root, ctx, robotId, initialTab) {
     if (key === "status") return new StatusTab(shared);
     if (key === "tune") return new TuneTab(shared);
     if (key === "kernels") return new RobotKernelsTab(shared);
+    if (key === "maps") return new RobotMapsTab(shared);
     return new MessagesTab(shared);
   };
   const scrolls = {};

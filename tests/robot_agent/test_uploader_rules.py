@@ -1,0 +1,127 @@
+"""The uploader's conflict rules one by one (robot_agent/uploader.py, docs/reliability/identity.md), with an
+in-process transport answering each upload as scripted: a version is marked delivered only on a 200 naming
+it in this Robot DB's session, and every 409 leaves the outbox as it was. The same rules against a real
+server: tests/robot_agent/test_uploader_identity.py."""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from robot_agent.errors import LinkError, SupersededError
+from robot_agent.health import ErrorReport
+from robot_agent.link import ServerLink
+from robot_agent.store import RobotDB
+from robot_agent.uploader import Uploader
+from shared.protocol import RobotStatus
+from tests.robot_agent.records import step_record
+
+Answer = Callable[[dict[str, Any]], httpx.Response]
+
+
+def _setup(tmp_path: Path, answer: Answer) -> tuple[Uploader, RobotDB, list[dict[str, Any]]]:
+    sent: list[dict[str, Any]] = []
+
+    def handle(request: httpx.Request) -> httpx.Response:
+        body = json.loads(request.content)
+        sent.append(body)
+        return answer(body)
+
+    db = RobotDB(tmp_path / "robot.db")
+    for v in range(1, 6):
+        db.record_step(step_record(v))
+    link = ServerLink("http://robot.test", 1, "lmr_x", transport=httpx.MockTransport(handle))
+    up = Uploader(
+        link,
+        db,
+        lambda: RobotStatus(),
+        lambda _v: None,
+        threading.Event(),
+        threading.Event(),
+        ErrorReport(60.0),
+        robot_id=1,
+    )
+    return up, db, sent
+
+
+def _conflict(error: str, version: int, session: str | None) -> httpx.Response:
+    return httpx.Response(
+        409,
+        json={"error": error, "detail": "scripted", "current_version": version, "current_session": session},
+    )
+
+
+@pytest.mark.parametrize(
+    "wrong", [{"version": 4}, {"version": 5, "map_session": "00000000-0000-4000-8000-000000000000"}]
+)
+def test_a_200_for_another_version_or_session_marks_nothing(tmp_path: Path, wrong: dict[str, Any]) -> None:
+    def answer(_body: dict[str, Any]) -> httpx.Response:
+        return httpx.Response(200, json={"duplicate": False, **wrong})
+
+    up, db, _sent = _setup(tmp_path, answer)
+    with pytest.raises(LinkError, match="not marked delivered"):
+        up.send_maps()
+    assert db.get("uploaded_version") is None and db.outbox_size() == 5
+
+
+def test_a_snapshot_confirmed_in_this_session_is_marked_and_a_delta_follows(tmp_path: Path) -> None:
+    up, db, sent = _setup(
+        tmp_path,
+        lambda b: httpx.Response(
+            200, json={"version": b["version"], "duplicate": False, "map_session": b["map_session"]}
+        ),
+    )
+    up.send_maps()
+    db.record_step(step_record(6))
+    up.send_maps()
+    assert [(b.get("base_version"), b["version"], b["map_session"]) for b in sent] == [
+        (None, 5, db.map_session()),
+        (5, 6, db.map_session()),
+    ]
+    assert sent[0]["map_session_reason"] == "new Robot DB" and "map_session_reason" not in sent[1]
+    assert db.get("uploaded_version") == 6 and db.outbox_size() == 0
+
+
+@pytest.mark.parametrize(
+    ("answer", "new_session"),
+    [
+        (_conflict("map_session_mismatch", 900, "00000000-0000-4000-8000-000000000000"), False),
+        (_conflict("conflict", 2, None), False),  # the server is behind in this session: a snapshot
+        (_conflict("conflict", 900, None), True),  # ahead in this session: a new session
+        (_conflict("conflict", 5, None), True),  # holds this very version already, not from this upload
+        (_conflict("map_session_ended", 3, "00000000-0000-4000-8000-000000000000"), True),
+    ],
+)
+def test_a_409_never_marks_anything_delivered(
+    tmp_path: Path, answer: httpx.Response, new_session: bool
+) -> None:
+    up, db, sent = _setup(tmp_path, lambda _b: answer)
+    db.mark_uploaded(2)  # the server confirmed 1..2 earlier: the next upload is a delta 2 -> 5
+    session = db.map_session()
+    up.send_maps()
+    assert sent[0]["base_version"] == 2 and sent[0]["map_session"] == session
+    assert db.outbox_size() == 3, "nothing more marked delivered"
+    assert up.need_snapshot
+    if new_session:
+        assert db.map_session() != session and db.get("uploaded_version") is None
+    else:
+        assert db.map_session() == session and db.get("uploaded_version") == 2
+    then = db.map_session()
+    up.send_maps()  # a snapshot, of the session in force (the scripted server refuses it again)
+    assert sent[1]["base_version"] is None and sent[1]["map_session"] == then
+
+
+def test_a_superseded_agent_stops_instead_of_retrying(tmp_path: Path) -> None:
+    up, db, _sent = _setup(tmp_path, lambda _b: _conflict("agent_superseded", 0, None))
+    with pytest.raises(SupersededError, match="scripted"):
+        up.send_maps()
+    assert db.outbox_size() == 5
+    stop = threading.Event()
+    with pytest.raises(SupersededError):
+        up.run(stop)  # not swallowed by the round's retry
