@@ -10,6 +10,7 @@ goes on; abort stops and rolls back every robot that got the update. See docs/ro
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 
 from fastapi import APIRouter, Request, status
 from fastapi.concurrency import run_in_threadpool
@@ -20,8 +21,8 @@ from server.audit import record
 from server.deps import AppState, OperatorDep, Principal, StateDep
 from server.errors import ConflictError, InvalidRequestError, NotFoundError
 from server.models import KernelArtifact, Robot, Rollout, RolloutRobot, utcnow
-from server.rolloutdriver import RolloutDriver, apply_outcome, load, run_of, wake
-from server.rolloutplan import Outcome, assign_waves, stop
+from server.rolloutdriver import RolloutDriver, apply_outcome, load, observe, run_of, wake
+from server.rolloutplan import advance, assign_waves, stop
 from server.rolloutschemas import RolloutIn, RolloutOut, RolloutRobotOut
 from server.schemas import DbIdPath
 
@@ -221,9 +222,11 @@ def _act(state: AppState, rid: int, action: str, who: Principal) -> list[tuple[i
             return []
         view, rows = load(s, row)
         now = utcnow()
-        out = stop(
-            Outcome(view, tuple(run_of(r) for r in rows)), f"aborted by {who.actor}", now, state="aborted"
-        )
+        # first what the robots have answered since the last tick (as a paused tick judges it: no wave goes
+        # out), so that a robot that has applied the update is rolled back now, not left to a later tick
+        runs = tuple(run_of(r) for r in rows)
+        judged = advance(replace(view, state="paused"), runs, observe(s, row.stage, rows), now)
+        out = stop(judged, f"aborted by {who.actor}", now, state="aborted")
         return apply_outcome(s, row, rows, out, now)
 
 
