@@ -55,10 +55,13 @@ def test_uploaded_snapshots_and_deltas_validate_against_the_servers_model(tmp_pa
         for v in (3, 4):
             db.record_step(step_record(v))
         assert uploader.send_maps()  # then a delta from version 2
+        session = db.map_session()
     finally:
         db.close()
     (snapshot, snap_key), (delta, delta_key) = link.bodies
-    assert (snap_key, delta_key) == ("r3-snapshot-2", "r3-2-4")
+    # idempotency keys name the map session: a retried upload of another session is another upload
+    assert (snap_key, delta_key) == (f"r3-{session}-snapshot-2", f"r3-{session}-2-4")
+    assert snapshot["map_session"] == delta["map_session"] == session
     snap = MapUpload.model_validate(snapshot)
     assert snap.base_version is None and snap.version == 2 and len(snap.trajectory) == 2
     assert snap.wall_time_s == 1.8e9 + 2
