@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from robot_agent.health import AgentStats
+from robot_agent.resume import Checkpoints
 from robot_agent.settings import AgentSettings
 from robot_agent.sources import is_live, open_scans
 from robot_agent.store import RobotDB, StepRecord
@@ -95,7 +96,8 @@ class MappingLoop:
     """Maps from ``settings.source`` into ``slot``'s pipeline. Collaborators: ``db`` (the Robot DB: each
     step's record, and where to resume after a restart), ``stats`` (``steps``), ``recent`` (scans for dry
     runs), ``between_steps`` (applies pending control messages), ``after_step`` (the kernels' probation and
-    rollback), ``wake`` (set after each step recorded: the uploader has something to send)."""
+    rollback), ``wake`` (set after each step recorded: the uploader has something to send). Built after
+    ``slot`` started: it resumes the map recorded in ``db`` (:mod:`robot_agent.resume`)."""
 
     def __init__(
         self,
@@ -112,9 +114,13 @@ class MappingLoop:
         self.slot, self.db, self.stats, self.recent = slot, db, stats, recent
         self._between_steps, self._after_step, self._wake = between_steps, after_step, wake
         self._stepped: tuple[int, float] = (0, 0.0)
-        self._prev_walls: dict[int, tuple[float, ...]] = {}
-        stored = db.walls()
-        self._id_offset = int(max((w[0] for w in stored), default=-1)) + 1
+        # the mapping state saved with the steps: a restart goes on with the same map at the same pose
+        self.checkpoints = Checkpoints(db, settings.checkpoint_steps, settings.checkpoint_s)
+        resumed = self.checkpoints.resume(slot, recent)
+        self._prev_walls: dict[int, tuple[float, ...]] = resumed.walls
+        self._id_offset = resumed.id_offset
+        if resumed.problem is not None:
+            stats.last_error = resumed.problem
 
     def run(self, stop: threading.Event) -> None:
         """Map until the source ends, then (``stay``) keep applying messages until ``stop`` is set."""
@@ -154,7 +160,8 @@ class MappingLoop:
             result = self.slot.pipeline.step(scan)
             self.recent.add(scan)
             version += 1
-            self.db.record_step(self._record(version, index + 1, scan, result.pose))
+            journal, saved = self.checkpoints.after_step(self.slot, version, scan, self._id_offset)
+            self.db.record_step(self._record(version, index + 1, scan, result.pose), journal, saved)
             self._stepped = (version, time.time())
             self.stats.steps += 1
             self._after_step()

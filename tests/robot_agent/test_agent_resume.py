@@ -1,0 +1,71 @@
+"""A restarted agent goes on with the same map at the same pose: a real agent process mapping the simulator
+against a real server on 127.0.0.1, killed with SIGKILL at several points and restarted on the same Robot
+DB, ends with the trajectory and walls of an uninterrupted run, every map version once."""
+
+from __future__ import annotations
+
+import math
+import sqlite3
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robot_agent.sources import laser_offset, open_scans
+from shared.pipeline import Pipeline, PipelineConfig
+from tests.robot_agent.agentproc import AgentProcess, integrity, robot_db_meta, wait_for
+from tests.server.live import Live, start_live
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
+    yield from start_live("sqlite", tmp_path_factory.mktemp("agent-resume-server"), poll_recheck_s=1.0)
+
+
+def _uninterrupted(source: str) -> Pipeline:
+    """The agent's pipeline over the whole source in one go (what an uninterrupted agent maps)."""
+    pipe = Pipeline(PipelineConfig(), laser_offset=laser_offset(source))
+    for scan in open_scans(source, seed=0, laps=1):
+        pipe.step(scan)
+    return pipe
+
+
+def _version(db: Path) -> int:
+    return int(robot_db_meta(db, "map_version") or 0) if db.exists() else 0
+
+
+def test_killed_agents_resume_the_same_map_at_the_same_pose(live: Live, tmp_path: Path) -> None:
+    reference = _uninterrupted("sim")
+    ref_traj = reference.snapshot().trajectory
+    n_scans = len(ref_traj)
+    rid, token = live.new_robot()
+    db = tmp_path / "robot.db"
+    args = dict(server=live.base_url, robot_id=rid, token=token)
+    for kill_at in (60, 190, 330):
+        agent = AgentProcess(db, **args, extra=["--rate", "0"])  # type: ignore[arg-type]
+        wait_for(f"version {kill_at}", lambda at=kill_at: _version(db) >= at, 120)  # type: ignore[misc]
+        agent.kill()
+        assert integrity(db) == "ok"
+        assert "Traceback" not in agent.output()
+    last = AgentProcess(db, **args, extra=["--rate", "0", "--exit-at-end"])  # type: ignore[arg-type]
+    assert last.proc.wait(300) == 0, last.output()
+    last.stop()
+    out = last.output()
+    assert "Traceback" not in out and "did not load" not in out and "no mapping state" not in out, out
+
+    latest = live.operator().get(f"/robots/{rid}/maps/latest").json()
+    assert latest["version"] == n_scans
+    traj = np.asarray(latest["trajectory"], dtype=np.float64)
+    assert len(traj) == n_scans and list(traj[:, 0]) == sorted(set(traj[:, 0])), "each version once, in order"
+    assert np.abs(traj[:, 1:3] - ref_traj[:, 1:3]).max() <= 0.01, "the pose jumped at a restart"
+    turn = np.abs(np.remainder(traj[:, 3] - ref_traj[:, 3] + math.pi, 2 * math.pi) - math.pi)
+    assert math.degrees(turn.max()) <= 0.1
+    ids, segments = reference.walls()
+    got = {int(row[0]): row[1:] for row in latest["segments"]}
+    assert sorted(got) == sorted(int(i) for i in ids), "the same walls, with the same ids"
+    for i, seg in zip(ids, segments, strict=True):
+        assert np.abs(np.asarray(got[int(i)]) - seg).max() <= 0.01
+    with sqlite3.connect(db) as conn:  # the journal holds at most one checkpoint interval of scans
+        assert conn.execute("SELECT count(*) FROM scan_journal").fetchone()[0] < 50
+        assert conn.execute("SELECT count(*) FROM mapping_state").fetchone()[0] == 1
