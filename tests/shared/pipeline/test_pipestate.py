@@ -114,7 +114,7 @@ def test_a_newer_format_is_refused() -> None:
 def test_an_unregistered_class_is_refused_on_both_sides() -> None:
     state = _stepped(PipelineConfig(), _scans()[:5]).state()
     forged = MapperState(state.kind, {"n": 0, "o": "os.system", "x": {}}, ())
-    with pytest.raises(StateError, match="'os.system': not a registered state class"):
+    with pytest.raises(StateError, match=r"'os\.system': not a registered state class"):
         Pipeline(PipelineConfig()).restore(MapperState.from_bytes(forged.to_bytes()))
 
 
