@@ -1,6 +1,7 @@
 """A restarted agent goes on with the same map at the same pose: a real agent process mapping the simulator
 against a real server on 127.0.0.1, killed with SIGKILL at several points and restarted on the same Robot
-DB, ends with the trajectory and walls of an uninterrupted run, every map version once."""
+DB, ends with the trajectory and walls of an uninterrupted run, every map version once; with loop
+closure, with the keyframes of an uninterrupted agent's graph and as many walls."""
 
 from __future__ import annotations
 
@@ -12,8 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from robot_agent.mapping import PipelineSlot, RecentScans
+from robot_agent.resume import Checkpoints
 from robot_agent.sources import laser_offset, open_scans
+from robot_agent.store import RobotDB
 from shared.pipeline import Pipeline, PipelineConfig
+from shared.slam import OnlineGraphMapper
 from tests.robot_agent.agentproc import AgentProcess, integrity, robot_db_meta, wait_for
 from tests.server.live import Live, start_live
 
@@ -69,3 +74,55 @@ def test_killed_agents_resume_the_same_map_at_the_same_pose(live: Live, tmp_path
     with sqlite3.connect(db) as conn:  # the journal holds at most one checkpoint interval of scans
         assert conn.execute("SELECT count(*) FROM scan_journal").fetchone()[0] < 50
         assert conn.execute("SELECT count(*) FROM mapping_state").fetchone()[0] == 1
+
+
+def _final_graph(db: Path) -> OnlineGraphMapper:
+    """The graph mapper a restart would resume from ``db`` (state and journal), its pending work done."""
+    store = RobotDB(db)
+    try:
+        slot = PipelineSlot(laser_offset("sim:loop-block"))
+        slot.start(PipelineConfig.parse({"loop_closure": {}}))
+        resumed = Checkpoints(store).resume(slot, RecentScans())
+        assert resumed.problem is None, resumed.problem
+        graph = slot.pipeline
+        assert isinstance(graph, OnlineGraphMapper)
+        graph.flush()
+        return graph
+    finally:
+        store.close()
+
+
+def test_killed_agents_with_loop_closure_resume_the_same_graph(live: Live, tmp_path: Path) -> None:
+    extra = ["--source", "sim:loop-block", "--rate", "0", "--loop-closure"]
+    runs = {}
+    for name, kills in (("uninterrupted", ()), ("killed", (150, 420))):
+        rid, token = live.new_robot()
+        db = tmp_path / f"{name}.db"
+        args = dict(server=live.base_url, robot_id=rid, token=token)
+        for kill_at in kills:
+            agent = AgentProcess(db, **args, extra=extra)  # type: ignore[arg-type]
+            wait_for(f"version {kill_at}", lambda at=kill_at: _version(db) >= at, 300)  # type: ignore[misc]
+            agent.kill()
+            assert integrity(db) == "ok"
+        last = AgentProcess(db, **args, extra=[*extra, "--exit-at-end"])  # type: ignore[arg-type]
+        assert last.proc.wait(600) == 0, last.output()
+        last.stop()
+        assert "Traceback" not in last.output() and "did not load" not in last.output(), last.output()
+        runs[name] = (live.operator().get(f"/robots/{rid}/maps/latest").json(), _final_graph(db))
+    (ref, ref_graph), (got, got_graph) = runs["uninterrupted"], runs["killed"]
+    try:
+        n_scans = ref["version"]
+        assert got["version"] == n_scans and len(got["trajectory"]) == n_scans
+        stamps = [row[0] for row in got["trajectory"]]
+        assert stamps == sorted(set(stamps)), "each version once, in order"
+        assert len(got["segments"]) == len(ref["segments"]), "no walls drawn twice"
+        assert got_graph.closures > 0
+        a, b = ref_graph.trajectory(), got_graph.trajectory()
+        steps = [k.step for k in ref_graph._mapper.keyframes]
+        assert steps == [k.step for k in got_graph._mapper.keyframes]
+        assert np.abs(a[steps, 1:3] - b[steps, 1:3]).max() <= 0.01
+        turn = np.abs(np.remainder(a[steps, 3] - b[steps, 3] + math.pi, 2 * math.pi) - math.pi)
+        assert math.degrees(turn.max()) <= 0.1
+    finally:
+        ref_graph.close()
+        got_graph.close()
