@@ -136,6 +136,10 @@ class Checkpoints:
         )
         if not due:
             return journal, None
-        state = slot.pipeline.state()
         self._since, self._saved_at, self._config = 0, now, config
-        return journal, SavedState(version, state.kind, state.format, id_offset, state.to_bytes())
+        try:
+            state = slot.pipeline.state()
+            return journal, SavedState(version, state.kind, state.format, id_offset, state.to_bytes())
+        except LinemapError as exc:  # mapping goes on; the journal keeps the restart exact meanwhile
+            log.error("the mapping state of version %d could not be saved: %s", version, exc)
+            return journal, None

@@ -101,7 +101,7 @@ def test_killed_agents_with_loop_closure_resume_the_same_graph(live: Live, tmp_p
         args = dict(server=live.base_url, robot_id=rid, token=token)
         for kill_at in kills:
             agent = AgentProcess(db, **args, extra=extra)  # type: ignore[arg-type]
-            wait_for(f"version {kill_at}", lambda at=kill_at: _version(db) >= at, 300)  # type: ignore[misc]
+            wait_for(f"version {kill_at}", lambda at=kill_at, db=db: _version(db) >= at, 300)  # type: ignore[misc]
             agent.kill()
             assert integrity(db) == "ok"
         last = AgentProcess(db, **args, extra=[*extra, "--exit-at-end"])  # type: ignore[arg-type]
