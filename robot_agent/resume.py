@@ -6,7 +6,9 @@ first step after a start, and after the configuration changed), the pipeline's *
 (:meth:`shared.pipeline.Pipeline.state`, :meth:`shared.slam.OnlineGraphMapper.state`), which drops the
 journal up to it. On a start, :meth:`Checkpoints.resume` restores that state and re-steps the journaled scans
 without recording them again: the pipeline is then where it was after the last recorded step, whatever the
-source (a live sensor's scans cannot be read again; the journal has them).
+source (a live sensor's scans cannot be read again; the journal has them). The state is copied in the
+step; its bytes (the larger part of the cost) are made on a background thread and recorded with a later
+step, whose journal keeps the scans in between.
 
 A state that does not load (another format version, damaged bytes, a journal with a gap) is an error in
 the log and in the status' ``last_error``; the agent then starts a new map over the old one: its first
@@ -20,6 +22,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -50,7 +53,8 @@ class Resumed:
 
 
 class Checkpoints:
-    """When to save the mapping state and how to resume from it, over ``db``. ``clock``: monotonic s."""
+    """When to save the mapping state and how to resume from it, over ``db``. ``clock``: monotonic s;
+    ``background``: a state's bytes are made on a thread of their own (else in the step)."""
 
     def __init__(
         self,
@@ -58,8 +62,12 @@ class Checkpoints:
         every_steps: int = 50,
         every_s: float = 5.0,
         clock: Callable[[], float] = time.monotonic,
+        *,
+        background: bool = True,
     ) -> None:
         self.db = db
+        self._executor = ThreadPoolExecutor(1, "mapping-state") if background else None
+        self._pending: Future[SavedState] | None = None
         self.every_steps, self.every_s, self._clock = every_steps, every_s, clock
         self._since = 0
         self._saved_at: float | None = None  # None: not saved since this start (the next step saves)
@@ -122,9 +130,13 @@ class Checkpoints:
     def after_step(
         self, slot: PipelineSlot, version: int, scan: Scan, id_offset: int
     ) -> tuple[bytes, SavedState | None]:
-        """What step ``version`` records beside its map version: the scan's journal bytes and, when one
-        is due, the state after it."""
+        """What step ``version`` records beside its map version: the scan's journal bytes and a saved
+        state when one is ready. The state is taken in the step when due (a copy); its bytes are made on a
+        background thread (``background``) and go with the first step recorded after they are ready, with
+        the journal of the steps between kept. The first state after a start is made in the step: until
+        it is recorded there is nothing to resume from."""
         journal = scan_to_bytes(scan)
+        ready = self._take_ready()
         self._since += 1
         now = self._clock()
         config = slot.config
@@ -134,12 +146,37 @@ class Checkpoints:
             or now - self._saved_at >= self.every_s
             or config is not self._config
         )
-        if not due:
-            return journal, None
+        if not due or self._pending is not None:
+            return journal, ready
+        first = self._saved_at is None
         self._since, self._saved_at, self._config = 0, now, config
         try:
             state = slot.pipeline.state()
-            return journal, SavedState(version, state.kind, state.format, id_offset, state.to_bytes())
         except LinemapError as exc:  # mapping goes on; the journal keeps the restart exact meanwhile
             log.error("the mapping state of version %d could not be saved: %s", version, exc)
-            return journal, None
+            return journal, ready
+        if first or self._executor is None:
+            return journal, _saved(version, state, id_offset)
+        self._pending = self._executor.submit(_saved, version, state, id_offset)
+        return journal, ready
+
+    def _take_ready(self) -> SavedState | None:
+        pending = self._pending
+        if pending is None or not pending.done():
+            return None
+        self._pending = None
+        try:
+            return pending.result()
+        except LinemapError as exc:
+            log.error("the mapping state could not be saved: %s", exc)
+            return None
+
+    def close(self) -> None:
+        """Stop the background thread (a state not yet recorded is dropped: the journal covers it)."""
+        if self._executor is not None:
+            self._executor.shutdown(wait=True, cancel_futures=True)
+            self._executor = None
+
+
+def _saved(version: int, state: MapperState, id_offset: int) -> SavedState:
+    return SavedState(version, state.kind, state.format, id_offset, state.to_bytes())

@@ -32,7 +32,7 @@ class SavedState:
 
 def write_resume(s: Session, version: int, scan: bytes | None, saved: SavedState | None) -> None:
     """Within the step's transaction ``s``: journal step ``version``'s ``scan``; with ``saved`` (the state
-    after this step), replace the saved state and drop the journal up to it."""
+    after this step or an earlier one), replace the saved state and drop the journal up to it."""
     if saved is not None:
         row = s.get(MappingState, 1)
         if row is None:
@@ -41,7 +41,7 @@ def write_resume(s: Session, version: int, scan: bytes | None, saved: SavedState
         row.version, row.kind, row.format = saved.version, saved.kind, saved.format
         row.id_offset, row.state = saved.id_offset, saved.state
         s.execute(delete(JournalScan).where(JournalScan.version <= saved.version))
-    elif scan is not None:
+    if scan is not None and (saved is None or version > saved.version):
         s.add(JournalScan(version=version, scan=scan))
 
 

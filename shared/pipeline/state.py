@@ -141,7 +141,7 @@ class _Encoder:
         if isinstance(value, np.ndarray):
             if value.dtype.hasobject:
                 raise StateError("a mapper state array holds Python objects: only numeric arrays are kept")
-            self.arrays.append(np.ascontiguousarray(value))
+            self.arrays.append(np.array(value, order="C", copy=True))  # the mapper goes on changing it
             return {"a": len(self.arrays) - 1, "ro": not value.flags.writeable}
         if isinstance(value, list):
             return {"l": [self.node(v) for v in value]}

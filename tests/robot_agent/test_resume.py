@@ -82,11 +82,11 @@ def _slot() -> PipelineSlot:
 def test_a_restart_restores_the_state_and_re_steps_the_journal(tmp_path: Path) -> None:
     db = RobotDB(tmp_path / "robot.db")
     slot = _slot()
-    _map(db, slot, Checkpoints(db, every_steps=8, every_s=1e9), SCANS)
+    _map(db, slot, Checkpoints(db, every_steps=8, every_s=1e9, background=False), SCANS)
     assert db.saved_state() is not None and db.saved_state().version == 25  # type: ignore[union-attr]
     assert [v for v, _ in db.journal(0)] == [26, 27, 28, 29, 30]
     again = _slot()
-    resumed = Checkpoints(db).resume(again, RecentScans())
+    resumed = Checkpoints(db, background=False).resume(again, RecentScans())
     assert resumed.problem is None and resumed.replayed == 5 and resumed.id_offset == 0
     assert again.pipeline.pose == slot.pipeline.pose
     np.testing.assert_array_equal(again.pipeline.walls()[1], slot.pipeline.walls()[1])
@@ -94,7 +94,7 @@ def test_a_restart_restores_the_state_and_re_steps_the_journal(tmp_path: Path) -
 
 def test_a_damaged_state_starts_a_new_map_that_removes_the_old_walls(tmp_path: Path) -> None:
     db = RobotDB(tmp_path / "robot.db")
-    _map(db, _slot(), Checkpoints(db, every_steps=8, every_s=1e9), SCANS)
+    _map(db, _slot(), Checkpoints(db, every_steps=8, every_s=1e9, background=False), SCANS)
     saved = db.saved_state()
     assert saved is not None
     old_walls = [int(w[0]) for w in db.walls()]
@@ -106,7 +106,7 @@ def test_a_damaged_state_starts_a_new_map_that_removes_the_old_walls(tmp_path: P
         write_resume(s, saved.version, None, damaged)
     stats = AgentStats()
     slot = _slot()
-    resumed = Checkpoints(db).resume(slot, RecentScans())
+    resumed = Checkpoints(db, background=False).resume(slot, RecentScans())
     assert resumed.problem is not None
     assert "the stored mapping state of version 25 did not load" in resumed.problem
     assert "a new map starts at version 31" in resumed.problem
@@ -114,5 +114,30 @@ def test_a_damaged_state_starts_a_new_map_that_removes_the_old_walls(tmp_path: P
     assert resumed.id_offset == max(old_walls) + 1
     stats.last_error = resumed.problem
     assert "did not load" in (stats.errors.status() or "")
-    _map(db, slot, Checkpoints(db), SCANS[:1], offset=resumed.id_offset)
+    _map(db, slot, Checkpoints(db, background=False), SCANS[:1], offset=resumed.id_offset)
     assert all(int(w[0]) > max(old_walls) for w in db.walls()), "the old walls are gone"
+
+
+def test_a_state_made_in_the_background_goes_with_a_later_step(tmp_path: Path) -> None:
+    db = RobotDB(tmp_path / "robot.db")
+    slot = _slot()
+    ckpt = Checkpoints(db, every_steps=8, every_s=1e9)
+    try:
+        _map(db, slot, ckpt, SCANS[:1])
+        first = db.saved_state()
+        assert first is not None and first.version == 1, "the first state after a start is made in the step"
+        _map(db, slot, ckpt, SCANS[1:20])
+        if ckpt._pending is not None:
+            ckpt._pending.result()  # its bytes ready: the next step records it
+        _map(db, slot, ckpt, SCANS[20:22])
+        saved = db.saved_state()
+        assert saved is not None and 9 <= saved.version < 22
+        kept = [v for v, _ in db.journal(0)]
+        assert kept == list(range(saved.version + 1, 23)), "the steps after the state stay journaled"
+    finally:
+        ckpt.close()
+    again = _slot()
+    resumed = Checkpoints(db, background=False).resume(again, RecentScans())
+    assert resumed.problem is None and resumed.replayed == 22 - saved.version
+    assert again.pipeline.pose == slot.pipeline.pose
+    np.testing.assert_array_equal(again.pipeline.walls()[1], slot.pipeline.walls()[1])
