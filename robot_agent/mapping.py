@@ -21,8 +21,10 @@ from robot_agent.resume import Checkpoints
 from robot_agent.settings import AgentSettings
 from robot_agent.sources import is_live, open_scans
 from robot_agent.store import RobotDB, StepRecord
-from shared.pipeline import Pipeline, PipelineConfig
+from shared.pipeline import MapperState, Pipeline, PipelineConfig
+from shared.pipeline.pipestate import PIPELINE_KIND
 from shared.slam import OnlineGraphMapper
+from shared.slam.onlinestate import GRAPH_KIND
 from shared.types import Pose2D, Scan
 
 __all__ = ["MappingLoop", "PipelineSlot", "RecentScans"]
@@ -69,6 +71,26 @@ class PipelineSlot:
             log.info("loop closure switched on at step %d", graph.version)
             return
         pipeline.reconfigure(config)
+
+    def restore(self, state: MapperState) -> None:
+        """Go on from a saved ``state`` (before the first step). A front end's state under a configuration
+        with loop closure starts the pose graph over it, and a graph's state under one without keeps the
+        graph, which stops searching: as :meth:`reconfigure` does while running."""
+        config = self.config
+        assert config is not None, "PipelineSlot.start was not called"
+        if state.kind == PIPELINE_KIND and isinstance(self._pipeline, OnlineGraphMapper):
+            self.close()
+            front = self._make_pipeline(config)
+            front.restore(state)
+            self._pipeline = OnlineGraphMapper(self._make_pipeline, config, front=front)
+        elif state.kind == GRAPH_KIND and isinstance(self._pipeline, Pipeline):
+            lc = config.model_copy(update={"loop_closure": {}})
+            graph = OnlineGraphMapper(self._make_pipeline, lc)
+            self._pipeline = graph
+            graph.restore(state)
+            graph.reconfigure(config)
+        else:
+            self.pipeline.restore(state)
 
     def close(self) -> None:
         if isinstance(self._pipeline, OnlineGraphMapper):

@@ -120,7 +120,7 @@ class Checkpoints:
                 f"the scan journal holds {len(steps)} steps after the state: expected the steps "
                 f"{saved.version + 1} to {version}"
             )
-        slot.pipeline.restore(MapperState.from_bytes(saved.state))
+        slot.restore(MapperState.from_bytes(saved.state))
         for _, blob in journal:
             scan = scan_from_bytes(blob)
             slot.pipeline.step(scan)

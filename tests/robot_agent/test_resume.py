@@ -20,6 +20,7 @@ from robot_agent.store import RobotDB, SavedState, StepRecord
 from shared.errors import StateError
 from shared.pipeline import PipelineConfig
 from shared.sim import default_world, simulate_run
+from shared.slam import OnlineGraphMapper
 from shared.types import Pose2D, Scan
 
 SCANS = list(itertools.islice(simulate_run(default_world(), seed=1).scans, 30))
@@ -141,3 +142,29 @@ def test_a_state_made_in_the_background_goes_with_a_later_step(tmp_path: Path) -
     assert resumed.problem is None and resumed.replayed == 22 - saved.version
     assert again.pipeline.pose == slot.pipeline.pose
     np.testing.assert_array_equal(again.pipeline.walls()[1], slot.pipeline.walls()[1])
+
+
+@pytest.mark.parametrize("before_lc", [False, True])
+def test_loop_closure_switched_at_a_restart_keeps_the_map(tmp_path: Path, before_lc: bool) -> None:
+    """A restart with loop closure switched on over a front end's state starts the graph over it; switched
+    off over a graph's state, the graph stays (and stops searching): the pose and walls go on either way."""
+    db = RobotDB(tmp_path / "robot.db")
+    lc, plain = PipelineConfig.parse({"loop_closure": {}}), PipelineConfig()
+    slot = PipelineSlot(Pose2D())
+    slot.start(lc if before_lc else plain)
+    try:
+        _map(db, slot, Checkpoints(db, every_steps=8, every_s=1e9, background=False), SCANS)
+        again = PipelineSlot(Pose2D())
+        again.start(plain if before_lc else lc)
+        try:
+            resumed = Checkpoints(db, background=False).resume(again, RecentScans())
+            assert resumed.problem is None
+            assert isinstance(again.pipeline, OnlineGraphMapper)
+            assert again.config == (plain if before_lc else lc)
+            a, b = again.pipeline.pose, slot.pipeline.pose  # the graph composes poses: the last bits differ
+            assert np.allclose(a.as_tuple(), b.as_tuple(), atol=1e-6)
+            np.testing.assert_allclose(again.pipeline.walls()[1], slot.pipeline.walls()[1], atol=0.01)
+        finally:
+            again.close()
+    finally:
+        slot.close()
