@@ -278,7 +278,8 @@ class OnlineGraphMapper:
                 "base": self._base,
                 "version": self._version,
                 "closed": self._closed_since_rebuild or self._rebuilding,
-                "rebuilt_at": self._rebuilt_at,
+                # a rebuild under way is lost with the process: the restored mapper starts it again now
+                "rebuilt_at": -REBUILD_EVERY_KEYFRAMES if self._rebuilding else self._rebuilt_at,
                 "rebuilds": self.rebuilds,
                 "searches": searches,
             }
@@ -296,6 +297,8 @@ class OnlineGraphMapper:
             self._closed_since_rebuild, self.rebuilds = bool(parts["closed"]), int(parts["rebuilds"])
         for k in parts["searches"]:
             self._submit(int(k))
+        if self._thread is not None and self._rebuild_due():
+            self._enqueue(_REBUILD)
 
     # ------------------------------------------------------------------ the pipeline's interface
     def _shown_or_front(self) -> Pipeline:
