@@ -141,7 +141,9 @@ class _Encoder:
         if isinstance(value, np.ndarray):
             if value.dtype.hasobject:
                 raise StateError("a mapper state array holds Python objects: only numeric arrays are kept")
-            self.arrays.append(np.array(value, order="C", copy=True))  # the mapper goes on changing it
+            # copied (the mapper goes on changing its arrays), unless read-only and its own (a scan's)
+            frozen = not value.flags.writeable and value.flags.owndata and value.flags.c_contiguous
+            self.arrays.append(value if frozen else np.array(value, order="C", copy=True))
             return {"a": len(self.arrays) - 1, "ro": not value.flags.writeable}
         if isinstance(value, list):
             return {"l": [self.node(v) for v in value]}
