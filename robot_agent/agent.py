@@ -148,6 +148,7 @@ class Agent:
                 fatal=(LinemapError,),
             )
         finally:
+            self.mapping.checkpoints.close()
             self.slot.close()
             self._mapping_over.set()
             stop.set()

@@ -17,11 +17,14 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from robot_agent.health import AgentStats
+from robot_agent.resume import Checkpoints
 from robot_agent.settings import AgentSettings
 from robot_agent.sources import is_live, open_scans
 from robot_agent.store import RobotDB, StepRecord
-from shared.pipeline import Pipeline, PipelineConfig
+from shared.pipeline import MapperState, Pipeline, PipelineConfig
+from shared.pipeline.pipestate import PIPELINE_KIND
 from shared.slam import OnlineGraphMapper
+from shared.slam.onlinestate import GRAPH_KIND
 from shared.types import Pose2D, Scan
 
 __all__ = ["MappingLoop", "PipelineSlot", "RecentScans"]
@@ -69,6 +72,26 @@ class PipelineSlot:
             return
         pipeline.reconfigure(config)
 
+    def restore(self, state: MapperState) -> None:
+        """Go on from a saved ``state`` (before the first step). A front end's state under a configuration
+        with loop closure starts the pose graph over it, and a graph's state under one without keeps the
+        graph, which stops searching: as :meth:`reconfigure` does while running."""
+        config = self.config
+        assert config is not None, "PipelineSlot.start was not called"
+        if state.kind == PIPELINE_KIND and isinstance(self._pipeline, OnlineGraphMapper):
+            self.close()
+            front = self._make_pipeline(config)
+            front.restore(state)
+            self._pipeline = OnlineGraphMapper(self._make_pipeline, config, front=front)
+        elif state.kind == GRAPH_KIND and isinstance(self._pipeline, Pipeline):
+            lc = config.model_copy(update={"loop_closure": {}})
+            graph = OnlineGraphMapper(self._make_pipeline, lc)
+            self._pipeline = graph
+            graph.restore(state)
+            graph.reconfigure(config)
+        else:
+            self.pipeline.restore(state)
+
     def close(self) -> None:
         if isinstance(self._pipeline, OnlineGraphMapper):
             self._pipeline.close()
@@ -95,7 +118,8 @@ class MappingLoop:
     """Maps from ``settings.source`` into ``slot``'s pipeline. Collaborators: ``db`` (the Robot DB: each
     step's record, and where to resume after a restart), ``stats`` (``steps``), ``recent`` (scans for dry
     runs), ``between_steps`` (applies pending control messages), ``after_step`` (the kernels' probation and
-    rollback), ``wake`` (set after each step recorded: the uploader has something to send)."""
+    rollback), ``wake`` (set after each step recorded: the uploader has something to send). Built after
+    ``slot`` started: it resumes the map recorded in ``db`` (:mod:`robot_agent.resume`)."""
 
     def __init__(
         self,
@@ -112,9 +136,13 @@ class MappingLoop:
         self.slot, self.db, self.stats, self.recent = slot, db, stats, recent
         self._between_steps, self._after_step, self._wake = between_steps, after_step, wake
         self._stepped: tuple[int, float] = (0, 0.0)
-        self._prev_walls: dict[int, tuple[float, ...]] = {}
-        stored = db.walls()
-        self._id_offset = int(max((w[0] for w in stored), default=-1)) + 1
+        # the mapping state saved with the steps: a restart goes on with the same map at the same pose
+        self.checkpoints = Checkpoints(db, settings.checkpoint_steps, settings.checkpoint_s)
+        resumed = self.checkpoints.resume(slot, recent)
+        self._prev_walls: dict[int, tuple[float, ...]] = resumed.walls
+        self._id_offset = resumed.id_offset
+        if resumed.problem is not None:
+            stats.last_error = resumed.problem
 
     def run(self, stop: threading.Event) -> None:
         """Map until the source ends, then (``stay``) keep applying messages until ``stop`` is set."""
@@ -154,7 +182,8 @@ class MappingLoop:
             result = self.slot.pipeline.step(scan)
             self.recent.add(scan)
             version += 1
-            self.db.record_step(self._record(version, index + 1, scan, result.pose))
+            journal, saved = self.checkpoints.after_step(self.slot, version, scan, self._id_offset)
+            self.db.record_step(self._record(version, index + 1, scan, result.pose), journal, saved)
             self._stepped = (version, time.time())
             self.stats.steps += 1
             self._after_step()

@@ -7,7 +7,9 @@ kernel artifacts and their state), ``config_history``, ``map_versions`` (each st
 acknowledged by the server), ``applied_messages`` (control messages applied or rejected, and whether the
 server has the acknowledgement), ``kernels_run`` (the highest version of each kernel ever put in force: the
 anti-rollback floor of docs/design.md §9). ``kernels.installed_by_seq`` ties a downloaded kernel to the
-message that installed it. Lengths metres, angles radians, times UTC.
+message that installed it. ``mapping_state`` (one row: the pipeline's learned state at a recorded version)
+and ``scan_journal`` (the scans mapped since) let a restarted agent go on with the same map at the same
+pose (:mod:`robot_agent.resume`). Lengths metres, angles radians, times UTC.
 """
 
 from __future__ import annotations
@@ -23,8 +25,10 @@ from shared.sqltypes import NAMING, UTCDateTime, utcnow
 __all__ = [
     "AppliedMessage",
     "ConfigRecord",
+    "JournalScan",
     "KernelRecord",
     "MapVersion",
+    "MappingState",
     "Meta",
     "OutboxEntry",
     "PoseRecord",
@@ -152,3 +156,29 @@ class RunFloor(RobotBase):
     version: Mapped[str] = mapped_column(String(32))
     seq: Mapped[int | None] = mapped_column(Integer, default=None)
     at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class MappingState(RobotBase):
+    """The pipeline's learned state after step ``version`` (one row, ``id`` 1): ``state`` is the bytes form
+    of :class:`shared.pipeline.MapperState` (never a pickle), ``id_offset`` what the agent adds to the
+    pipeline's wall ids (walls of an earlier map that could not be restored keep theirs)."""
+
+    __tablename__ = "mapping_state"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    version: Mapped[int] = mapped_column(Integer)
+    kind: Mapped[str] = mapped_column(String(16))
+    format: Mapped[int] = mapped_column(Integer)
+    id_offset: Mapped[int] = mapped_column(Integer)
+    state: Mapped[bytes] = mapped_column(LargeBinary)
+    saved_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class JournalScan(RobotBase):
+    """A scan mapped at step ``version`` after the last saved state (its odometry included): re-stepped on
+    a restart. Rows up to the saved state's version are dropped when it is saved."""
+
+    __tablename__ = "scan_journal"
+
+    version: Mapped[int] = mapped_column(Integer, primary_key=True)
+    scan: Mapped[bytes] = mapped_column(LargeBinary)

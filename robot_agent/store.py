@@ -5,7 +5,8 @@ loss.
 
 The Robot DB is one SQLite file (:mod:`robot_agent.store_db`: opening, migrations, transactions, meta);
 its map and outbox tables are :mod:`robot_agent.store_map`, its control-message and kernel tables
-:mod:`robot_agent.store_control`. :class:`RobotDB` joins them; the records the agent passes in and gets
+:mod:`robot_agent.store_control`, its mapping state and scan journal :mod:`robot_agent.store_resume`.
+:class:`RobotDB` joins them; the records the agent passes in and gets
 back are importable from here too.
 """
 
@@ -14,9 +15,10 @@ from __future__ import annotations
 from robot_agent.store_control import ControlTables, Ran
 from robot_agent.store_db import MIGRATIONS_DIR
 from robot_agent.store_map import MapTables, PendingUpload, StepRecord
+from robot_agent.store_resume import ResumeTables, SavedState
 
-__all__ = ["MIGRATIONS_DIR", "PendingUpload", "Ran", "RobotDB", "StepRecord"]
+__all__ = ["MIGRATIONS_DIR", "PendingUpload", "Ran", "RobotDB", "SavedState", "StepRecord"]
 
 
-class RobotDB(MapTables, ControlTables):
+class RobotDB(MapTables, ControlTables, ResumeTables):
     """The Robot DB at ``path`` (created and migrated to the newest schema on open)."""

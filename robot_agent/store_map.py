@@ -17,6 +17,7 @@ from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 
 from robot_agent.models import MapVersion, OutboxEntry, PoseRecord, Wall
 from robot_agent.store_db import RobotDBFile, put_meta
+from robot_agent.store_resume import SavedState, write_resume
 
 __all__ = ["MapTables", "PendingUpload", "StepRecord"]
 
@@ -52,9 +53,14 @@ class PendingUpload:
 class MapTables(RobotDBFile):
     """The map and outbox methods of :class:`robot_agent.store.RobotDB`."""
 
-    def record_step(self, rec: StepRecord) -> None:
-        """Store one step's map version, walls, pose and outbox entry in one transaction."""
+    def record_step(
+        self, rec: StepRecord, scan: bytes | None = None, saved: SavedState | None = None
+    ) -> None:
+        """Store one step's map version, walls, pose and outbox entry in one transaction; with them the
+        step's journaled ``scan`` and, when one is due, the mapping state ``saved`` after this step
+        (:func:`robot_agent.store_resume.write_resume`)."""
         with self.tx() as s:
+            write_resume(s, rec.version, scan, saved)
             s.add(
                 MapVersion(
                     version=rec.version,

@@ -13,6 +13,7 @@ __all__ = [
     "KernelParameterError",
     "KernelSourceError",
     "LinemapError",
+    "StateError",
     "UnknownKernelError",
 ]
 
@@ -55,3 +56,8 @@ class KernelSourceError(LinemapError, ValueError):
         self.reason = reason
         self.line = line
         super().__init__(reason)
+
+
+class StateError(LinemapError, ValueError):
+    """A stored mapper state is refused: not the stored form, another format version, or a description of
+    something other than the mapper restoring it (shared.pipeline.state)."""

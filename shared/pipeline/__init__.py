@@ -5,12 +5,14 @@ from shared.pipeline.config import KernelChoice, Mode, PipelineConfig, StageSche
 from shared.pipeline.gate import IcpGate
 from shared.pipeline.pipeline import Pipeline, StepResult
 from shared.pipeline.snapshot import MapSnapshot
+from shared.pipeline.state import MapperState
 from shared.pipeline.wallmap import MergeTolerances, WallMap
 
 __all__ = [
     "IcpGate",
     "KernelChoice",
     "MapSnapshot",
+    "MapperState",
     "MergeTolerances",
     "Mode",
     "Pipeline",

@@ -46,6 +46,7 @@ from shared.pipeline.stages import (
     noise_floored_uncertainty,
     remove_noise,
 )
+from shared.pipeline.state import MapperState
 from shared.pipeline.tracker import PoseTracker
 from shared.pipeline.wallmap import MergeTolerances, WallMap
 from shared.types import FloatArray, IntArray, Pose2D, Scan, wrap_angle
@@ -388,6 +389,18 @@ class Pipeline:
         self._centroids = list(state.centroids)
         self._trajectory = list(state.trajectory)
         self._next_group = state.next_group
+
+    def state(self) -> MapperState:
+        """The learned state as data, to restore a pipeline from (:mod:`shared.pipeline.pipestate`)."""
+        from shared.pipeline.pipestate import pipeline_state
+
+        return pipeline_state(self)
+
+    def restore(self, state: MapperState) -> None:
+        """Go on from ``state`` (:meth:`state`); before the first step only (:class:`StateError`)."""
+        from shared.pipeline.pipestate import restore_pipeline
+
+        restore_pipeline(self, state)
 
     def snapshot(self) -> MapSnapshot:
         """The temporary map now: walls, centroids, pose, trajectory, version. O(map + trajectory)."""

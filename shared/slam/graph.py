@@ -81,6 +81,35 @@ class PoseGraph:
         self._edges: list[Edge] = []
         self._loop_pending = False
 
+    def reattach(self) -> None:
+        """Rebuild the solver of a graph restored from a saved state (:mod:`shared.slam.onlinestate`),
+        which holds the nodes, the edges and the estimate but no gtsam objects: a new iSAM2 takes every
+        node at its estimate and every edge in one update; the estimate stays as saved. O(graph)."""
+        self._params = gtsam.ISAM2Params()
+        self._params.setRelinearizeThreshold(0.01)
+        self._params.relinearizeSkip = 1
+        self._isam = gtsam.ISAM2(self._params)
+        self._new_factors = gtsam.NonlinearFactorGraph()
+        self._new_values = gtsam.Values()
+        if not self._estimate:
+            return
+        assert self._first is not None
+        anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
+        self._new_factors.add(gtsam.PriorFactorPose2(0, _pose2(self._first), anchor))
+        for k, p in enumerate(self._estimate):
+            self._new_values.insert(k, _pose2(p))
+        for e in self._edges:
+            noise = self._noise(_local(e.information, e.measurement), e.loop)
+            self._new_factors.add(gtsam.BetweenFactorPose2(e.i, e.j, _pose2(e.measurement), noise))
+        try:
+            self._isam.update(self._new_factors, self._new_values)
+        except RuntimeError as exc:
+            raise OptimisationError(f"iSAM2 refused the restored graph: {exc}") from exc
+        finally:
+            self._new_factors = gtsam.NonlinearFactorGraph()
+            self._new_values = gtsam.Values()
+        self._loop_pending = False
+
     # ------------------------------------------------------------------ building
     def __len__(self) -> int:
         return len(self._estimate)

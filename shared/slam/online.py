@@ -39,10 +39,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from shared.errors import LinemapError
+from shared.errors import LinemapError, StateError
 from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
 from shared.pipeline.pipeline import MapState, StepResult
+from shared.pipeline.state import MapperState
 from shared.slam.mapper import GraphMapper
+from shared.slam.onlinestate import graph_state, restore_graph
 from shared.slam.settings import LoopClosureSettings
 from shared.types import FloatArray, IntArray, Pose2D, Scan
 
@@ -110,6 +112,8 @@ class OnlineGraphMapper:
         self._jobs: queue.Queue[int] = queue.Queue()
         self._idle = threading.Condition()
         self._outstanding = 0  # jobs submitted and not finished
+        self._searches: set[int] = set()  # keyframes whose loop search is submitted and not finished
+        self._rebuilding = False  # a rebuild is under way on the worker
         self._thread: threading.Thread | None = None
         if worker:
             self._thread = threading.Thread(target=self._work, name="loop-closure", daemon=True)
@@ -163,6 +167,8 @@ class OnlineGraphMapper:
     def _enqueue(self, job: int) -> None:
         with self._idle:
             self._outstanding += 1
+            if job >= 0:
+                self._searches.add(job)
         self._jobs.put(job)
 
     def _swap_in(self) -> None:
@@ -188,6 +194,7 @@ class OnlineGraphMapper:
                 self._run(_REBUILD)
             with self._idle:
                 self._outstanding -= 1
+                self._searches.discard(job)
                 self._idle.notify_all()
 
     def _run(self, job: int) -> None:
@@ -213,9 +220,11 @@ class OnlineGraphMapper:
 
     def _rebuild(self) -> None:
         t0 = time.perf_counter()
+        self._rebuilding = True
         try:
             self._redraw()
         finally:
+            self._rebuilding = False
             self.redraw_ms.append((time.perf_counter() - t0) * 1e3)
 
     def _redraw(self) -> None:
@@ -254,6 +263,42 @@ class OnlineGraphMapper:
             self._jobs.put(_STOP)
             self._thread.join(timeout=5.0)
             self._thread = None
+
+    # ------------------------------------------------------------------ saved state
+    def state(self) -> MapperState:
+        """The learned state as data (:mod:`shared.slam.onlinestate`); a finished rebuild is taken in
+        first. Holds the lock while it copies (O(graph + kept scans + map))."""
+        with self._lock:
+            self._swap_in()
+            with self._idle:
+                searches = sorted(self._searches)
+            parts = {
+                "mapper": self._mapper,
+                "shown": self._shown,
+                "base": self._base,
+                "version": self._version,
+                "closed": self._closed_since_rebuild or self._rebuilding,
+                # a rebuild under way is lost with the process: the restored mapper starts it again now
+                "rebuilt_at": -REBUILD_EVERY_KEYFRAMES if self._rebuilding else self._rebuilt_at,
+                "rebuilds": self.rebuilds,
+                "searches": searches,
+            }
+            return graph_state(self, parts)
+
+    def restore(self, state: MapperState) -> None:
+        """Go on from ``state`` (:meth:`state`), before the first step only (:class:`StateError`); loop
+        searches that were pending are submitted again."""
+        if self._version or self._mapper.keyframes:
+            raise StateError("a graph mapper's state can be restored only before its first step")
+        parts = restore_graph(self, state)
+        with self._lock:
+            self._mapper, self._shown, self._base = parts["mapper"], parts["shown"], parts["base"]
+            self._version, self._rebuilt_at = int(parts["version"]), int(parts["rebuilt_at"])
+            self._closed_since_rebuild, self.rebuilds = bool(parts["closed"]), int(parts["rebuilds"])
+        for k in parts["searches"]:
+            self._submit(int(k))
+        if self._thread is not None and self._rebuild_due():
+            self._enqueue(_REBUILD)
 
     # ------------------------------------------------------------------ the pipeline's interface
     def _shown_or_front(self) -> Pipeline:

@@ -1,0 +1,78 @@
+"""The Robot DB's resume tables as the agent uses them (:mod:`robot_agent.resume`): the mapping state saved
+at a recorded version (one row) and the journal of the scans mapped since. Both are written inside the
+step's own transaction (:meth:`robot_agent.store_map.MapTables.record_step` calls :func:`write_resume`),
+so the saved state, the journal and the recorded map versions always agree. Saving a state drops the
+journal up to it: the tables hold one state and at most one checkpoint interval of scans.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session
+
+from robot_agent.models import JournalScan, MappingState
+from robot_agent.store_db import RobotDBFile
+
+__all__ = ["ResumeTables", "SavedState", "write_resume"]
+
+
+@dataclass(frozen=True, slots=True)
+class SavedState:
+    """The mapping state after step ``version``: its ``kind`` and ``format`` (as its bytes say), the wall
+    id offset the agent adds, and the bytes (:meth:`shared.pipeline.MapperState.to_bytes`)."""
+
+    version: int
+    kind: str
+    format: int
+    id_offset: int
+    state: bytes
+
+
+def write_resume(s: Session, version: int, scan: bytes | None, saved: SavedState | None) -> None:
+    """Within the step's transaction ``s``: journal step ``version``'s ``scan``; with ``saved`` (the state
+    after this step or an earlier one), replace the saved state and drop the journal up to it."""
+    if saved is not None:
+        row = s.get(MappingState, 1)
+        if row is None:
+            row = MappingState(id=1)
+            s.add(row)
+        row.version, row.kind, row.format = saved.version, saved.kind, saved.format
+        row.id_offset, row.state = saved.id_offset, saved.state
+        s.execute(delete(JournalScan).where(JournalScan.version <= saved.version))
+    if scan is not None and (saved is None or version > saved.version):
+        s.add(JournalScan(version=version, scan=scan))
+
+
+class ResumeTables(RobotDBFile):
+    """The resume methods of :class:`robot_agent.store.RobotDB`."""
+
+    def saved_state(self) -> SavedState | None:
+        """The mapping state saved last, or None (a new Robot DB, or one from before states were kept)."""
+        with self._factory() as s:
+            row = s.get(MappingState, 1)
+            if row is None:
+                return None
+            return SavedState(row.version, row.kind, row.format, row.id_offset, row.state)
+
+    def journal(self, after_version: int) -> list[tuple[int, bytes]]:
+        """The journaled scans of the steps after ``after_version``, in step order: ``(version, bytes)``."""
+        with self._factory() as s:
+            rows = s.execute(
+                select(JournalScan.version, JournalScan.scan)
+                .where(JournalScan.version > after_version)
+                .order_by(JournalScan.version)
+            )
+            return [(int(v), bytes(b)) for v, b in rows]
+
+    def journal_size(self) -> int:
+        """How many scans the journal holds (tests, the soak)."""
+        with self._factory() as s:
+            return len(list(s.execute(select(JournalScan.version))))
+
+    def forget_state(self) -> None:
+        """Drop the saved state and the journal (the state did not load: a new map starts)."""
+        with self.tx() as s:
+            s.execute(delete(MappingState))
+            s.execute(delete(JournalScan))

@@ -1,0 +1,80 @@
+"""An :class:`~shared.slam.OnlineGraphMapper`'s learned state as data, and a mapper restored from it
+(docs/design.md §7, docs/loopclosure.md): the front end's state, the keyframes, the pose graph's nodes,
+edges and estimate, the accepted closures, the scans kept for redraws, the shown map (the rebuilt one,
+once a loop was closed) and the map drawn before loop closure was switched on.
+
+What the worker had not finished is not lost: keyframes whose loop search was pending are searched again
+after a restore, and a rebuild under way is started again. The gtsam solver is not saved: a restored graph
+gives a new iSAM2 every node at its saved estimate and every edge in one update
+(:meth:`shared.slam.graph.PoseGraph.reattach`), so later estimates agree with an uninterrupted run's to
+within the solver's relinearisation (well under a millimetre on the simulated world), not bit for bit.
+O(graph + kept scans + map) both ways.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from shared.errors import StateError
+from shared.pipeline import pipeline
+from shared.pipeline.pipestate import PIPELINE_SKIP, adopt_pipeline
+from shared.pipeline.state import MapperState, decode_tree, encode_tree, register_state_class
+from shared.slam import closure, graph, mapper, settings
+
+if TYPE_CHECKING:
+    from shared.slam.online import OnlineGraphMapper
+
+__all__ = ["GRAPH_KIND", "graph_state", "restore_graph"]
+
+GRAPH_KIND = "graph"
+
+register_state_class(
+    mapper.GraphMapper,
+    mapper.Keyframe,
+    mapper.LoopClosure,
+    graph.PoseGraph,
+    graph.Edge,
+    closure.LoopMatch,
+    settings.LoopClosureSettings,
+)
+
+_SKIP: dict[type, frozenset[str]] = {
+    **PIPELINE_SKIP,
+    mapper.GraphMapper: frozenset({"_make"}),
+    graph.PoseGraph: frozenset({"_params", "_isam", "_new_factors", "_new_values"}),
+}
+
+
+def graph_state(online: OnlineGraphMapper, parts: dict[str, Any]) -> MapperState:
+    """The state of ``online`` from ``parts`` (read under its lock: ``mapper``, ``shown``, ``base``,
+    ``version``, ``closed``, ``rebuilt_at``, ``rebuilds``, ``searches``)."""
+    tree, arrays = encode_tree(parts, _SKIP)
+    return MapperState(GRAPH_KIND, tree, arrays)
+
+
+def restore_graph(online: OnlineGraphMapper, state: MapperState) -> dict[str, Any]:
+    """The parts of ``state`` made live for ``online`` (not stepped yet): the graph mapper with ``online``'s
+    fresh front end holding the saved one's state and a new solver, the shown map likewise.
+    :class:`StateError` if ``state`` is not a graph mapper's."""
+    if state.kind != GRAPH_KIND:
+        raise StateError(f"the mapping state is a {state.kind!r} state: expected a {GRAPH_KIND!r} state")
+    parts = decode_tree(state)
+    expected = {"mapper", "shown", "base", "version", "closed", "rebuilt_at", "rebuilds", "searches"}
+    if not isinstance(parts, dict) or set(parts) != expected:
+        raise StateError(
+            f"the graph mapper's state holds {sorted(parts) if isinstance(parts, dict) else parts!r}"
+        )
+    gm = parts["mapper"]
+    if not isinstance(gm, mapper.GraphMapper) or not isinstance(gm.graph, graph.PoseGraph):
+        raise StateError("the graph mapper's state holds no graph mapper")
+    live = online._mapper
+    gm._make = live._make
+    gm.front = adopt_pipeline(live.front, gm.front)
+    gm.search_inline = live.search_inline
+    gm.graph.reattach()
+    shown = parts["shown"]
+    if shown is not None:
+        if not isinstance(shown, pipeline.Pipeline):
+            raise StateError("the graph mapper's shown map is not a pipeline")
+        parts["shown"] = adopt_pipeline(online._make(online.config), shown)
+    return parts
