@@ -82,6 +82,8 @@ class UploadConflict:
     current_version: int
     code: str = "conflict"
     current_session: str | None = None
+    #: the scan time stamp of the server's ``current_version`` (None: not said)
+    current_stamp_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,6 +116,7 @@ class _Conflict(_Answer):
     error: str = "conflict"
     current_version: int = Field(0, ge=0)
     current_session: str | None = None
+    current_stamp_s: float | None = None
 
 
 def is_transient(exc: LinkError) -> bool:
@@ -266,7 +269,7 @@ class ServerLink:
         )
         if resp.status_code == 409:
             got = self._json(resp, _Conflict)
-            return UploadConflict(got.current_version, got.error, got.current_session)
+            return UploadConflict(got.current_version, got.error, got.current_session, got.current_stamp_s)
         self._json(resp, _Uploaded)  # validated: version, and map_session when the server has sessions
         out: dict[str, Any] = resp.json()
         return out

@@ -193,6 +193,12 @@ class MapTables(RobotDBFile):
             put_meta(s, "uploaded_version", up_to_version)
 
     # ------------------------------------------------------------ map session
+    def stamp_of(self, version: int) -> float | None:
+        """The scan time stamp of recorded map ``version`` (None: not recorded, or compacted away)."""
+        with self.tx() as s:
+            got = s.execute(select(MapVersion.stamp_s).where(MapVersion.version == version)).scalar()
+        return None if got is None else float(got)
+
     def map_session(self) -> str:
         """The id of the map session this Robot DB's map belongs to (docs/reliability/identity.md): made
         by the migration that created the Robot DB, or by :meth:`new_map_session`."""

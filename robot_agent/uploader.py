@@ -124,7 +124,9 @@ class Uploader:
         Map identity (docs/reliability/identity.md): every upload carries this Robot DB's map session, and a
         version counts as delivered only when the server answers that it holds it in this session. A 409
         never marks anything delivered: a delta of another session than the server's, or from another
-        base, is followed by a snapshot; a server ahead of this robot in the same session (the Robot DB was
+        base, is followed by a snapshot; a server at or ahead of this robot in the same session at a version
+        this robot recorded with the same scan stamp holds this robot's own uploads (an answer was lost:
+        the robot goes on from there); one ahead with a map this robot did not make (the Robot DB was
         restored from an older copy, or another agent uploaded there), or one that ended this session,
         makes the robot start a new session, so the server keeps the old map and starts a new one."""
         up = self.db.pending_upload(self.upload_batch)
@@ -190,9 +192,28 @@ class Uploader:
             )
         self.db.mark_uploaded(version)
 
+    def _own_lost_answer(self, got: UploadConflict) -> bool:
+        """Whether the server's map (same session, at ``got.current_version``) is this robot's own: it
+        recorded that version and not yet past what it has, with the very scan stamp the server names."""
+        if got.code != "conflict" or got.current_stamp_s is None:
+            return False
+        mine = self.db.stamp_of(got.current_version)
+        return mine is not None and abs(mine - got.current_stamp_s) <= 1e-6
+
     def _conflict(self, got: UploadConflict, session: str, version: int) -> None:
         """What a 409 to an upload of ``version`` in ``session`` means for the next upload (nothing is
-        marked delivered)."""
+        marked delivered but what the server names as held)."""
+        if self._own_lost_answer(got):
+            # the server holds a version this robot recorded, with the same scan stamp, in this session:
+            # an answer that never arrived (the agent was killed, the connection cut); go on from there
+            log.info(
+                "the server holds version %d of map session %s already (an answer lost): going on from it",
+                got.current_version,
+                session,
+            )
+            self.db.mark_uploaded(got.current_version)
+            self.need_snapshot = False
+            return
         if got.code == "map_session_mismatch" or (got.code == "conflict" and got.current_version < version):
             log.info(
                 "the server's map of robot %d is at version %d of session %s; sending a snapshot of "

@@ -294,6 +294,7 @@ def apply_upload(
                 f"of the same map session {session}",
                 current_version=current,
                 current_session=session,
+                current_stamp_s=_stamp(conn, robot_id),
             )
         if max_walls is not None:
             check_wall_cap(conn, robot_id, up, max_walls)
@@ -325,6 +326,7 @@ def apply_upload(
                 "send a snapshot (base_version null)",
                 current_version=current,
                 current_session=session,
+                current_stamp_s=_stamp(conn, robot_id),
             )
         if max_walls is not None:
             check_wall_cap(conn, robot_id, up, max_walls)
@@ -391,3 +393,11 @@ def _status_columns(st: RobotStatus) -> dict[str, Any]:
         if value is not None or name == "last_error":
             columns[name] = value
     return columns
+
+
+def _stamp(conn: Connection, robot_id: int) -> float | None:
+    """The scan time stamp of the robot's current map version (None before its first upload): with the
+    version and session in a 409, a robot tells its own lost answer (it recorded that version with that
+    stamp) from a map it did not make (a Robot DB restored from an older copy)."""
+    got = conn.execute(select(_STATE.c.stamp_s).where(_STATE.c.robot_id == robot_id)).scalar()
+    return None if got is None else float(got)

@@ -125,3 +125,46 @@ def test_a_superseded_agent_stops_instead_of_retrying(tmp_path: Path) -> None:
     stop = threading.Event()
     with pytest.raises(SupersededError):
         up.run(stop)  # not swallowed by the round's retry
+
+
+@pytest.mark.parametrize(
+    ("held", "stamp_s", "outcome"),
+    [
+        (4, 0.4, "lost answer"),  # the server holds version 4 with the stamp this robot recorded it with
+        (5, 0.5, "lost answer"),
+        (4, 0.41, "snapshot"),  # behind this upload, with a map this robot did not make: replaced whole
+        (5, 0.51, "new session"),  # at this upload's version, a map this robot did not make
+        (9, 0.9, "new session"),  # a version this robot never recorded
+    ],
+)
+def test_a_server_ahead_with_this_robots_own_version_is_a_lost_answer(
+    tmp_path: Path, held: int, stamp_s: float, outcome: str
+) -> None:
+    """Killed after the server applied an upload but before the answer was recorded, the robot finds the
+    server ahead in its own session: the server names the version's scan stamp, and a version this robot
+    recorded with that stamp is its own upload, taken as delivered; anything else is not."""
+
+    def answer(_body: dict[str, Any]) -> httpx.Response:
+        return httpx.Response(
+            409,
+            json={
+                "error": "conflict",
+                "detail": "scripted",
+                "current_version": held,
+                "current_session": None,
+                "current_stamp_s": stamp_s,
+            },
+        )
+
+    up, db, _sent = _setup(tmp_path, answer)
+    db.mark_uploaded(2)
+    session = db.map_session()
+    assert db.stamp_of(4) == pytest.approx(0.4) and db.stamp_of(9) is None
+    up.send_maps()  # a delta 2 -> 5: the server says it is at `held` already
+    if outcome == "lost answer":
+        assert db.map_session() == session and db.get("uploaded_version") == held
+        assert db.outbox_size() == 5 - held and not up.need_snapshot
+    elif outcome == "snapshot":
+        assert db.map_session() == session and db.get("uploaded_version") == 2 and up.need_snapshot
+    else:
+        assert db.map_session() != session and db.get("uploaded_version") is None
