@@ -1,7 +1,8 @@
 """A real uvicorn server on 127.0.0.1 per database backend, and httpx clients to talk to it.
 
 Backends: a SQLite file always; PostgreSQL when ``LINEMAP_TEST_POSTGRES_URL`` is set (``.ci/run`` sets
-it). The PostgreSQL database is wiped (``alembic downgrade base``) before the session's server migrates it.
+it). The PostgreSQL database is emptied (its public schema dropped and made again) before the session's server
+migrates it.
 Tests share one server per backend and create their own robots, so they do not depend on each other.
 """
 
@@ -20,13 +21,12 @@ import httpx
 import pytest
 import uvicorn
 from fastapi import FastAPI
-from sqlalchemy import create_engine
+from sqlalchemy import create_engine, text
 
 from server.app import create_app
 from server.bootstrap import ensure_admin_token
 from server.database import normalize_url
 from server.deps import AppState
-from server.migrate import downgrade
 from server.settings import Settings
 
 POSTGRES_ENV = "LINEMAP_TEST_POSTGRES_URL"
@@ -65,8 +65,13 @@ def database_url(backend: str, tmp: Path) -> str:
     url = os.environ.get(POSTGRES_ENV)
     if not url:
         pytest.skip(f"{POSTGRES_ENV} is not set (CI sets it to its PostgreSQL)")
+    # An empty database whatever an earlier run left (another branch's migrations, a killed run): every
+    # table, type and the Alembic version dropped, not downgraded (a downgrade needs the revision it is at
+    # to be this tree's).
     engine = create_engine(normalize_url(url))
-    downgrade(engine, "base")
+    with engine.begin() as conn:
+        conn.execute(text("DROP SCHEMA IF EXISTS public CASCADE"))
+        conn.execute(text("CREATE SCHEMA public"))
     engine.dispose()
     return url
 
