@@ -5,18 +5,13 @@ ends properly, every worker exits and nothing prints a traceback; a taken port e
 
 from __future__ import annotations
 
-import signal
 import socket
 import subprocess
-import threading
 from pathlib import Path
-from typing import Any
 
-import httpx
-
-from tests.robot_agent.agentproc import wait_for
+from tests.server.interrupt import interrupt_mid_poll_and_stream
 from tests.server.procs import fresh_database
-from tests.server.test_server_cli import LINEMAP, _free_port, _wait_healthy
+from tests.server.test_server_cli import LINEMAP, _free_port
 
 
 def _start(url: str, port: int) -> tuple[subprocess.Popen[str], str]:
@@ -34,60 +29,11 @@ def _start(url: str, port: int) -> tuple[subprocess.Popen[str], str]:
 
 
 def test_ctrl_c_stops_every_worker_ending_long_polls_and_streams_cleanly(tmp_path: Path) -> None:
-    results: dict[str, Any] = {}
     with fresh_database("postgresql", tmp_path) as url:
         port = _free_port()
         proc, out = _start(url, port)
-        try:
-            assert "2 worker processes" in out, out
-            base = f"http://127.0.0.1:{port}/api/v1"
-            _wait_healthy(port)
-            token = out.split("keep it): ")[1].split()[0]
-            op = {"Authorization": f"Bearer {token}"}
-            robot = httpx.post(f"{base}/robots", json={"name": "poller"}, headers=op, timeout=10).json()
-            rid, robot_auth = robot["id"], {"Authorization": f"Bearer {robot['token']}"}
-
-            def long_poll() -> None:
-                try:
-                    r = httpx.get(
-                        f"{base}/robots/{rid}/messages", params={"wait": 60}, headers=robot_auth, timeout=90
-                    )
-                    results["poll"] = (r.status_code, r.json())
-                except httpx.HTTPError as exc:
-                    results["poll"] = exc
-
-            def stream() -> None:
-                try:
-                    with httpx.stream("GET", f"{base}/robots/{rid}/maps/stream", headers=op, timeout=90) as r:
-                        for line in r.iter_lines():
-                            if line.startswith("event: snapshot"):
-                                results["snapshot"] = True
-                    results["stream"] = r.status_code
-                except httpx.HTTPError as exc:
-                    results["stream"] = exc
-
-            threads = [threading.Thread(target=long_poll), threading.Thread(target=stream)]
-            for t in threads:
-                t.start()
-            # In flight: the stream sent its snapshot, and the robot is seen (on either worker: the last-seen
-            # times reach the database within 10 s).
-            wait_for(
-                "the long-poll and the stream to be in flight",
-                lambda: (
-                    results.get("snapshot")
-                    and httpx.get(f"{base}/robots/{rid}", headers=op, timeout=10).json()["online"]
-                ),
-            )
-            proc.send_signal(signal.SIGINT)
-            code = proc.wait(60)
-            for t in threads:
-                t.join(60)
-            assert proc.stderr is not None
-            err = proc.stderr.read()
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+        code, err, results = interrupt_mid_poll_and_stream(proc, out, port)
+    assert "2 worker processes" in out, out
     assert code == 0, err
     assert "Traceback" not in err and "ERROR" not in err, (err, results)
     assert results["poll"] == (200, {"messages": [], "last_seq": 0}), results
