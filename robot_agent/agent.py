@@ -58,9 +58,9 @@ class Agent:
             self._db_lock.release()
             raise
         self.link = link
-        if link is None and settings.server_url:
+        if link is None and settings.server_urls:
             self.link = ServerLink(
-                settings.server_url,
+                settings.server_urls,
                 settings.robot_id,
                 settings.token,
                 max_retry_after_s=settings.max_retry_after_s,

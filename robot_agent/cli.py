@@ -85,7 +85,12 @@ def _key_text(value: str) -> str:
 
 def agent_cmd(
     server: Annotated[
-        str | None, typer.Option(envvar="LINEMAP_SERVER", help="Server URL, e.g. http://host:8000")
+        str | None,
+        typer.Option(
+            envvar="LINEMAP_SERVER",
+            help="Server URL, e.g. http://host:8000; several processes of one server separated by commas "
+            "(the agent moves to the next when one does not answer).",
+        ),
     ] = None,
     robot_id: Annotated[
         int | None, typer.Option(envvar="LINEMAP_ROBOT_ID", help="This robot's id on the server.")
@@ -169,21 +174,25 @@ def agent_cmd(
     """Map from SOURCE and follow the server: apply control messages between steps, hot-swap verified
     kernels, upload every map version (kept in the Robot DB until the server has it)."""
     from robot_agent.agent import Agent, AgentSettings
+    from robot_agent.link import server_urls
     from shared.control import load_config
 
     f = _file_settings(file)
     src = source or f.get("source") or "sim"
     keys = [_key_text(k) for k in (trust_key or f.get("trust_keys") or [])]
-    server_url = server or f.get("server")
+    given = server or f.get("server")
+    if given is not None and not isinstance(given, str | list):
+        raise LinemapError(f"agent file {file}: server = {given!r}: expected a URL or a list of URLs")
+    urls = server_urls(given) if given else ()
     rid = robot_id if robot_id is not None else f.get("robot_id")
     tok = token or f.get("token")
-    if server_url and (rid is None or not tok):
+    if urls and (rid is None or not tok):
         raise LinemapError("--server needs --robot-id and --token (from POST /api/v1/robots)")
     cfg_path = config or (Path(f["config"]) if f.get("config") else None)
     settings = AgentSettings(
         source=src,
         db_path=db or Path(f.get("db", "robot.db")),
-        server_url=server_url,
+        server_urls=urls,
         robot_id=int(rid or 0),
         token=str(tok or ""),
         rate_hz=rate if rate is not None else f.get("rate"),
@@ -208,7 +217,7 @@ def agent_cmd(
     agent = Agent(settings)
     stop = threading.Event()
     stop_on_signals(stop)
-    where = f"server {server_url} as robot {rid}" if server_url else "no server"
+    where = f"server {', '.join(urls)} as robot {rid}" if urls else "no server"
     typer.echo(f"linemap agent: source {src}, Robot DB {settings.db_path}, {where}", err=True)
     agent.run(stop)
     closed = (

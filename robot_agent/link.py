@@ -8,6 +8,12 @@ wrong shape (each answer is validated against a pydantic model). ``retry_after_s
 ``Retry-After`` once validated: a non-negative finite number of seconds or an HTTP-date, capped at
 ``max_retry_after_s`` (garbage is ignored, with a log line). :class:`Backoff` spaces the retries
 (exponential, full jitter). See docs/reliability/agent.md.
+
+A link may name several server processes of one fleet (one database behind them all): calls go to one of
+them until it cannot answer (no response, 502, 503, 504), and from then to the next one in the list
+(round robin); the caller's retry then meets the next process. Nothing else changes: uploads carry their
+idempotency key and map versions, which the shared database checks, so a retried upload on another process
+is neither lost nor applied twice (docs/fleet.md).
 """
 
 from __future__ import annotations
@@ -17,9 +23,11 @@ import math
 import random
 import time
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass
 from email.utils import parsedate_to_datetime
 from typing import Any, TypeVar
+from urllib.parse import urlsplit
 
 import httpx
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -40,6 +48,7 @@ __all__ = [
     "UploadConflict",
     "is_transient",
     "parse_retry_after",
+    "server_urls",
 ]
 
 log = logging.getLogger(__name__)
@@ -119,6 +128,35 @@ class _Conflict(_Answer):
     current_stamp_s: float | None = None
 
 
+#: Answers after which the next call goes to the next server of the list: the process is gone, restarting or
+#: overloaded, and a proxy in front of it said so.
+_FAILOVER_STATUSES = (502, 503, 504)
+
+
+def server_urls(text: str | Sequence[str]) -> tuple[str, ...]:
+    """The server URLs of ``text`` (comma-separated, or a sequence), each ``http(s)://host[:port][/path]``,
+    without a trailing slash and without repeats or empty items, in order. Raises :class:`LinkError` naming
+    the first one that is not such a URL, or when none is given. O(n) in the number of URLs."""
+    items = text.split(",") if isinstance(text, str) else list(text)
+    out: list[str] = []
+    for raw in items:
+        url = str(raw).strip().rstrip("/")
+        if not url:  # "a,,b" or a trailing comma
+            continue
+        parts = urlsplit(url)
+        if parts.scheme not in ("http", "https") or not parts.hostname or parts.query or parts.fragment:
+            raise LinkError(f"server URL {str(raw).strip()!r}: expected http(s)://host[:port][/path]")
+        try:
+            parts.port  # noqa: B018 - raises ValueError on a port out of range or not a number
+        except ValueError:
+            raise LinkError(f"server URL {url!r}: the port is not a number in 1..65535") from None
+        if url not in out:
+            out.append(url)
+    if not out:
+        raise LinkError("no server URL given: expected one, or several separated by commas")
+    return tuple(out)
+
+
 def is_transient(exc: LinkError) -> bool:
     """A link failure the next attempt may not meet: no answer at all, 408, 429 or a 5xx."""
     return exc.status is None or exc.status in (408, 429) or exc.status >= 500
@@ -154,14 +192,18 @@ def parse_retry_after(value: str | None, cap_s: float, now_s: float | None = Non
 
 
 class ServerLink:
-    """Calls to one server as one robot (``Authorization: Bearer`` robot token), each with this agent
+    """Calls to a server as one robot (``Authorization: Bearer`` robot token), each with this agent
     process's ``instance_id`` (a new UUID unless given) in the ``X-Linemap-Agent-Instance`` header. Any
     call the server refuses as from a superseded agent (409 ``agent_superseded``) raises
-    :class:`SupersededError`, which is not retried."""
+    :class:`SupersededError`, which is not retried.
+
+    ``base_url``: one server URL, several separated by commas, or a sequence of them (the processes of one
+    fleet on one database); a call that gets no answer, 502, 503 or 504 moves the link to the next one
+    (:attr:`base_url` is the one in use)."""
 
     def __init__(
         self,
-        base_url: str,
+        base_url: str | Sequence[str],
         robot_id: int,
         token: str,
         *,
@@ -173,9 +215,9 @@ class ServerLink:
         self.robot_id = robot_id
         self.instance_id = instance_id or str(uuid.uuid4())
         self.max_retry_after_s = max_retry_after_s
-        self._base = base_url.rstrip("/") + "/api/v1"
+        self.base_urls = server_urls(base_url)
+        self._current = 0
         self._client = httpx.Client(
-            base_url=self._base,
             headers={
                 "Authorization": f"Bearer {token}",
                 "User-Agent": "linemap-agent",
@@ -185,8 +227,22 @@ class ServerLink:
             transport=transport,
         )
 
+    @property
+    def base_url(self) -> str:
+        """The server the next call goes to."""
+        return self.base_urls[self._current]
+
     def close(self) -> None:
         self._client.close()
+
+    def _fail_over(self, where: str, why: str) -> None:
+        """After a call to the current server failed with ``why``: the next calls go to the next server of
+        the list (nothing changes with one)."""
+        if len(self.base_urls) == 1:
+            return
+        gone = self.base_url
+        self._current = (self._current + 1) % len(self.base_urls)
+        log.warning("%s at %s: %s; the next calls go to %s", where, gone, why, self.base_url)
 
     def _call(
         self,
@@ -203,9 +259,13 @@ class ServerLink:
         try:
             if timeout_s is not None:
                 kwargs["timeout"] = httpx.Timeout(timeout_s)
-            resp = self._client.request(method, path, **kwargs)
+            resp = self._client.request(method, self.base_url + "/api/v1" + path, **kwargs)
         except httpx.HTTPError as exc:
-            raise LinkError(f"{where}: {type(exc).__name__}: {exc or 'no response'}") from None
+            why = f"{type(exc).__name__}: {exc or 'no response'}"
+            self._fail_over(where, why)
+            raise LinkError(f"{where}: {why}") from None
+        if resp.status_code in _FAILOVER_STATUSES:
+            self._fail_over(where, f"HTTP {resp.status_code}")
         retry = parse_retry_after(resp.headers.get("retry-after"), self.max_retry_after_s)
         ours = _content_type(resp) == "application/json"
         if resp.status_code == 409 and ours and _error_code(resp) == "agent_superseded":

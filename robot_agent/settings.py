@@ -18,11 +18,12 @@ __all__ = ["AgentSettings"]
 @dataclass(frozen=True)
 class AgentSettings:
     """How the agent runs. ``rate_hz`` None: the source's own pace (10 Hz simulated, log time stamps);
-    0: as fast as possible. ``server_url`` None: map alone (no link)."""
+    0: as fast as possible. ``server_urls``: the server, or the processes of one fleet's server to fail over
+    between (:class:`~robot_agent.link.ServerLink`); empty: map alone (no link)."""
 
     source: str
     db_path: Path
-    server_url: str | None = None
+    server_urls: tuple[str, ...] = ()
     robot_id: int = 0
     token: str = ""
     rate_hz: float | None = None

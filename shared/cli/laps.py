@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from shared.cli.progress import case_progress
@@ -46,7 +47,7 @@ def bench_laps_cmd(
     from shared.sim.worlds import KINDS
 
     console = Console(width=None if sys.stdout.isatty() else 200)
-    err = Console(stderr=True)
+    err = Console(stderr=True, soft_wrap=True)
     try:
         if world not in KINDS:
             raise LinemapError(f"--world {world!r}: expected one of {', '.join(KINDS)}")
@@ -76,7 +77,7 @@ def bench_laps_cmd(
             except OSError as exc:
                 raise LinemapError(f"cannot write {json_path}: {exc.strerror}") from None
     except LinemapError as exc:
-        err.print(f"[red]error:[/red] {exc}")
+        err.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(2) from None
     if markdown:
         typer.echo(laps_markdown(runs, str(png) if png else None), nl=False)

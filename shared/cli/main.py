@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from robot_agent.cli import agent_cmd
 from server.cli import server_app
@@ -42,7 +43,7 @@ app.command("report")(report_cmd)
 
 # Wide enough for the benchmark table when the output goes to a file or a pipe (rich assumes 80 columns).
 console = Console(width=None if sys.stdout.isatty() else 160)
-err_console = Console(stderr=True)
+err_console = Console(stderr=True, soft_wrap=True)  # an error line is never cut in two
 
 
 @app.callback()
@@ -79,7 +80,7 @@ def kernels_cmd(
         try:
             info = describe_kernel_file(describe)
         except LinemapError as exc:
-            err_console.print(f"[red]error:[/red] {exc}")
+            err_console.print(f"[red]error:[/red] {escape(str(exc))}")
             raise typer.Exit(2) from None
         what = f"{info['name']} {info['version']} ({info['stage']})"
         err_console.print(f"{what}: its parameters as JSON Schema")
@@ -113,7 +114,7 @@ def bench_kernels(
 
     if json_path is not None and not json_path.resolve().parent.is_dir():
         err_console.print(
-            f"[red]error:[/red] cannot write {json_path}: folder {json_path.parent} does not exist"
+            "[red]error:[/red] " + escape(f"cannot write {json_path}: folder {json_path.parent} does not exist")
         )
         raise typer.Exit(2)
     try:
@@ -131,7 +132,7 @@ def bench_kernels(
 
             report = run_kernel_bench(runs=runs, seed=seed, progress=note)
     except LinemapError as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(2) from None
     if markdown:
         typer.echo(bench_markdown(report), nl=False)
@@ -142,9 +143,9 @@ def bench_kernels(
         try:
             json_path.write_text(json.dumps(report.as_dict(), indent=2) + "\n", encoding="utf-8")
         except OSError as exc:
-            err_console.print(f"[red]error:[/red] cannot write {json_path}: {exc.strerror}")
+            err_console.print(f"[red]error:[/red] cannot write {escape(f'{json_path}: {exc.strerror}')}")
             raise typer.Exit(2) from None
-        err_console.print(f"figures written to {json_path}")
+        err_console.print(f"figures written to {escape(str(json_path))}")
 
 
 @bench_app.command("area")
@@ -281,7 +282,7 @@ def map_cmd(
             mcap=mcap,
         )
     except LinemapError as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(2) from None
     console.print(run_summary(src.name, run))
     if run.scans and len(run.snapshot.segments) == 0:
@@ -292,9 +293,9 @@ def map_cmd(
     if src.world is not None:
         console.print(accuracy_table(run.snapshot, src.world, src.true_trajectory))
     for path in written:
-        console.print(f"wrote {path}")
+        console.print(f"wrote {escape(str(path))}")
     if stopped is not None:
-        err_console.print(f"[red]error:[/red] {stopped}")
+        err_console.print(f"[red]error:[/red] {escape(str(stopped))}")
         raise typer.Exit(2)
 
 
@@ -317,10 +318,10 @@ def eval_cmd(
         if json_path is not None:
             json_path.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
     except LinemapError as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(2) from None
     except OSError as exc:
-        err_console.print(f"[red]error:[/red] cannot write {json_path}: {exc.strerror}")
+        err_console.print(f"[red]error:[/red] cannot write {escape(f'{json_path}: {exc.strerror}')}")
         raise typer.Exit(2) from None
     console.print(evaluation_table(figures))
 
@@ -331,12 +332,12 @@ def main() -> None:
     try:
         app()
     except LinemapError as exc:  # expected errors of commands that let them through
-        err_console.print(f"[red]error:[/red] {exc}")
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}")
         raise SystemExit(2) from None
     except Exception as exc:  # the last line of defence; expected errors are handled per command
         logging.getLogger(__name__).debug("unexpected failure", exc_info=True)
         err_console.print(
-            f"[red]internal error:[/red] {type(exc).__name__}: {exc} "
+            f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))} "
             "(this is a bug in linemap: please report it with the command you ran; --verbose shows details)"
         )
         raise SystemExit(3) from None

@@ -12,6 +12,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from shared.bench.tables import WORLD_COLUMNS, worlds_markdown, worlds_rows
@@ -98,7 +99,7 @@ def bench_worlds_cmd(
     from shared.sim.worlds import KINDS
 
     console = Console(width=None if sys.stdout.isatty() else 200)
-    err = Console(stderr=True)
+    err = Console(stderr=True, soft_wrap=True)
     if list_kinds:
         table = Table(title="world kinds of the scenario suite")
         for col in ("kind", "odometry", "drive", "what"):
@@ -141,13 +142,13 @@ def bench_worlds_cmd(
             except OSError as exc:
                 raise LinemapError(f"cannot write {json_path}: {exc.strerror}") from None
     except LinemapError as exc:
-        err.print(f"[red]error:[/red] {exc}")
+        err.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(2) from None
     if markdown:
         typer.echo(worlds_markdown(results), nl=False)
     else:
         console.print(worlds_table(results))
     if json_path is not None:
-        err.print(f"figures written to {json_path}")
+        err.print(f"figures written to {escape(str(json_path))}")
     if out is not None:
         err.print(f"pictures written to {out}")

@@ -142,7 +142,7 @@ def test_a_dead_poller_is_restarted_and_reported(live: Live, tmp_path: Path) -> 
     settings = AgentSettings(
         source="sim",
         db_path=tmp_path / "robot.db",
-        server_url=live.base_url,
+        server_urls=(live.base_url,),
         robot_id=rid,
         token=token,
         rate_hz=20,
