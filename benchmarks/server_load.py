@@ -155,14 +155,23 @@ class Robot:
     token: str
     poll_open_since: float | None = None  # perf_counter when its current long-poll was sent
     message_sent: float | None = None  # perf_counter just before the operator's POST to it
+    home: int = 0  # index of the server process it talks to (Load.bases); moves on a transport error
+    uploads_at: list[float] = field(default_factory=list)  # perf_counter of each accepted upload's answer
+    version: int = 0  # its last map version the server accepted
 
 
 class Load:
     """The simulated fleet, the operator's messages and the SSE subscriber, in one event loop; ``probe``
     (optional) returns the server's RSS in kB, sampled every ``cfg.sample_s``."""
 
-    def __init__(self, cfg: Config, base: str, admin: str, probe: Callable[[], int] | None = None) -> None:
-        self.cfg, self.base, self.admin, self.probe = cfg, base + API, admin, probe
+    def __init__(
+        self, cfg: Config, base: str | list[str], admin: str, probe: Callable[[], int] | None = None
+    ) -> None:
+        # several server processes on one database: robot i talks to process i mod n, the operator's messages
+        # and the map viewer go to the next process (the cross-process path); on a transport error a robot
+        # moves on to the next process, as the agent's link does with a list of server URLs
+        self.bases = [b + API for b in ([base] if isinstance(base, str) else base)]
+        self.cfg, self.base, self.admin, self.probe = cfg, self.bases[0], admin, probe
         self.robots, self.res = list[Robot](), Results()
         # version -> perf_counter: robot 0's uploads sent, and their events parsed by the subscriber
         self.sent_at, self.seen_at = dict[int, float](), dict[int, float]()
@@ -174,7 +183,13 @@ class Load:
         with httpx.Client(base_url=self.base, headers=auth, timeout=30) as c:
             for i in range(self.cfg.robots):
                 r = c.post("/robots", json={"name": f"{tag}-{i}"}).raise_for_status()  # else: setup failed
-                self.robots.append(Robot(int(r.json()["id"]), str(r.json()["token"])))
+                self.robots.append(
+                    Robot(int(r.json()["id"]), str(r.json()["token"]), home=i % len(self.bases))
+                )
+
+    def at(self, robot: Robot, path: str, other: bool = False) -> str:
+        """The URL of ``path`` on ``robot``'s process (``other``: on the next one)."""
+        return self.bases[(robot.home + int(other)) % len(self.bases)] + path
 
     def payload(self, k: int, version: int, snapshot: bool, rng: random.Random) -> dict[str, Any]:
         """Upload ``k``: ``segments`` walls, ids sliding by 1/20 per upload (the rest removed), 5 poses."""
@@ -193,22 +208,30 @@ class Load:
             **STATUS,
         }
 
-    async def call(self, kind: str, request: Awaitable[httpx.Response]) -> httpx.Response | None:
-        """The response, or ``None`` on an exception (counted as an error, like a non-2xx status)."""
+    async def call(
+        self, kind: str, request: Awaitable[httpx.Response], robot: Robot | None = None
+    ) -> httpx.Response | None:
+        """The response, or ``None`` on an exception (counted as an error, like a non-2xx status; a
+        transport error moves ``robot`` to the next server process)."""
         try:
             r = await request
         except httpx.HTTPError as exc:
             self.res.error(kind, f"{type(exc).__name__}: {exc}")
+            if robot is not None and isinstance(exc, httpx.TransportError):
+                robot.home = (robot.home + 1) % len(self.bases)
             return None
         if not r.is_success:
             self.res.error(kind, f"HTTP {r.status_code} {r.text[:120]}")
         return r
 
     async def uploader(self, robot: Robot, client: httpx.AsyncClient) -> None:
-        idx, period, url = self.robots.index(robot), self.cfg.period_s, f"{self.base}/robots/{robot.id}/maps"
+        """Robot ``robot``'s uploads, one per period. An upload that got no answer is sent again as it was
+        (same body, same idempotency key: the server may have applied it), as the agent does."""
+        idx, period, path = self.robots.index(robot), self.cfg.period_s, f"/robots/{robot.id}/maps"
         rng, start = random.Random(idx), self.t0 + idx * period / len(self.robots)
         version, snapshot, k = 0, True, 0
         headers = {"Authorization": f"Bearer {robot.token}", "Content-Type": "application/json"}
+        unanswered: tuple[bytes, str] | None = None
         while (slot := start + k * period) < self.end:
             if slot > (now := time.perf_counter()):
                 await asyncio.sleep(slot - now)
@@ -216,25 +239,36 @@ class Load:
                 self.res.skipped_slots += behind
                 k += behind
                 continue
-            body = json.dumps(self.payload(k, version + 1, snapshot, rng)).encode()
-            headers["Idempotency-Key"] = f"r{robot.id}-k{k}-{rng.getrandbits(64):016x}"
+            body, key = unanswered or (
+                json.dumps(self.payload(k, version + 1, snapshot, rng)).encode(),
+                f"r{robot.id}-k{k}-{rng.getrandbits(64):016x}",
+            )
+            headers["Idempotency-Key"] = key
             k, t_send = k + 1, time.perf_counter()
             if idx == 0:
-                self.sent_at[version + 1] = t_send
-            r = await self.call("upload", client.post(url, content=body, headers=headers))
-            if r is not None:
-                self.res.upload_s.append(time.perf_counter() - t_send)
-                self.res.upload_at_s.append(t_send - self.t0)
-            snapshot = r is None or not r.is_success  # the server's version unknown: send a snapshot next
-            version = int(r.json().get("current_version", version)) if r and r.status_code == 409 else version
+                self.sent_at.setdefault(version + 1, t_send)
+            r = await self.call(
+                "upload", client.post(self.at(robot, path), content=body, headers=headers), robot
+            )
+            unanswered = (body, key) if r is None else None
+            if r is None:
+                continue
+            self.res.upload_s.append(time.perf_counter() - t_send)
+            self.res.upload_at_s.append(t_send - self.t0)
+            snapshot = not r.is_success  # the server's version unknown: send a snapshot next
+            version = int(r.json().get("current_version", version)) if r.status_code == 409 else version
             version += 0 if snapshot else 1
+            if r.is_success:
+                robot.uploads_at.append(time.perf_counter())
+                robot.version = version
 
     async def poller(self, robot: Robot, client: httpx.AsyncClient) -> None:
         after, headers = 0, {"Authorization": f"Bearer {robot.token}"}
-        url, wait = f"{self.base}/robots/{robot.id}/messages", LONG_POLL_S
+        path, wait = f"/robots/{robot.id}/messages", LONG_POLL_S
         while time.perf_counter() < self.end:
             robot.poll_open_since, q = time.perf_counter(), {"after": after, "wait": wait}
-            r = await self.call("long-poll", client.get(url, params=q, headers=headers))
+            get = client.get(self.at(robot, path), params=q, headers=headers)
+            r = await self.call("long-poll", get, robot)
             now, robot.poll_open_since = time.perf_counter(), None
             if r is None or not r.is_success:
                 await asyncio.sleep(0.5)
@@ -261,13 +295,14 @@ class Load:
                 continue
             robot = idle[turn % len(idle)]
             robot.message_sent = time.perf_counter()
-            post = client.post(f"{self.base}/robots/{robot.id}/messages", content=MESSAGE_XML, headers=hdrs)
+            url = self.at(robot, f"/robots/{robot.id}/messages", other=True)
+            post = client.post(url, content=MESSAGE_XML, headers=hdrs)
             if (r := await self.call("message", post)) is None or not r.is_success:
                 robot.message_sent = None
 
     async def subscriber(self, client: httpx.AsyncClient, ready: asyncio.Event) -> None:
         """Robot 0's map stream: when each event was parsed, by version."""
-        url, data = f"{self.base}/robots/{self.robots[0].id}/maps/stream", []
+        url, data = self.at(self.robots[0], f"/robots/{self.robots[0].id}/maps/stream", other=True), []
         headers, timeout = {"Authorization": f"Bearer {self.admin}"}, httpx.Timeout(10, read=None)
         try:
             async with client.stream("GET", url, headers=headers, timeout=timeout) as r:
