@@ -15,6 +15,7 @@ from rich.console import Console
 from robot_agent.cli import agent_cmd
 from server.cli import server_app
 from shared.cli.demo import demo_cmd
+from shared.cli.foxglove import foxglove_cmd
 from shared.cli.keys import keys_app
 from shared.cli.laps import bench_laps_cmd
 from shared.cli.report import report_cmd
@@ -38,6 +39,7 @@ app.add_typer(keys_app, name="keys")
 app.add_typer(server_app, name="server")
 app.command("agent")(agent_cmd)
 app.command("demo")(demo_cmd)
+app.command("foxglove")(foxglove_cmd)
 app.command("report")(report_cmd)
 
 # Wide enough for the benchmark table when the output goes to a file or a pipe (rich assumes 80 columns).
