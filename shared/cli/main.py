@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from robot_agent.cli import agent_cmd
 from server.cli import server_app
@@ -333,12 +334,12 @@ def main() -> None:
     try:
         app()
     except LinemapError as exc:  # expected errors of commands that let them through
-        err_console.print(f"[red]error:[/red] {exc}")
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}")  # text in [brackets] shown as is
         raise SystemExit(2) from None
     except Exception as exc:  # the last line of defence; expected errors are handled per command
         logging.getLogger(__name__).debug("unexpected failure", exc_info=True)
         err_console.print(
-            f"[red]internal error:[/red] {type(exc).__name__}: {exc} "
+            f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))} "
             "(this is a bug in linemap: please report it with the command you ran; --verbose shows details)"
         )
         raise SystemExit(3) from None
