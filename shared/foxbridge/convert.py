@@ -112,13 +112,13 @@ def trajectory_update(state: MapState, stamp: Timestamp) -> SceneUpdate:
 
 
 def centroids_update(state: MapState, stamp: Timestamp) -> SceneUpdate:
-    """The cluster centroids as one entity (id ``centroids``, frame ``map``): a small sphere each."""
+    """The cluster centroids as one entity (id ``centroids``, frame ``map``): a small sphere each (the
+    size, colour and orientation objects shared by all: they are most of the cost)."""
     size = Vector3(x=CENTROID_SIZE_M, y=CENTROID_SIZE_M, z=CENTROID_SIZE_M)
+    color, upright = _color(_CENTROID_COLOR), yaw_quaternion(0.0)
     spheres = [
         SpherePrimitive(
-            pose=Pose(position=Vector3(x=x, y=y, z=0.0), orientation=yaw_quaternion(0.0)),
-            size=size,
-            color=_color(_CENTROID_COLOR),
+            pose=Pose(position=Vector3(x=x, y=y, z=0.0), orientation=upright), size=size, color=color
         )
         for x, y in state.centroids
     ]
