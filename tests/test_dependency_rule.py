@@ -38,6 +38,7 @@ LAYERS: dict[str, int] = {
     "shared.report": 11,
     "server": 12,
     "robot_agent": 12,
+    "shared.foxbridge": 12,
     "shared.cli": 13,
 }
 

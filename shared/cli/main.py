@@ -16,6 +16,7 @@ from rich.markup import escape
 from robot_agent.cli import agent_cmd
 from server.cli import server_app
 from shared.cli.demo import demo_cmd
+from shared.cli.foxglove import foxglove_cmd
 from shared.cli.keys import keys_app
 from shared.cli.laps import bench_laps_cmd
 from shared.cli.report import report_cmd
@@ -39,6 +40,7 @@ app.add_typer(keys_app, name="keys")
 app.add_typer(server_app, name="server")
 app.command("agent")(agent_cmd)
 app.command("demo")(demo_cmd)
+app.command("foxglove")(foxglove_cmd)
 app.command("report")(report_cmd)
 
 # Wide enough for the benchmark table when the output goes to a file or a pipe (rich assumes 80 columns).
@@ -114,7 +116,8 @@ def bench_kernels(
 
     if json_path is not None and not json_path.resolve().parent.is_dir():
         err_console.print(
-            "[red]error:[/red] " + escape(f"cannot write {json_path}: folder {json_path.parent} does not exist")
+            "[red]error:[/red] "
+            + escape(f"cannot write {json_path}: folder {json_path.parent} does not exist")
         )
         raise typer.Exit(2)
     try:
@@ -332,7 +335,7 @@ def main() -> None:
     try:
         app()
     except LinemapError as exc:  # expected errors of commands that let them through
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}")
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}")  # text in [brackets] shown as is
         raise SystemExit(2) from None
     except Exception as exc:  # the last line of defence; expected errors are handled per command
         logging.getLogger(__name__).debug("unexpected failure", exc_info=True)
