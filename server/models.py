@@ -295,6 +295,7 @@ class Rollout(Base):
     max_failure_share: Mapped[float] = mapped_column(Float)
     commit_window_s: Mapped[float] = mapped_column(Float)
     ack_timeout_s: Mapped[float] = mapped_column(Float)
+    watch_timeout_s: Mapped[float] = mapped_column(Float, default=3600.0, server_default="3600")
     max_step_ratio: Mapped[float | None] = mapped_column(Float, default=None)
     fail_on_rollback_error: Mapped[bool] = mapped_column(default=True)
     wave: Mapped[int] = mapped_column(Integer, default=0)
@@ -309,10 +310,11 @@ class Rollout(Base):
 class RolloutRobot(Base):
     """One robot of a rollout: its place (``position``; wave 0 = canaries), state and the reason.
 
-    ``state``: pending | sent | applied (in its commit window) | installed | rolled-back | failed | skipped.
-    ``previous`` is the stage's kernel (``name@version``) before the update: what a rollback goes back to.
-    ``watch``: a robot given up on (no acknowledgement in time) whose queued update may still be applied
-    later; the driver rolls it back if it is."""
+    ``state``: pending | sent | applied (in its commit window) | installed | rolled-back | failed |
+    timed-out | skipped. ``previous`` is the stage's kernel (``name@version``) before the update: what a
+    rollback goes back to. ``watch``: a ``timed-out`` robot (no acknowledgement in time) whose queued
+    update may still be applied later; the driver rolls it back if it is, until the rollout's
+    ``watch_timeout_s`` after it was sent."""
 
     __tablename__ = "rollout_robots"
     __table_args__ = (UniqueConstraint("rollout_id", "robot_id"),)

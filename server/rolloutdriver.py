@@ -2,8 +2,10 @@
 
 Each tick re-reads the rollouts from the database (a restarted server resumes them), and advances each one
 in a transaction of its own: :func:`server.rolloutplan.advance` decides, this module queues the update and
-rollback messages (as ``POST /robots/{id}/messages`` would, numbered in the robot's sequence) and writes
-the audit entries in that same transaction.
+rollback messages through :func:`server.msgqueue.queue_message`, the path ``POST /robots/{id}/messages``
+takes (the same checks, numbering, ``message.post`` audit entry and cross-process ``NOTIFY``), and writes
+the rollout's audit entries in that same transaction. A message the checks refuse (say the kernel version
+was deleted since the rollout began) fails that robot with the server's reason; nothing is queued for it.
 
 One process drives a rollout at a time, across processes sharing the database: the transaction begins by
 taking the rollout's lease (``UPDATE rollouts SET lease_owner = me, lease_until = now + lease WHERE id = ..
@@ -30,8 +32,10 @@ from sqlalchemy import or_, select, update
 from sqlalchemy.orm import Session
 
 from server.deps import AppState
+from server.errors import NotFoundError, ServerError
 from server.hub import Hub
 from server.models import AuditEntry, Message, Robot, Rollout, RolloutRobot, utcnow
+from server.msgqueue import queue_message
 from server.rolloutplan import Observation, Outcome, RobotRun, RolloutView, advance
 from shared.control import parse_message
 
@@ -81,6 +85,7 @@ def load(s: Session, row: Rollout) -> tuple[RolloutView, list[RolloutRobot]]:
         max_failure_share=row.max_failure_share,
         commit_window_s=row.commit_window_s,
         ack_timeout_s=row.ack_timeout_s,
+        watch_timeout_s=row.watch_timeout_s,
         max_step_ratio=row.max_step_ratio,
         fail_on_rollback_error=row.fail_on_rollback_error,
         stop_reason=row.stop_reason,
@@ -149,25 +154,25 @@ def observe(s: Session, stage: str, rows: list[RolloutRobot]) -> dict[int, Obser
     return out
 
 
-def _queue(s: Session, robot_id: int, xml: str, actor: str) -> int | None:
-    parse_message(xml)  # built here from validated parts: a failure is a bug, not bad input
-    seq = s.execute(
-        update(Robot)
-        .where(Robot.id == robot_id)
-        .values(last_seq=Robot.last_seq + 1)
-        .returning(Robot.last_seq)
-    ).scalar_one_or_none()
-    if seq is None:
-        return None  # deleted meanwhile
-    s.add(Message(robot_id=robot_id, seq=seq, xml=xml, created_by=actor, status="queued"))
-    return int(seq)
+def _queue(s: Session, hub: Hub, row: Rollout, robot_id: int, xml: str) -> int | str | None:
+    """Queue ``xml`` for the robot as an operator's message is queued: its number, the server's reason
+    when the checks refuse it, or None when the robot was deleted meanwhile."""
+    try:
+        m = queue_message(s, hub, robot_id, xml, parse_message(xml), f"rollout:{row.id}", rollout=row.id)
+    except NotFoundError:
+        return None
+    except ServerError as exc:
+        log.warning("rollout %d: message for robot %d refused: %s", row.id, robot_id, exc.detail)
+        return exc.detail
+    return int(m.seq)
 
 
 def apply_outcome(
-    s: Session, row: Rollout, rows: list[RolloutRobot], out: Outcome, now: datetime
+    s: Session, hub: Hub, row: Rollout, rows: list[RolloutRobot], out: Outcome, now: datetime
 ) -> list[tuple[int, int]]:
     """Write ``out`` back: the rollout, its robots, the queued messages and the audit entries. Returns the
-    ``(robot_id, seq)`` of the messages queued (to wake the robots' long-polls after the commit)."""
+    ``(robot_id, seq)`` of the messages queued (to wake this process's long-polls after the commit; the
+    other processes hear of them through ``hub``'s notices)."""
     actor = f"rollout:{row.id}"
     was_terminal = row.state in TERMINAL
     row.state, row.wave, row.stop_reason, row.active = (
@@ -183,29 +188,29 @@ def apply_outcome(
         target = by_id[run.robot_id]
         for f in _RUN_FIELDS:
             setattr(target, f, getattr(run, f))
+    events = [(ev.action, ev.robot_id, dict(ev.detail)) for ev in out.events]
     queued: list[tuple[int, int]] = []
     for rid in out.sends:
-        seq = _queue(s, rid, update_xml(row), actor)
-        if seq is not None:
-            by_id[rid].seq = seq
-            queued.append((rid, seq))
+        got = _queue(s, hub, row, rid, update_xml(row))
+        if isinstance(got, int):
+            by_id[rid].seq = got
+            queued.append((rid, got))
+        elif isinstance(got, str):  # refused: failed, with the server's reason (counted next tick)
+            why = f"the server refused the update: {got}"
+            by_id[rid].state, by_id[rid].reason, by_id[rid].finished_at = "failed", why, now
+            events.append(("rollout.robot.failed", rid, {"reason": why}))
     for rid, previous in out.rollbacks:
-        seq = _queue(s, rid, rollback_xml(row.stage, previous), actor)
-        if seq is not None:
-            by_id[rid].rollback_seq = seq
-            queued.append((rid, seq))
-            s.add(
-                AuditEntry(
-                    actor=actor,
-                    action="kernel.below_floor",
-                    target=f"robot:{rid}",
-                    detail={"seq": seq, "stage": row.stage, "kernel": previous, "rollout": row.id},
-                )
-            )
-    for ev in out.events:
-        where = f"robot:{ev.robot_id}" if ev.robot_id is not None else f"rollout:{row.id}"
-        detail: dict[str, Any] = {"rollout": row.id, **ev.detail}
-        s.add(AuditEntry(actor=actor, action=ev.action, target=where, detail=detail))
+        got = _queue(s, hub, row, rid, rollback_xml(row.stage, previous))
+        if isinstance(got, int):
+            by_id[rid].rollback_seq = got
+            queued.append((rid, got))
+        elif isinstance(got, str):
+            by_id[rid].reason = f"{by_id[rid].reason}; the server refused its rollback: {got}"
+            events.append(("rollout.robot.rollback_refused", rid, {"reason": got, "to": previous}))
+    for action, robot_id, more in events:
+        where = f"robot:{robot_id}" if robot_id is not None else f"rollout:{row.id}"
+        detail: dict[str, Any] = {"rollout": row.id, **more}
+        s.add(AuditEntry(actor=actor, action=action, target=where, detail=detail))
     return queued
 
 
@@ -265,15 +270,15 @@ class RolloutDriver:
             assert row is not None
             view, rows = load(s, row)
             out = advance(view, tuple(run_of(r) for r in rows), observe(s, row.stage, rows), now)
-            queued = apply_outcome(s, row, rows, out, now)
+            queued = apply_outcome(s, self.state.hub, row, rows, out, now)
             if not row.active:
                 row.lease_owner, row.lease_until = None, None
         return queued
 
 
 def wake(hub: Hub, queued: list[tuple[int, int]]) -> None:
-    """Wake the long-polls of the robots just sent a message (on the event loop: the hub is not
-    thread-safe); robots on other server processes see it within their ``poll_recheck_s``."""
+    """Wake this process's long-polls of the robots just sent a message (on the event loop: the hub is not
+    thread-safe); the other server processes were told at commit (PostgreSQL ``NOTIFY``)."""
     for rid, seq in queued:
         hub.publish(f"messages:{rid}", seq)
 

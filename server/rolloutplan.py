@@ -10,12 +10,15 @@ Rules, in order, each tick:
 
 1. a robot whose update was sent: ``applied`` starts its commit window; ``rejected`` fails it with the
    robot's reason; ``rolled-back`` marks it rolled back by the robot itself; no acknowledgement within
-   ``ack_timeout_s`` fails it (and it is *watched*: if it applies the update later it is rolled back);
+   ``ack_timeout_s`` marks it ``timed-out`` (a failure) and *watched*: if it applies the update later it
+   is rolled back; ``watch_timeout_s`` after the update was sent the watch ends and a rollback is queued
+   behind the update (so a robot that comes back later applies both, in order);
 2. a robot in its commit window fails (and is rolled back) on a ``rolled-back`` acknowledgement, a new
    ``last_error`` that mentions a rollback (a guard trip) or a step time above ``max_step_ratio`` x its
    step time before the update; once the window has passed healthy and the robot reports the version
    active it is committed (``installed``); applied but not reported active within the window plus
-   ``ack_timeout_s``: rolled back;
+   ``ack_timeout_s``: rolled back. A committed robot stays judged by the same health rules while the
+   rollout is running or paused (its later waves): a failure after the commit counts like any other;
 3. the rollout stops when any canary failed or failures / robots tried > ``max_failure_share`` (tried:
    every robot the update was sent to, decided or not): pending robots are skipped, every robot that runs
    the update (in its window or committed) is rolled back, and robots still to acknowledge are rolled
@@ -50,9 +53,10 @@ __all__ = [
 ]
 
 #: Robot states that count as a failure of the update.
-FAILED_STATES = frozenset({"failed", "rolled-back"})
-#: Robot states with nothing left to wait for.
-DECIDED = frozenset({"installed", "failed", "rolled-back", "skipped"})
+FAILED_STATES = frozenset({"failed", "rolled-back", "timed-out"})
+#: Robot states with nothing left to wait for (a ``timed-out`` robot may still be watched: ``watch``).
+DECIDED = frozenset({"installed", "failed", "rolled-back", "timed-out", "skipped"})
+_ACTIONS = {"rolled-back": "rollout.robot.rolled_back", "timed-out": "rollout.robot.timed_out"}
 TERMINAL = frozenset({"completed", "stopped", "aborted"})
 
 
@@ -71,6 +75,7 @@ class RolloutView:
     max_failure_share: float = 0.0
     commit_window_s: float = 60.0
     ack_timeout_s: float = 300.0
+    watch_timeout_s: float = 3600.0
     max_step_ratio: float | None = None
     fail_on_rollback_error: bool = True
     stop_reason: str | None = None
@@ -166,7 +171,7 @@ class _Tick:
             self.rollbacks.append((rid, run.previous))
             state = "rolled-back"
         self.set(rid, state=state, reason=reason, **more)
-        action = "rollout.robot.rolled_back" if state == "rolled-back" else "rollout.robot.failed"
+        action = _ACTIONS.get(state, "rollout.robot.failed")
         detail: dict[str, Any] = {"reason": reason}
         if roll_back and run.previous is not None:
             detail["to"] = run.previous
@@ -213,8 +218,11 @@ def _judge_sent(t: _Tick, run: RobotRun, seen: Observation) -> None:
         why = f"the robot rolled it back: {seen.ack_reason}"
         t.fail(run.robot_id, why, roll_back=False, state="rolled-back")
     elif _age_s(t.now, run.sent_at) >= t.rollout.ack_timeout_s:
-        why = f"no acknowledgement within {t.rollout.ack_timeout_s:g} s (offline or stuck?)"
-        t.fail(run.robot_id, why, roll_back=False, watch=True)
+        why = (
+            f"no acknowledgement within {t.rollout.ack_timeout_s:g} s (offline or stuck?); watched for a "
+            f"late answer until {t.rollout.watch_timeout_s:g} s after it was sent"
+        )
+        t.fail(run.robot_id, why, roll_back=False, state="timed-out", watch=True)
 
 
 def _health(r: RolloutView, run: RobotRun, seen: Observation) -> str | None:
@@ -252,12 +260,34 @@ def _judge_applied(t: _Tick, run: RobotRun, seen: Observation) -> None:
         t.fail(rid, why, roll_back=True)
 
 
+def _judge_installed(t: _Tick, run: RobotRun, seen: Observation) -> None:
+    """A committed robot while the rollout goes on (running or paused): the same health rules as in its
+    window; a robot committed without being sent the update (it ran the version already) is not judged."""
+    if t.rollout.state not in ("running", "paused") or run.sent_at is None or run.previous is None:
+        return
+    if seen.ack == "rolled-back":
+        own = f"after its commit, the robot rolled it back: {seen.ack_reason}"
+        t.fail(run.robot_id, own, roll_back=False, state="rolled-back")
+        return
+    why = _health(t.rollout, run, seen)
+    if why is not None:
+        t.fail(run.robot_id, f"after its commit, {why}", roll_back=True)
+
+
 def _judge_watched(t: _Tick, run: RobotRun, seen: Observation) -> None:
+    rid = run.robot_id
     if seen.ack == "applied":
         reason = f"{run.reason}; applied later, rolled back"
-        t.fail(run.robot_id, reason, roll_back=True, watch=False)
+        t.fail(rid, reason, roll_back=True, watch=False)
     elif seen.ack in ("rejected", "rolled-back"):
-        t.set(run.robot_id, watch=False)
+        t.set(rid, watch=False, reason=f"{run.reason}; answered later: {seen.ack} ({seen.ack_reason})")
+    elif _age_s(t.now, run.sent_at) >= t.rollout.watch_timeout_s:
+        why = f"{run.reason}; no answer within {t.rollout.watch_timeout_s:g} s: no longer watched"
+        if run.previous is not None:
+            t.rollbacks.append((rid, run.previous))
+            why += f"; a rollback to {run.previous} is queued behind its update"
+        t.set(rid, watch=False, reason=why)
+        t.events.append(Event("rollout.robot.unwatched", rid, {"reason": why, "to": run.previous}))
 
 
 def stop(t_or: Outcome, reason: str, now: datetime, *, state: str = "stopped") -> Outcome:
@@ -349,6 +379,8 @@ def advance(
             run = t.robots[rid]
         if run.state == "applied":
             _judge_applied(t, run, seen)
+        elif run.state == "installed":
+            _judge_installed(t, run, seen)
         elif run.watch:
             _judge_watched(t, run, seen)
     if t.rollout.state in ("running", "paused"):

@@ -40,6 +40,13 @@ class RolloutIn(BaseModel):
     ack_timeout_s: float = Field(
         300.0, gt=0, le=86_400, description="A robot that does not acknowledge within this fails (s)."
     )
+    watch_timeout_s: float = Field(
+        3600.0,
+        gt=0,
+        le=7 * 86_400,
+        description="A timed-out robot is watched for a late answer until this long after it was sent (s); "
+        "then the rollout gives up on it (queues its rollback) and can finish.",
+    )
     max_step_ratio: float | None = Field(
         2.0,
         gt=1,
@@ -56,7 +63,9 @@ class RolloutRobotOut(BaseModel):
     robot_name: str
     position: int
     wave: int = Field(description="0: canary; 1, 2, ...: the waves after.")
-    state: str = Field(description="pending | sent | applied | installed | rolled-back | failed | skipped")
+    state: str = Field(
+        description="pending | sent | applied | installed | rolled-back | failed | timed-out | skipped"
+    )
     reason: str | None
     previous: str | None = Field(description="The stage's kernel before the update (name@version).")
     seq: int | None = Field(description="The update message's number in the robot's sequence.")
@@ -64,6 +73,7 @@ class RolloutRobotOut(BaseModel):
     sent_at: datetime | None
     applied_at: datetime | None
     finished_at: datetime | None
+    watched: bool = Field(description="Timed out, but still watched for a late answer.")
 
 
 class RolloutOut(BaseModel):
@@ -80,6 +90,7 @@ class RolloutOut(BaseModel):
     max_failure_share: float
     commit_window_s: float
     ack_timeout_s: float
+    watch_timeout_s: float
     max_step_ratio: float | None
     fail_on_rollback_error: bool
     stop_reason: str | None

@@ -3,7 +3,7 @@
 A message is validated with the shared parser before it is queued (422 with the parser's reason and the
 element otherwise), and its settings with the robot's own validation (:mod:`server.msgcheck`: 422 naming
 the parameter and its range); kernel operations must name a kernel version the server holds, with its
-sha256. Each
+sha256 (:mod:`server.msgqueue`, the queueing path the rollout driver takes too). Each
 robot's messages are numbered 1, 2, ... in the order they were queued; the robot asks for those after the
 last one it applied, so a message is delivered in order and, with the robot's own record of applied
 numbers, applied once.
@@ -18,8 +18,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import select, update
-from sqlalchemy.orm import Session
+from sqlalchemy import select
 
 from server.audit import record
 from server.deps import (
@@ -33,15 +32,14 @@ from server.deps import (
     still_valid,
 )
 from server.errors import AuthError, ConflictError, InvalidRequestError, NotFoundError, TooLargeError
-from server.models import KernelArtifact, Message, Robot, utcnow
-from server.msgcheck import check_like_robot
+from server.models import Message, utcnow
+from server.msgqueue import queue_message
 from server.routers.robots import get_robot
 from server.schemas import DB_INT_MAX, AckIn, DbIdPath, MessageList, MessageOut
 from shared.control import (
     MAX_MESSAGE_BYTES,
     ControlMessage,
     ControlMessageError,
-    OperationKind,
     parse_message,
 )
 
@@ -71,79 +69,11 @@ def _out(m: Message) -> dict[str, object]:
     }
 
 
-def _check_operations(s: Session, msg: ControlMessage) -> None:
-    for op in msg.operations:
-        if op.kind not in (OperationKind.INSTALL, OperationKind.UPDATE):
-            continue
-        art = s.scalars(
-            select(KernelArtifact).where(KernelArtifact.name == op.name, KernelArtifact.version == op.version)
-        ).first()
-        where = f"line {op.line} " if op.line else ""
-        if art is None or art.deleted_at is not None:
-            state = "was deleted" if art is not None else "is not on the server"
-            raise InvalidRequestError(
-                f"{where}<{op.kind.value}>: kernel {op.name} {op.version} {state}; upload it first",
-                element=f"<{op.kind.value}>",
-                line=op.line,
-            )
-        if op.sha256 is not None and op.sha256 != art.sha256:
-            raise InvalidRequestError(
-                f"{where}<{op.kind.value}>: sha256 {op.sha256} does not match the server's kernel "
-                f"{op.name} {op.version} (sha256 {art.sha256})",
-                element=f"<{op.kind.value}>",
-                line=op.line,
-            )
-        if art.stage != op.stage.value:
-            raise InvalidRequestError(
-                f"{where}<{op.kind.value}>: kernel {op.name} {op.version} is a {art.stage} kernel, "
-                f"not {op.stage.value}",
-                element=f"<{op.kind.value}>",
-                line=op.line,
-            )
-
-
-def _record_floor_overrides(s: Session, msg: ControlMessage, who: Principal, robot_id: int, seq: int) -> None:
-    """One ``kernel.below_floor`` audit entry per ``<kernel-rollback below-floor="allow">``: the operator's
-    explicit override of the robot's anti-rollback floor (docs/reliability/supply-chain.md), the only way
-    a message may take a kernel below a version the robot has run. Robots cannot queue messages, so the
-    entry names the operator who asked for it."""
-    for op in msg.operations:
-        if op.kind is OperationKind.ROLLBACK and op.below_floor:
-            record(
-                s,
-                who,
-                "kernel.below_floor",
-                f"robot:{robot_id}",
-                seq=seq,
-                stage=op.stage.value,
-                kernel=f"{op.name}@{op.version}",
-            )
-
-
 def _queue(
     state: AppState, robot_id: int, xml: str, msg: ControlMessage, who: Principal
 ) -> dict[str, object]:
     with state.db.session() as s:
-        robot = s.get(Robot, robot_id)
-        if robot is None:
-            raise NotFoundError(f"no robot with id {robot_id}")
-        _check_operations(s, msg)
-        check_like_robot(s, robot, msg)  # parameters and configuration, as the robot will check them
-        seq = s.execute(
-            update(Robot)
-            .where(Robot.id == robot_id)
-            .values(last_seq=Robot.last_seq + 1)
-            .returning(Robot.last_seq)
-        ).scalar_one_or_none()
-        if seq is None:
-            raise NotFoundError(f"no robot with id {robot_id}")
-        m = Message(robot_id=robot_id, seq=seq, xml=xml, created_by=who.actor, status="queued")
-        s.add(m)
-        s.flush()
-        record(s, who, "message.post", f"robot:{robot_id}", seq=seq, bytes=len(xml.encode()))
-        _record_floor_overrides(s, msg, who, robot_id, seq)
-        state.hub.announce(s.connection(), f"messages:{robot_id}", seq)  # delivered at commit
-        return _out(m)
+        return _out(queue_message(s, state.hub, robot_id, xml, msg, who.actor))
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=MessageOut, openapi_extra=XML_BODY)

@@ -52,6 +52,7 @@ def _out(s: Session, row: Rollout, *, robots: bool) -> RolloutOut:
                 sent_at=r.sent_at,
                 applied_at=r.applied_at,
                 finished_at=r.finished_at,
+                watched=r.watch,
             )
             for r in rows
         ]
@@ -69,6 +70,7 @@ def _out(s: Session, row: Rollout, *, robots: bool) -> RolloutOut:
         max_failure_share=row.max_failure_share,
         commit_window_s=row.commit_window_s,
         ack_timeout_s=row.ack_timeout_s,
+        watch_timeout_s=row.watch_timeout_s,
         max_step_ratio=row.max_step_ratio,
         fail_on_rollback_error=row.fail_on_rollback_error,
         stop_reason=row.stop_reason,
@@ -131,6 +133,12 @@ def _robot_ids(s: Session, body: RolloutIn) -> list[int]:
 
 
 def _create(state: AppState, body: RolloutIn, who: Principal) -> int:
+    if body.watch_timeout_s < body.ack_timeout_s:
+        raise InvalidRequestError(
+            f"watch_timeout_s {body.watch_timeout_s:g} is shorter than ack_timeout_s {body.ack_timeout_s:g}: "
+            "a robot is watched only after it timed out",
+            field="watch_timeout_s",
+        )
     with state.db.session() as s:
         _check_kernel(s, body)
         ids = _robot_ids(s, body)
@@ -146,6 +154,7 @@ def _create(state: AppState, body: RolloutIn, who: Principal) -> int:
             max_failure_share=body.max_failure_share,
             commit_window_s=body.commit_window_s,
             ack_timeout_s=body.ack_timeout_s,
+            watch_timeout_s=body.watch_timeout_s,
             max_step_ratio=body.max_step_ratio,
             fail_on_rollback_error=body.fail_on_rollback_error,
             wave=0,
@@ -168,6 +177,8 @@ def _create(state: AppState, body: RolloutIn, who: Principal) -> int:
             wave_size=body.wave_size,
             max_failure_share=body.max_failure_share,
             commit_window_s=body.commit_window_s,
+            ack_timeout_s=body.ack_timeout_s,
+            watch_timeout_s=body.watch_timeout_s,
         )
         return row.id
 
@@ -227,7 +238,7 @@ def _act(state: AppState, rid: int, action: str, who: Principal) -> list[tuple[i
         runs = tuple(run_of(r) for r in rows)
         judged = advance(replace(view, state="paused"), runs, observe(s, row.stage, rows), now)
         out = stop(judged, f"aborted by {who.actor}", now, state="aborted")
-        return apply_outcome(s, row, rows, out, now)
+        return apply_outcome(s, state.hub, row, rows, out, now)
 
 
 async def _action(rid: int, action: str, who: Principal, state: AppState) -> RolloutOut:

@@ -143,7 +143,7 @@ def test_stuck_robot_times_out_and_the_waves_go_on() -> None:
     f.tick(61)
     assert f.robot(6).state == "sent" and f.out.rollout.state == "running"
     f.tick(300)
-    assert f.robot(6).state == "failed" and "no acknowledgement within 300 s" in (f.robot(6).reason or "")
+    assert f.robot(6).state == "timed-out" and "no acknowledgement within 300 s" in (f.robot(6).reason or "")
     assert f.out.rollout.state == "completed", "1 of 6 failed is within 40 %"
     assert f.out.rollout.active, "the timed-out robot is watched"
     f.ack(6, "applied")

@@ -160,7 +160,8 @@ def test_stuck_robot_times_out_and_the_others_go_on(fast: Live, key: KeyPair) ->
         if robot is not stuck:
             healthy(robot, seq, xml)
 
-    rollout = start(fast, kernel, robots, canaries=1, wave_size=3, max_failure_share=0.5, ack_timeout_s=1.0)
+    # 3 s: the healthy robots, served in the loop below, answer well within it even on a loaded machine
+    rollout = start(fast, kernel, robots, canaries=1, wave_size=3, max_failure_share=0.5, ack_timeout_s=3.0)
     deadline = time.monotonic() + 60
     while True:  # the stuck robot is watched after the rollout completes: wait for the states only
         for robot in robots:
@@ -171,7 +172,7 @@ def test_stuck_robot_times_out_and_the_others_go_on(fast: Live, key: KeyPair) ->
         assert time.monotonic() < deadline, got
         time.sleep(0.02)
     states = {rid: (r["state"], r["reason"]) for rid, r in by_robot(got).items()}
-    assert states[stuck.id][0] == "failed" and "no acknowledgement within 1 s" in states[stuck.id][1]
+    assert states[stuck.id][0] == "timed-out" and "no acknowledgement within 3 s" in states[stuck.id][1]
     assert [states[r.id][0] for r in robots if r is not stuck] == ["installed"] * 3
     assert got["active"], "the stuck robot's update may still be applied: watched"
     healthy(stuck, stuck.got[0][0], stuck.got[0][1])  # it comes back and applies it late
@@ -270,7 +271,9 @@ def test_restarted_server_resumes_its_rollouts(tmp_path: Path, key: KeyPair) -> 
     robots = [SimRobot(first) for _ in range(3)]
     rollout = start(first, kernel, robots, canaries=1, wave_size=2, commit_window_s=0.2)
     deadline = time.monotonic() + 60
-    while by_robot(read(first, rollout["id"]))[robots[0].id]["state"] != "applied":
+    # the canary applied (its 0.2 s window may end between two reads: installed is as good; the wave's
+    # robots are not served, so the rollout is still running at the restart)
+    while by_robot(read(first, rollout["id"]))[robots[0].id]["state"] not in ("applied", "installed"):
         robots[0].serve(healthy)
         assert time.monotonic() < deadline
         time.sleep(0.02)

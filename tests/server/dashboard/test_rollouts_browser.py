@@ -125,3 +125,77 @@ def test_the_form_says_what_is_wrong(live: Live, page: Any) -> None:
         "canaries 5 is more than the 1 robot of the rollout"
     )
     page.screenshot(path=str(ARTIFACTS / "rollouts-form.png"), full_page=True)
+
+
+def test_every_robot_state_on_the_page(live: Live, page: Any) -> None:
+    """A rollout with a canary, robots that reject, slow down and stay silent, and one still pending: each
+    row shows its state and reason; the timed-out robot is marked as watched."""
+    kernel = upload_kernel(live, generate_keypair())
+    canary, rejecting, slow_one, silent, last = robots = [SimRobot(live) for _ in range(5)]
+    held = {last.id}
+
+    def slow(robot: SimRobot, seq: int, xml: str) -> None:
+        robot.ack(seq, "applied")
+        robot.report(active=f"{kernel['name']}@{kernel['version']}", step_ms=30.0)
+
+    handlers = {
+        canary.id: healthy,
+        rejecting.id: lambda r, seq, xml: r.ack(seq, "rejected", "no space left for the kernel store"),
+        slow_one.id: slow,
+        silent.id: lambda r, seq, xml: None,
+        last.id: healthy,
+    }
+
+    def serve() -> None:
+        for robot in robots:
+            if robot.id not in held:
+                robot.serve(lambda r, seq, xml: handlers[r.id](r, seq, xml))
+
+    body = {
+        **kernel,
+        "robots": [r.id for r in robots],
+        "canaries": 1,
+        "wave_size": 3,
+        "max_failure_share": 0.8,
+        "commit_window_s": 0.5,
+        "ack_timeout_s": 5.0,  # the page shows the canary sent (not yet timed out) within this
+        "watch_timeout_s": 600,
+    }
+    if not page.context.cookies():  # this module's page is logged in once, by whichever test runs first
+        login(page, live)
+    with live.operator() as op:
+        r = op.post("/rollouts", json=body)
+    assert r.status_code == 201, r.text
+    rid = r.json()["id"]
+    page.goto(f"{live.base_url}/#/rollouts/{rid}")
+    canary_row = page.locator(f'[data-testid="rollout-robot-row"][data-robot-id="{canary.id}"]')
+    expect(canary_row).to_have_attribute("data-state", "sent")
+    expect(canary_row.locator("td").nth(1)).to_have_text("canary")
+    assert [row_state(page, x) for x in robots[1:]] == ["pending"] * 4
+
+    until("wave 1 decided", lambda: row_state(page, silent) == "timed-out", serve)
+    assert row_state(page, canary) == "installed"
+    assert row_state(page, last) == "sent", "wave 2 went out: 3 of 4 failed is within 80 %"
+
+    def reason(robot: SimRobot) -> Any:
+        row = page.locator(f'[data-testid="rollout-robot-row"][data-robot-id="{robot.id}"]')
+        return row.get_by_test_id("rollout-robot-reason")
+
+    expect(reason(rejecting)).to_have_text("rejected by the robot: no space left for the kernel store")
+    assert row_state(page, rejecting) == "failed"
+    expect(reason(slow_one)).to_contain_text("step time 30.0 ms is 3.00 x the 10.0 ms before the update")
+    assert row_state(page, slow_one) == "rolled-back"
+    expect(reason(silent)).to_contain_text("no acknowledgement within 5 s (offline or stuck?)")
+    silent_row = page.locator(f'[data-testid="rollout-robot-row"][data-robot-id="{silent.id}"]')
+    expect(silent_row).to_have_attribute("data-watched", "true")
+    expect(silent_row.get_by_test_id("rollout-robot-watched")).to_have_text("watching for a late answer")
+
+    held.clear()
+    until("completed", lambda: row_state(page, last) == "installed", serve)
+    expect(page.get_by_test_id("rollout-state")).to_have_attribute("data-status", "completed")
+    expect(page.get_by_text("(watching robots still to answer)")).to_be_visible()
+    page.screenshot(path=str(ARTIFACTS / "rollout-states.png"), full_page=True)
+    page.get_by_test_id("nav-rollouts").click()
+    row = page.locator(f'[data-testid="rollout-row"][data-rollout-id="{rid}"]')
+    expect(row).to_contain_text("1 timed-out")
+    expect(row).to_contain_text("1 rolled-back")

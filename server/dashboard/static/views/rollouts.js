@@ -15,7 +15,7 @@ const rollouts = {
 // Robot and rollout states -> badge colour (dom.js's badge knows the message states only).
 const TONE = {
   installed: "green", completed: "green", running: "green",
-  failed: "red", "rolled-back": "red", stopped: "red", aborted: "red",
+  failed: "red", "rolled-back": "red", "timed-out": "red", stopped: "red", aborted: "red",
   sent: "amber", applied: "amber", pending: "amber", paused: "amber",
   skipped: "grey",
 };
@@ -91,6 +91,7 @@ function startForm(kernels, robots) {
   const [share, shareField] = numberField("Max failures (%)", { value: 20, min: 0, max: 100, step: "any", "data-testid": "rollout-max-failures" }, "of the robots tried");
   const [windowS, windowField] = numberField("Commit window (s)", { value: 60, min: 0.1, step: "any", "data-testid": "rollout-window" }, "healthy this long to commit");
   const [timeout, timeoutField] = numberField("Acknowledge within (s)", { value: 300, min: 0.1, step: "any", "data-testid": "rollout-ack-timeout" });
+  const [watch, watchField] = numberField("Watch late answers (s)", { value: 3600, min: 0.1, step: "any", "data-testid": "rollout-watch-timeout" }, "after sending; then its rollback is queued");
   const [ratio, ratioField] = numberField("Max step-time ratio", { value: 2, min: 1.01, step: "any", "data-testid": "rollout-step-ratio" }, "x the robot's time before");
   const err = h("div", { class: "error", role: "alert", hidden: true, "data-testid": "rollout-error" });
   const submit = h("button", { type: "submit", class: "primary", "data-testid": "rollout-start" }, "Start rollout");
@@ -105,7 +106,8 @@ function startForm(kernels, robots) {
       const r = await rollouts.start({
         stage: k.stage, name: k.name, version: k.version, sha256: k.sha256, robots: chosen,
         canaries: Number(canaries.value), wave_size: Number(wave.value), max_failure_share: Number(share.value) / 100,
-        commit_window_s: Number(windowS.value), ack_timeout_s: Number(timeout.value), max_step_ratio: Number(ratio.value),
+        commit_window_s: Number(windowS.value), ack_timeout_s: Number(timeout.value),
+        watch_timeout_s: Number(watch.value), max_step_ratio: Number(ratio.value),
       });
       location.hash = `#/rollouts/${r.id}`;
     } catch (ex) {
@@ -117,7 +119,7 @@ function startForm(kernels, robots) {
   } },
   h("label", { class: "field" }, h("span", { class: "field-label" }, "Kernel version"), kernel),
   h("div", { class: "field" }, h("span", { class: "field-label" }, "Robots, in rollout order (the first are the canaries)"), robotList),
-  h("div", { class: "row2" }, canariesField, waveField, shareField, windowField, timeoutField, ratioField),
+  h("div", { class: "row2" }, canariesField, waveField, shareField, windowField, timeoutField, watchField, ratioField),
   h("div", { class: "button-row" }, submit), err);
 }
 
@@ -152,17 +154,19 @@ function renderOne(root, ctx, id) {
         ["running", "paused"].includes(r.state) ? button("abort", "Abort and roll back", "danger") : null),
       h("p", { class: "small muted" },
         `${r.canaries} canar${r.canaries === 1 ? "y" : "ies"}, waves of ${r.wave_size}, stop above ${pct(r.max_failure_share)} failed, `
-        + `commit window ${r.commit_window_s} s, acknowledge within ${r.ack_timeout_s} s`
+        + `commit window ${r.commit_window_s} s, acknowledge within ${r.ack_timeout_s} s, `
+        + `watch a timed-out robot ${r.watch_timeout_s} s`
         + (r.max_step_ratio ? `, step time at most ${r.max_step_ratio} x` : "")
         + ` · started ${when(r.created_at)} by ${r.created_by}`),
       r.stop_reason ? h("div", { class: "error", "data-testid": "rollout-stop-reason" }, r.stop_reason) : null);
     mount(body, h("table", { class: "table", "data-testid": "rollout-robots" },
       h("thead", null, h("tr", null, ["Robot", "Wave", "State", "Reason", "Before", "Sent", "Done"].map((t) => h("th", null, t)))),
-      h("tbody", null, r.robots.map((x) => h("tr", { "data-testid": "rollout-robot-row", "data-robot-id": x.robot_id, "data-state": x.state },
+      h("tbody", null, r.robots.map((x) => h("tr", { "data-testid": "rollout-robot-row", "data-robot-id": x.robot_id, "data-state": x.state, "data-watched": String(x.watched) },
         h("td", null, h("a", { href: `#/robots/${x.robot_id}` }, x.robot_name), h("span", { class: "muted small" }, ` #${x.robot_id}`)),
         h("td", null, x.wave === 0 ? "canary" : String(x.wave)),
-        h("td", null, stateBadge(x.state)),
-        h("td", { class: "small", "data-testid": "rollout-robot-reason" }, x.reason ? trunc(x.reason, 90) : "—"),
+        h("td", null, stateBadge(x.state),
+          x.watched ? h("span", { class: "muted small", "data-testid": "rollout-robot-watched" }, " watching for a late answer") : null),
+        h("td", { class: "small", "data-testid": "rollout-robot-reason" }, x.reason ? trunc(x.reason, 160) : "—"),
         h("td", { class: "small" }, x.previous || "—"),
         h("td", { class: "small" }, x.sent_at ? when(x.sent_at) : "—"),
         h("td", { class: "small" }, x.finished_at ? when(x.finished_at) : "—"))))));
