@@ -31,7 +31,7 @@ import sys
 import tempfile
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,7 +59,7 @@ class Chains:
     broken: int
 
 
-def chains(rows: list[tuple[int, int, int | None]]) -> Chains:
+def chains(rows: Sequence[tuple[int, int, int | None]]) -> Chains:
     """``rows``: (robot_id, version, base_version) in the order accepted. O(n)."""
     repeated = broken = 0
     for _, group in itertools.groupby(rows, key=lambda r: r[0]):
