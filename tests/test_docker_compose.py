@@ -3,7 +3,8 @@ shows that its setup works): every ``linemap`` command in it parses with the rea
 the environment it reads), every ``LINEMAP_*`` variable is a server setting or a CLI option's variable,
 the database URL is PostgreSQL in the form the server accepts and names the compose database with its
 credentials, more than one worker only with PostgreSQL, the server waits for a healthy database and its
-own health check asks a route the server has, on the port it listens on. With PostgreSQL at hand the
+own health check asks a route the server has, on the port it listens on, and the database accepts the
+connections of every worker. With PostgreSQL at hand the
 server is then run as the file runs it (its options and workers, on a fresh database) and the file's
 own health-check command passes against it."""
 
@@ -26,7 +27,7 @@ import yaml
 from sqlalchemy.engine import make_url
 
 from server.app import create_app
-from server.database import normalize_url
+from server.database import PG_MAX_OVERFLOW, PG_POOL_SIZE, normalize_url
 from server.settings import Settings
 from shared.cli.main import app as linemap_app
 from tests.server.procs import LINEMAP, fresh_database
@@ -141,6 +142,20 @@ def test_several_workers_and_only_on_postgresql(monkeypatch: pytest.MonkeyPatch)
     _, _, ctx = _server(monkeypatch)
     assert ctx.params["workers"] > 1, "the fleet topology runs the server with several workers"
     assert not normalize_url(ctx.params["db"]).startswith("sqlite"), "SQLite refuses --workers above 1"
+
+
+def test_the_databases_connections_suffice_for_every_worker(monkeypatch: pytest.MonkeyPatch) -> None:
+    _, _, ctx = _server(monkeypatch)
+    command = _compose()["db"].get("command") or []
+    words = shlex.split(command) if isinstance(command, str) else [str(w) for w in command]
+    settings = dict(w.split("=", 1) for w in words if "=" in w)
+    max_connections = int(settings.get("max_connections", 100))  # PostgreSQL's default
+    per_process = PG_POOL_SIZE + PG_MAX_OVERFLOW + 1  # the pool and the notice listener
+    reserved = 3  # PostgreSQL's superuser_reserved_connections
+    assert ctx.params["workers"] * per_process <= max_connections - reserved, (
+        f"{ctx.params['workers']} workers x {per_process} connections exceed the database's "
+        f"max_connections {max_connections}"
+    )
 
 
 def test_the_health_check_asks_a_route_the_server_has_on_its_port(
