@@ -8,7 +8,9 @@ driver and SQLAlchemy; on PostgreSQL the database's own CPU is in another proces
 the uploads/s of one writer.
 
 Usage: ``python benchmarks/write_path.py [--pg postgresql://USER@HOST/DB]`` (the PostgreSQL database is
-emptied: its public schema is dropped and made again). Exit 0 when it ran (figures, not pass/fail)."""
+emptied: its public schema is dropped and made again). Exit 0 when it ran (figures, not pass/fail).
+To measure older code in the same run, run it with ``PYTHONPATH`` at that code's tree (docs/fleet-scale.md
+alternates the tree before issue 22's write path with this one)."""
 
 from __future__ import annotations
 
@@ -31,7 +33,11 @@ from server.mapstore import apply_upload
 from server.migrate import upgrade
 from server.models import Robot
 from server.parsepool import parse_upload
-from server.pgrows import pipelined
+
+try:
+    from server.pgrows import pipelined
+except ImportError:  # the code before issue 22 item 3 (to measure it with PYTHONPATH at its tree)
+    from contextlib import nullcontext as pipelined  # type: ignore[assignment]
 
 _ROBOTS_T: Any = Robot.__table__
 
