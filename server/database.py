@@ -18,10 +18,15 @@ from sqlalchemy.orm import Session, sessionmaker
 from server.errors import ServerError, StorageFullError
 from server.storage import StorageState, disk_full_reason
 
-__all__ = ["Database", "normalize_url"]
+__all__ = ["PG_MAX_OVERFLOW", "PG_POOL_SIZE", "Database", "normalize_url"]
 
 log = logging.getLogger(__name__)
 
+#: PostgreSQL: connections a server process keeps (the writer, request threads) and may open beyond them;
+#: with the notice listener's own connection a process uses at most PG_POOL_SIZE + PG_MAX_OVERFLOW + 1 of
+#: the database's max_connections (docs/fleet-scale.md).
+PG_POOL_SIZE = 20
+PG_MAX_OVERFLOW = 20
 #: SQLite: how long a writer waits for a lock (ms), and how long a log reset waits for readers (ms).
 BUSY_TIMEOUT_MS = 30_000
 WAL_RESET_WAIT_MS = 200
@@ -55,7 +60,7 @@ class Database:
             kwargs["connect_args"] = {"check_same_thread": False, "timeout": 30}
             kwargs.update(pool_size=20, max_overflow=40)
         else:
-            kwargs.update(pool_size=20, max_overflow=20, pool_pre_ping=True)
+            kwargs.update(pool_size=PG_POOL_SIZE, max_overflow=PG_MAX_OVERFLOW, pool_pre_ping=True)
         try:
             self.engine: Engine = create_engine(self.url, **kwargs)
         except (ArgumentError, ImportError) as exc:

@@ -15,15 +15,17 @@ from datetime import datetime
 from itertools import chain
 from typing import Any
 
-from sqlalchemy import Connection, Table, delete, func, insert, select, update
+from sqlalchemy import Connection, Table, delete, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 
-from server.errors import ConflictError, InvalidRequestError, MapSessionMismatchError, NotFoundError
+from server import pgrows
+from server.errors import ConflictError, MapSessionMismatchError, NotFoundError
 from server.mapread import map_version, read_map  # the read side, importable from here as before
 from server.mapsessions import check_not_ended, start_session
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
 from server.schemas import MapUpload, MapUploadOut
 from server.snapdiff import SnapshotDiff
+from server.wallcap import check_wall_cap  # importable from here as before
 from shared.protocol import MAP_FIELDS, STATUS_FIELDS, RobotStatus
 
 __all__ = [
@@ -99,17 +101,17 @@ _CHUNK_ROWS = 500  # 7 parameters a row: well under SQLite's 32,766 and PostgreS
 
 @dataclass(frozen=True, slots=True)
 class PreparedRows:
-    """An upload's wall and pose rows as statement parameters, flat, one tuple per chunk of at most
-    ``_CHUNK_ROWS`` rows: ``(rows in the chunk, parameters)``. Built by :func:`prepare_rows` before the
-    write transaction, so a near-limit upload (~120,000 rows, ~0.3 s of Python) does not hold the writer
-    (SQLite's one write lock) while it is built.
+    """An upload's wall rows ``(robot_id, segment_id, x0_m, y0_m, x1_m, y1_m, version)`` and pose rows
+    ``(robot_id, version, stamp_s, x_m, y_m, theta_rad)``, a segment id at most once. Built by
+    :func:`prepare_rows` before the write transaction, so a near-limit upload (~120,000 rows, ~0.3 s of
+    Python) does not hold the writer (SQLite's one write lock) while it is built.
 
     For a snapshot written as a diff (:mod:`server.snapdiff`): the rows are the diff's (changed walls,
     new poses), valid only while the stored map is at ``diff_base``; ``removed`` lists the wall ids to
     delete and ``replace_trajectory`` says whether the stored poses go first."""
 
-    segments: list[tuple[int, tuple[Any, ...]]]
-    trajectory: list[tuple[int, tuple[Any, ...]]]
+    segments: list[tuple[Any, ...]]
+    trajectory: list[tuple[Any, ...]]
     diff_base: int | None = None
     removed: list[int] = field(default_factory=list)
     replace_trajectory: bool = True
@@ -131,23 +133,22 @@ def prepare_rows(robot_id: int, up: MapUpload, diff: SnapshotDiff | None = None)
         segs = [(robot_id, int(r[0]), *r[1:5], up.version) for r in diff.upsert.tolist()]
         poses = [(robot_id, up.version, *r) for r in diff.trajectory.tolist()]
         removed = diff.removed.tolist()
-        return PreparedRows(
-            _chunks(segs), _chunks(poses), diff.base_version, removed, diff.replace_trajectory
-        )
+        return PreparedRows(segs, poses, diff.base_version, removed, diff.replace_trajectory)
     last = {int(r[0]): r for r in up.segments}
     segments = [(robot_id, sid, *r[1:5], up.version) for sid, r in last.items()]
     trajectory = [(robot_id, up.version, *r) for r in up.trajectory]
-    return PreparedRows(_chunks(segments), _chunks(trajectory))
+    return PreparedRows(segments, trajectory)
 
 
-def _multi_row(conn: Connection, sql: str, width: int, chunks: list[tuple[int, tuple[Any, ...]]]) -> None:
-    """One multi-row ``VALUES`` statement per chunk, at driver level. A driver ``executemany`` goes back to
-    Python (and the GIL) after every row, and under load each return waited for the GIL: 200-row uploads
-    stalled for 100+ ms. One statement per chunk costs one round trip."""
+def _multi_row(conn: Connection, sql: str, width: int, rows: list[tuple[Any, ...]]) -> None:
+    """One multi-row ``VALUES`` statement per chunk of ``_CHUNK_ROWS`` rows, at driver level (SQLite; on
+    PostgreSQL :mod:`server.pgrows` sends the rows as one parameter). A driver ``executemany`` goes back
+    to Python (and the GIL) after every row, and under load each return waited for the GIL: 200-row
+    uploads stalled for 100+ ms. One statement per chunk costs one round trip."""
     mark = "?" if conn.dialect.paramstyle == "qmark" else "%s"
     one = "(" + ", ".join([mark] * width) + ")"
     texts: dict[int, str] = {}
-    for n, params in chunks:
+    for n, params in _chunks(rows):
         if n not in texts:
             texts[n] = sql.format(rows=", ".join([one] * n))
         conn.exec_driver_sql(texts[n], params)
@@ -168,60 +169,21 @@ def _bulk_segments(
             for sid, r in last.items()
         ]
         _upsert(conn, _SEG, ["robot_id", "segment_id"], _COORDS, values)
-        return
-    _multi_row(conn, _SEGMENT_SQL, 7, prepared.segments)
+    elif conn.dialect.name == "postgresql":
+        pgrows.upsert_segments(conn, prepared.segments)
+    else:
+        _multi_row(conn, _SEGMENT_SQL, 7, prepared.segments)
 
 
 def _delete_walls(conn: Connection, robot_id: int, ids: list[int]) -> None:
-    """Delete the robot's walls ``ids`` (absent ones are no error), ``_CHUNK_ROWS`` ids a statement."""
+    """Delete the robot's walls ``ids`` (absent ones are no error), ``_CHUNK_ROWS`` ids a statement
+    (PostgreSQL: all in one)."""
+    if conn.dialect.name == "postgresql":
+        pgrows.delete_walls(conn, robot_id, ids)
+        return
     for start in range(0, len(ids), _CHUNK_ROWS):
         chunk = ids[start : start + _CHUNK_ROWS]
         conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(chunk)))
-
-
-def _count(conn: Connection, robot_id: int, ids: list[int] | None = None) -> int:
-    """Walls of ``robot_id`` stored now (among ``ids`` if given). O(walls) on the primary-key index."""
-    if ids is None:
-        q = select(func.count()).select_from(_SEG).where(_SEG.c.robot_id == robot_id)
-        return int(conn.execute(q).scalar_one())
-    n = 0
-    for start in range(0, len(ids), _CHUNK_ROWS):
-        chunk = ids[start : start + _CHUNK_ROWS]
-        q = select(func.count()).where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(chunk))
-        n += int(conn.execute(q).scalar_one())
-    return n
-
-
-def _walls_after(conn: Connection, robot_id: int, up: MapUpload, cap: int) -> tuple[int, int]:
-    """(walls stored now, walls after ``up``) for a delta; exact when it matters, i.e. when the map could
-    pass ``cap``. One count query for the common case, O(upload) more near the cap."""
-    before = _count(conn, robot_id)
-    ids = {int(r[0]) for r in up.segments}
-    if before + len(ids) <= cap:
-        return before, before + len(ids)  # an upper bound, under the cap: enough
-    removed = set(up.removed)
-    gone = _count(conn, robot_id, sorted(removed))  # stored walls the delta removes
-    kept_ids = sorted(ids - removed)
-    stay = _count(conn, robot_id, kept_ids)  # stored walls it only changes
-    return before, before - gone + len(ids) - stay
-
-
-def check_wall_cap(conn: Connection | None, robot_id: int, up: MapUpload, cap: int) -> None:
-    """Refuse (422) an upload after which the robot's map would hold more than ``cap`` walls, unless it
-    shrinks a map that is over the cap already. ``conn`` None: only what the body alone shows (a
-    snapshot's walls), no database."""
-    if up.base_version is None:
-        before, after = 0, len({int(r[0]) for r in up.segments})
-    elif conn is None:
-        return
-    else:
-        before, after = _walls_after(conn, robot_id, up, cap)
-    if after > cap and after > before:
-        raise InvalidRequestError(
-            f"robot {robot_id}'s map would hold {after} walls; the limit is {cap} walls per map "
-            "(server setting max_walls_per_map)",
-            max_walls_per_map=cap,
-        )
 
 
 def apply_upload(
@@ -250,19 +212,10 @@ def apply_upload(
     # per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts seconds, and
     # the row lock held all along stalled every write batch that touched the row (last-seen times). The
     # row itself is updated at the end of the transaction only. SQLite: its one write lock serialises.
-    q = select(_ROBOTS.c.map_version, _ROBOTS.c.map_session).where(_ROBOTS.c.id == robot_id)
-    if conn.dialect.name == "postgresql":
-        conn.exec_driver_sql(f"SELECT pg_advisory_xact_lock({_UPLOAD_LOCK_CLASS}, %s)", (int(robot_id),))
-    elif conn.dialect.name != "sqlite":
-        q = q.with_for_update()
-    robot = conn.execute(q).first()
+    reads = _lock_and_read(conn, robot_id, key, up.base_version is not None and max_walls is not None)
+    robot, seen = reads.robot, reads.seen
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
-    seen = conn.execute(
-        select(_UPLOADS.c.version, _UPLOADS.c.map_session).where(
-            _UPLOADS.c.robot_id == robot_id, _UPLOADS.c.idempotency_key == key
-        )
-    ).first()
     if seen is not None:  # answered with the session it was applied in: the robot checks it is its own
         return AppliedUpload(MapUploadOut(version=seen[0], duplicate=True, map_session=seen[1]), None)
     current, session = robot[0], robot[1]
@@ -329,12 +282,61 @@ def apply_upload(
                 current_stamp_s=_stamp(conn, robot_id),
             )
         if max_walls is not None:
-            check_wall_cap(conn, robot_id, up, max_walls)
-        _delete_walls(conn, robot_id, up.removed)
+            check_wall_cap(conn, robot_id, up, max_walls, reads.walls)
     v = up.version
     rows = prepared or prepare_rows(robot_id, up)
+    with pgrows.pipelined(conn):  # PostgreSQL: the writes below in one round trip
+        _write_rows(conn, robot_id, up, rows, seen_at, key)
+    event = {
+        "kind": "snapshot" if up.base_version is None else "delta",
+        "robot_id": robot_id,
+        **{name: getattr(up, name) for name in MAP_FIELDS},  # the lists themselves, not copies
+    }
+    return AppliedUpload(
+        MapUploadOut(version=v, duplicate=False, map_session=up.map_session), event, new_session
+    )
+
+
+def _lock_and_read(conn: Connection, robot_id: int, key: str, count: bool) -> pgrows.UploadReads:
+    """Serialise the robot's uploads, then read the robot's map version and session, the upload already
+    applied under ``key`` and (``count``) the walls stored. PostgreSQL: a per-robot advisory lock, not the
+    robot's row: a near-limit upload's transaction lasts seconds, and the row lock held all along stalled
+    every write batch that touched the row (last-seen times); the row itself is updated at the end of the
+    transaction only. SQLite: its one write lock serialises. Other databases: the robot's row lock."""
+    if conn.dialect.name == "postgresql":
+        return pgrows.lock_and_read(conn, _UPLOAD_LOCK_CLASS, robot_id, key, count)
+    q = select(_ROBOTS.c.map_version, _ROBOTS.c.map_session).where(_ROBOTS.c.id == robot_id)
+    if conn.dialect.name != "sqlite":
+        q = q.with_for_update()
+    robot = conn.execute(q).first()
+    seen = conn.execute(
+        select(_UPLOADS.c.version, _UPLOADS.c.map_session).where(
+            _UPLOADS.c.robot_id == robot_id, _UPLOADS.c.idempotency_key == key
+        )
+    ).first()
+    return pgrows.UploadReads(
+        None if robot is None else (robot[0], robot[1]), None if seen is None else (seen[0], seen[1]), None
+    )
+
+
+def _write_rows(
+    conn: Connection,
+    robot_id: int,
+    up: MapUpload,
+    rows: PreparedRows,
+    seen_at: datetime | None,
+    key: str,
+) -> None:
+    """The upload's writes, after its checks: the delta's removed walls, the walls and poses, the map
+    state, the robot row, the upload record. No statement here returns rows (PostgreSQL pipelines them)."""
+    v = up.version
+    if up.base_version is not None:
+        _delete_walls(conn, robot_id, up.removed)
     _bulk_segments(conn, robot_id, v, up.segments, rows)
-    _multi_row(conn, _TRAJECTORY_SQL, 6, rows.trajectory)
+    if conn.dialect.name == "postgresql":
+        pgrows.insert_trajectory(conn, rows.trajectory)
+    else:
+        _multi_row(conn, _TRAJECTORY_SQL, 6, rows.trajectory)
     now = utcnow()
     pose = {"x_m": up.pose[0], "y_m": up.pose[1], "theta_rad": up.pose[2]}
     _upsert(
@@ -360,26 +362,17 @@ def apply_upload(
     if up.status is not None:
         changes.update(_status_columns(up.status))
     conn.execute(update(_ROBOTS).where(_ROBOTS.c.id == robot_id).values(**changes))
-    conn.execute(
-        insert(_UPLOADS).values(
-            robot_id=robot_id,
-            idempotency_key=key,
-            version=v,
-            base_version=up.base_version,
-            map_session=up.map_session,
-            n_segments=len(up.segments),
-            n_removed=len(up.removed),
-            received_at=now,
-        )
-    )
-    event = {
-        "kind": "snapshot" if up.base_version is None else "delta",
+    record = {
         "robot_id": robot_id,
-        **{name: getattr(up, name) for name in MAP_FIELDS},  # the lists themselves, not copies
+        "idempotency_key": key,
+        "version": v,
+        "base_version": up.base_version,
+        "map_session": up.map_session,
+        "n_segments": len(up.segments),
+        "n_removed": len(up.removed),
+        "received_at": now,
     }
-    return AppliedUpload(
-        MapUploadOut(version=v, duplicate=False, map_session=up.map_session), event, new_session
-    )
+    conn.execute(insert(_UPLOADS).inline(), record)  # inline: no RETURNING of the new id (none is read)
 
 
 def _status_columns(st: RobotStatus) -> dict[str, Any]:

@@ -42,6 +42,7 @@ from server.mapread import list_sessions, map_version, read_held
 from server.mapstore import AppliedUpload, apply_upload, prepare_rows
 from server.mapstream import map_events
 from server.parsepool import UploadParser, parse_upload
+from server.pgrows import pipelined
 from server.quota import UploadQuota
 from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapSessionOut, MapUpload, MapUploadOut
 from shared.errors import InvalidInputError
@@ -132,10 +133,11 @@ async def upload_map(
         applied = apply_upload(conn, robot_id, body, key, seen, cap, rows, who.actor)
         if applied.event is None:
             return applied, None
-        if applied.new_session:  # the log holds the current session's uploads only: versions count anew
-            clear_log(conn, robot_id)
-        state.hub.announce(conn, f"maps:{robot_id}", body.version)
-        return applied, log_upload(conn, robot_id, applied.event)
+        with pipelined(conn):  # PostgreSQL: these three or four writes in one round trip
+            if applied.new_session:  # the log holds the current session's uploads only: versions anew
+                clear_log(conn, robot_id)
+            state.hub.announce(conn, f"maps:{robot_id}", body.version)
+            return applied, log_upload(conn, robot_id, applied.event)
 
     applied, logged = await state.writer.submit(write, heavy=heavy)
     if applied.new_session:  # versions count anew: a version kept from the old session is another map

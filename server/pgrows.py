@@ -1,0 +1,150 @@
+"""PostgreSQL's statements for a map upload's rows (issue 22 item 3): an upload's walls, its poses and the
+wall ids it removes each go as **one parameter of one constant statement**, unpacked by the database
+(``json_array_elements``, ``= ANY(array)``), whatever the number of rows.
+
+Why: a multi-row ``VALUES`` statement has a text that grows with the rows (1,400 placeholders for a
+200-wall delta). psycopg caches its conversion of a query text to PostgreSQL's ``$n`` form only for short
+texts, so it re-split that text in Python at every upload; profiled under load, that split was the largest
+CPU cost of a PostgreSQL upload (``psycopg._queries._split_query``, ~4 of every 5 ms of the process's CPU
+for the upload's rows). A constant text is converted once, and psycopg prepares it on the server after a
+few executions, so the database parses and plans it once per connection too. The rows travel as JSON
+text: ``json.dumps`` of the rows is done in C (~0.2 ms for 200 walls), and Python's ``repr`` of a float,
+read back by PostgreSQL's ``float8`` input, is the same double (round trip exact).
+
+And an upload's statements go in two pipelines (:func:`lock_and_read`, :func:`pipelined`): one round trip
+for the lock and the reads that decide, one for all the writes, where one statement after another waited
+for its answer (13 round trips; each one, on a loaded machine, also waits for the database's process to be
+scheduled).
+
+SQLite keeps its multi-row ``VALUES`` statements (:mod:`server.mapstore`): its driver has no such cost.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import psycopg
+from sqlalchemy import Connection
+from sqlalchemy.exc import DBAPIError
+
+__all__ = [
+    "UploadReads",
+    "delete_walls",
+    "insert_trajectory",
+    "lock_and_read",
+    "pipelined",
+    "upsert_segments",
+]
+
+#: Rows ``[robot_id, segment_id, x0_m, y0_m, x1_m, y1_m, version]``; a segment id at most once per call
+#: (``ON CONFLICT`` cannot touch one row twice in a statement).
+_SEGMENTS_SQL = (
+    "INSERT INTO map_segments (robot_id, segment_id, x0_m, y0_m, x1_m, y1_m, version) "
+    "SELECT (r->>0)::integer, (r->>1)::bigint, (r->>2)::float8, (r->>3)::float8, (r->>4)::float8, "
+    "(r->>5)::float8, (r->>6)::bigint FROM json_array_elements(%s::json) AS r "
+    "ON CONFLICT (robot_id, segment_id) DO UPDATE SET x0_m = excluded.x0_m, y0_m = excluded.y0_m, "
+    "x1_m = excluded.x1_m, y1_m = excluded.y1_m, version = excluded.version"
+)
+#: Rows ``[robot_id, version, stamp_s, x_m, y_m, theta_rad]``, inserted in their order (``WITH
+#: ORDINALITY``: the ids follow the rows, as the multi-row insert's do).
+_TRAJECTORY_SQL = (
+    "INSERT INTO trajectory_points (robot_id, version, stamp_s, x_m, y_m, theta_rad) "
+    "SELECT (r->>0)::integer, (r->>1)::bigint, (r->>2)::float8, (r->>3)::float8, (r->>4)::float8, "
+    "(r->>5)::float8 FROM json_array_elements(%s::json) WITH ORDINALITY AS t(r, n) ORDER BY n"
+)
+_DELETE_SQL = "DELETE FROM map_segments WHERE robot_id = %s AND segment_id = ANY(%s::bigint[])"
+
+
+def upsert_segments(conn: Connection, rows: Sequence[Sequence[Any]]) -> None:
+    """Insert or replace the walls ``rows`` (see :data:`_SEGMENTS_SQL`) in ``conn``'s transaction: one
+    statement, one round trip. O(rows)."""
+    if rows:
+        conn.exec_driver_sql(_SEGMENTS_SQL, (json.dumps(rows, separators=(",", ":")),))
+
+
+def insert_trajectory(conn: Connection, rows: Sequence[Sequence[Any]]) -> None:
+    """Append the poses ``rows`` (see :data:`_TRAJECTORY_SQL`): one statement. O(rows)."""
+    if rows:
+        conn.exec_driver_sql(_TRAJECTORY_SQL, (json.dumps(rows, separators=(",", ":")),))
+
+
+def delete_walls(conn: Connection, robot_id: int, ids: Sequence[int]) -> None:
+    """Delete the robot's walls ``ids`` (absent ones are no error): one statement. O(ids)."""
+    if ids:
+        conn.exec_driver_sql(_DELETE_SQL, (int(robot_id), [int(i) for i in ids]))
+
+
+_LOCK_SQL = "SELECT pg_advisory_xact_lock(%s, %s)"
+_ROBOT_SQL = "SELECT map_version, map_session FROM robots WHERE id = %s"
+_SEEN_SQL = "SELECT version, map_session FROM map_uploads WHERE robot_id = %s AND idempotency_key = %s"
+_COUNT_SQL = "SELECT count(*) FROM map_segments WHERE robot_id = %s"
+
+
+@dataclass(frozen=True, slots=True)
+class UploadReads:
+    """What an upload reads before it writes: the robot's ``(map_version, map_session)`` (None: no such
+    robot), the ``(version, map_session)`` an upload with the same idempotency key got (None: new), and
+    the walls stored now (None when not asked)."""
+
+    robot: tuple[int, str | None] | None
+    seen: tuple[int, str | None] | None
+    walls: int | None
+
+
+def lock_and_read(conn: Connection, lock_class: int, robot_id: int, key: str, count: bool) -> UploadReads:
+    """Take the robot's upload lock (a transaction advisory lock ``(lock_class, robot_id)``), then read
+    what :class:`UploadReads` holds, in one round trip (pipeline mode): each statement runs after the one
+    before, so the reads see every upload committed before the lock was granted. O(walls) with ``count``,
+    else O(1)."""
+    pg = _driver(conn)
+    with _driver_errors(), pg.pipeline():
+        curs = [pg.cursor() for _ in range(4 if count else 3)]
+        curs[0].execute(_LOCK_SQL, (lock_class, int(robot_id)))
+        curs[1].execute(_ROBOT_SQL, (int(robot_id),))
+        curs[2].execute(_SEEN_SQL, (int(robot_id), key))
+        if count:
+            curs[3].execute(_COUNT_SQL, (int(robot_id),))
+    robot, seen = curs[1].fetchone(), curs[2].fetchone()
+    counted = curs[3].fetchone() if count else None
+    walls = None if counted is None else int(counted[0])
+    for cur in curs:
+        cur.close()
+    return UploadReads(
+        None if robot is None else (int(robot[0]), robot[1]),
+        None if seen is None else (int(seen[0]), seen[1]),
+        walls,
+    )
+
+
+@contextmanager
+def pipelined(conn: Connection) -> Iterator[None]:
+    """On PostgreSQL, send the statements ``conn`` executes in the block without waiting for each answer
+    (psycopg's pipeline mode), all answered in one round trip at the block's end; elsewhere nothing.
+    Only statements that return no rows may run in the block (SQLAlchemy reads a result at once). A
+    statement's error is raised at the block's end as SQLAlchemy's error (so callers see one kind)."""
+    if conn.dialect.name != "postgresql":
+        yield
+        return
+    with _driver_errors(), _driver(conn).pipeline():
+        yield
+
+
+def _driver(conn: Connection) -> psycopg.Connection[Any]:
+    """The psycopg connection under ``conn``."""
+    pg = conn.connection.driver_connection
+    if not isinstance(pg, psycopg.Connection):
+        raise TypeError(f"expected a psycopg connection, got {type(pg).__name__}")
+    return pg
+
+
+@contextmanager
+def _driver_errors() -> Iterator[None]:
+    """psycopg's errors, raised outside SQLAlchemy's execution (a pipeline's sync), as SQLAlchemy's."""
+    try:
+        yield
+    except psycopg.Error as exc:
+        raise DBAPIError.instance(None, None, exc, psycopg.Error) from exc
