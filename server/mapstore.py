@@ -40,6 +40,7 @@ __all__ = [
     "map_version",
     "prepare_rows",
     "read_map",
+    "status_columns",
     "thin_trajectory",
     "trim_upload_records",
 ]
@@ -372,7 +373,7 @@ def apply_upload(
     if seen_at is not None:
         changes["last_seen_at"] = seen_at
     if up.status is not None:
-        changes.update(_status_columns(up.status))
+        changes.update(status_columns(up.status))
     conn.execute(update(_ROBOTS).where(_ROBOTS.c.id == robot_id).values(**changes))
     record = conn.execute(
         insert(_UPLOADS).values(
@@ -439,7 +440,7 @@ def trim_upload_records(conn: Connection, robot_id: int, keep: int = KEEP_UPLOAD
         conn.execute(delete(_UPLOADS).where(_UPLOADS.c.robot_id == robot_id, _UPLOADS.c.id <= edge))
 
 
-def _status_columns(st: RobotStatus) -> dict[str, Any]:
+def status_columns(st: RobotStatus) -> dict[str, Any]:
     """The robot row's columns a status sets: each field of :class:`RobotStatus` (a column of the same
     name) that the robot sent, and ``last_error`` always (None clears it)."""
     columns: dict[str, Any] = {}
