@@ -334,6 +334,10 @@ class ServerLink:
         out: dict[str, Any] = resp.json()
         return out
 
+    def report_status(self, status: dict[str, Any]) -> None:
+        """Send the robot's status (a :class:`shared.protocol.RobotStatus` as JSON) without a map."""
+        self._call("PUT", f"/robots/{self.robot_id}/status", json=status, answers=(), expect="")
+
     def fetch_kernel(self, name: str, version: str) -> KernelDownload:
         resp = self._call("GET", f"/kernels/{name}/{version}/artifact", expect="text/x-python")
         return KernelDownload(

@@ -5,6 +5,12 @@ DB (its outbox), and between two steps lets the kernel supervisor apply control 
 :class:`~shared.slam.OnlineGraphMapper` once loop closure is on), which the supervisor reconfigures between
 steps; :class:`RecentScans` keeps the last scans for the dry runs of downloaded kernels (poller thread).
 A step costs the pipeline's step plus O(walls) to find the changed walls; lengths in metres, times in s.
+
+A full disk (the Robot DB cannot grow: :func:`shared.diskfull.disk_full_reason`) pauses recording: the
+step already mapped is recorded again every ``DISK_RETRY_S`` until space returns, with the reason in the
+status' ``last_error`` (the uploader reports it to the server even with nothing to upload); no scan is
+mapped meanwhile (a replayed source goes on where it paused, a live sensor's scans of the pause are not
+mapped), and nothing recorded before is lost.
 """
 
 from __future__ import annotations
@@ -21,15 +27,21 @@ from robot_agent.resume import Checkpoints
 from robot_agent.settings import AgentSettings
 from robot_agent.sources import is_live, open_scans
 from robot_agent.store import RobotDB, StepRecord
+from shared.diskfull import disk_full_reason
 from shared.pipeline import MapperState, Pipeline, PipelineConfig
 from shared.pipeline.pipestate import PIPELINE_KIND
 from shared.slam import OnlineGraphMapper
 from shared.slam.onlinestate import GRAPH_KIND
 from shared.types import Pose2D, Scan
 
-__all__ = ["MappingLoop", "PipelineSlot", "RecentScans"]
+__all__ = ["DISK_RETRY_S", "MappingLoop", "PipelineSlot", "RecentScans"]
 
 log = logging.getLogger(__name__)
+
+#: how often a step is tried again while the Robot DB's disk is full (s)
+DISK_RETRY_S = 1.0
+#: how often a pause is reported again (the status' last_error clears after a healthy while otherwise)
+DISK_REPORT_S = 20.0
 
 
 class PipelineSlot:
@@ -183,11 +195,49 @@ class MappingLoop:
             self.recent.add(scan)
             version += 1
             journal, saved = self.checkpoints.after_step(self.slot, version, scan, self._id_offset)
-            self.db.record_step(self._record(version, index + 1, scan, result.pose), journal, saved)
+            if not self._record_durably(
+                self._record(version, index + 1, scan, result.pose), journal, saved, stop
+            ):
+                return
             self._stepped = (version, time.time())
             self.stats.steps += 1
             self._after_step()
             self._wake.set()
+
+    def _record_durably(self, rec: StepRecord, journal: bytes, saved: Any, stop: threading.Event) -> bool:
+        """Record the step; while the disk is full, report it and try again every ``DISK_RETRY_S``
+        (module docstring). False when ``stop`` came first (the step is not recorded: a restart maps it
+        again). Any other failure is raised."""
+        paused_at: float | None = None
+        told_at = 0.0
+        while True:
+            try:
+                self.db.record_step(rec, journal, saved)
+            except Exception as exc:
+                reason = disk_full_reason(exc)
+                if reason is None:
+                    raise
+                now = time.monotonic()
+                if paused_at is None or now - told_at >= DISK_REPORT_S:  # kept reported while paused
+                    message = (
+                        f"the Robot DB's disk is full ({reason}): recording paused at map version "
+                        f"{rec.version}, tried again every {DISK_RETRY_S:g} s until space returns"
+                    )
+                    if paused_at is None:
+                        log.error("%s", message)
+                    paused_at = paused_at or now
+                    told_at = now
+                    self.stats.last_error = message
+                if stop.wait(DISK_RETRY_S):
+                    return False
+                continue
+            if paused_at is not None:
+                log.warning(
+                    "space returned: recording resumed at map version %d after %.0f s paused",
+                    rec.version,
+                    time.monotonic() - paused_at,
+                )
+            return True
 
     def _scans(self, stop: threading.Event) -> Iterator[tuple[int, Scan]]:
         if is_live(self.s.source):

@@ -4,10 +4,19 @@ map session id the uploads carry.
 
 Walls are ``[id, x0, y0, x1, y1]`` (m), poses ``[stamp_s, x_m, y_m, theta_rad]``. A step is O(walls
 changed); folding the outbox is O(versions x walls changed).
+
+Compaction (the Robot DB grows with the map, not with the run): once the server confirms a version, the
+map versions delivered before it are dropped (a delivered version's change is in the server's map and in
+the ``walls`` table; the newest delivered one stays, with its scan stamp, for
+:meth:`MapTables.stamp_of`), and the delivered poses are thinned past
+:data:`shared.protocol.MAX_TRAJECTORY_POSES` by the rule the server applies
+(:func:`shared.protocol.thin_positions`); a pose not yet delivered is never dropped. A snapshot's
+trajectory is thinned the same way, so no upload carries the whole trajectory.
 """
 
 from __future__ import annotations
 
+import contextlib
 import uuid
 from dataclasses import dataclass
 from typing import Any
@@ -18,6 +27,7 @@ from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from robot_agent.models import MapVersion, OutboxEntry, PoseRecord, Wall
 from robot_agent.store_db import RobotDBFile, put_meta
 from robot_agent.store_resume import SavedState, write_resume
+from shared.protocol import MAX_TRAJECTORY_POSES, thin_positions
 
 __all__ = ["MapTables", "PendingUpload", "StepRecord"]
 
@@ -52,6 +62,9 @@ class PendingUpload:
 
 class MapTables(RobotDBFile):
     """The map and outbox methods of :class:`robot_agent.store.RobotDB`."""
+
+    #: poses kept (delivered ones thinned past it; tests lower it)
+    max_poses: int = MAX_TRAJECTORY_POSES
 
     def record_step(
         self, rec: StepRecord, scan: bytes | None = None, saved: SavedState | None = None
@@ -143,7 +156,7 @@ class MapTables(RobotDBFile):
                 "segments": [[float(i), a, b, c, d] for i, a, b, c, d in walls],
                 "centroids": mv.change.get("centroids", []),
                 "pose": [pose.x_m, pose.y_m, pose.theta_rad],
-                "trajectory": [list(r) for r in traj],
+                "trajectory": _thinned([list(r) for r in traj], self.max_poses),
             }
 
     def outbox_size(self) -> int:
@@ -187,10 +200,34 @@ class MapTables(RobotDBFile):
         )
 
     def mark_uploaded(self, up_to_version: int) -> None:
-        """The server holds every version up to ``up_to_version``: drop them from the outbox."""
+        """The server holds every version up to ``up_to_version``: drop them from the outbox, and compact
+        what was delivered (module docstring). O(versions delivered), plus O(max poses) when the poses
+        are thinned (once per ~max poses / 4 steps)."""
         with self.tx() as s:
             s.execute(delete(OutboxEntry).where(OutboxEntry.version <= up_to_version))
+            s.execute(delete(MapVersion).where(MapVersion.version < up_to_version))
             put_meta(s, "uploaded_version", up_to_version)
+            self._thin_poses(s, up_to_version)
+
+    def _thin_poses(self, s: Any, delivered: int) -> None:
+        over = s.execute(
+            select(PoseRecord.version).order_by(PoseRecord.version.desc()).limit(1).offset(self.max_poses)
+        ).first()
+        if over is None:
+            return
+        versions = [int(v) for v in s.scalars(select(PoseRecord.version).order_by(PoseRecord.version))]
+        drop = [versions[i] for i in thin_positions(len(versions), self.max_poses)]
+        drop = [v for v in drop if v <= delivered]  # what is not delivered yet is sent first
+        for start in range(0, len(drop), 500):
+            s.execute(delete(PoseRecord).where(PoseRecord.version.in_(drop[start : start + 500])))
+
+    def size_bytes(self) -> int:
+        """The Robot DB's size on disk (the file and its write-ahead log), in bytes."""
+        total = 0
+        for suffix in ("", "-wal", "-shm"):
+            with contextlib.suppress(FileNotFoundError):
+                total += self.path.with_name(self.path.name + suffix).stat().st_size
+        return total
 
     # ------------------------------------------------------------ map session
     def stamp_of(self, version: int) -> float | None:
@@ -227,3 +264,9 @@ class MapTables(RobotDBFile):
             row = s.get(OutboxEntry, version)
             if row is not None:
                 row.attempts += 1
+
+
+def _thinned(rows: list[list[float]], max_poses: int = MAX_TRAJECTORY_POSES) -> list[list[float]]:
+    """``rows`` thinned to at most ``max_poses`` by :func:`shared.protocol.thin_positions`. O(rows)."""
+    drop = set(thin_positions(len(rows), max_poses))
+    return [r for i, r in enumerate(rows) if i not in drop] if drop else rows

@@ -7,11 +7,15 @@ and capped by :mod:`robot_agent.link`, is honoured); an unexpected exception in 
 retried the same way, and one that escapes :meth:`Uploader.run` is caught by the supervisor
 (:mod:`robot_agent.supervise`), which restarts it. Each round that succeeds counts as a healthy round
 (:class:`~robot_agent.health.ErrorReport`). Bodies are built from :mod:`shared.protocol`'s models, the ones
-the server validates them with.
+the server validates them with. A round with nothing to upload sends the status alone when its
+``last_error`` changed since the server last heard it (:meth:`Uploader.send_status`): a robot whose
+recording paused on a full disk has no map to send, and the server still learns why. A round that fails
+because the Robot DB's disk is full is reported as such, without a traceback.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -22,6 +26,7 @@ from robot_agent.errors import LinkError, SupersededError
 from robot_agent.health import ErrorReport
 from robot_agent.link import Backoff, ServerLink, UploadConflict
 from robot_agent.store import RobotDB
+from shared.diskfull import disk_full_reason
 from shared.protocol import MapDelta, MapSnapshot, RobotStatus
 
 __all__ = ["Uploader"]
@@ -61,6 +66,7 @@ class Uploader:
         self.need_snapshot = False
         self._stop_deadline: float | None = None  # the last try after a stop
         self.rounds_ok = 0
+        self._told_error: str | None = None  # the last_error the server heard last
 
     def run(self, stop: threading.Event) -> None:
         backoff = Backoff(self.retry_base_s)
@@ -68,7 +74,7 @@ class Uploader:
             over = self._mapping_over.is_set()  # before the round: a step recorded during it is seen next
             try:
                 acked = self.send_acks()
-                sent = self.send_maps()
+                sent = self.send_maps() or self.send_status()
                 busy = acked or sent
                 backoff.reset()
             except SupersededError:
@@ -79,8 +85,16 @@ class Uploader:
                     return
                 continue
             except Exception as exc:  # a round that failed unexpectedly is retried, and reported
-                log.exception("upload round failed")
-                self._errors.report(f"upload failed: {type(exc).__name__}: {exc}")
+                full = disk_full_reason(exc)
+                if full is not None:  # the Robot DB could not note a delivery: the server has it, retried
+                    log.error("upload round: the Robot DB's disk is full (%s); retried", full)
+                    if "disk is full" not in (self._errors.message or ""):  # the mapping's pause says more
+                        self._errors.report(f"the Robot DB's disk is full ({full}): uploads retried")
+                    with contextlib.suppress(LinkError):  # a repeated upload's status is not applied
+                        self.send_status()
+                else:
+                    log.exception("upload round failed")
+                    self._errors.report(f"upload failed: {type(exc).__name__}: {exc}")
                 if self._give_up(stop, backoff.next_delay()):
                     return
                 continue
@@ -110,6 +124,16 @@ class Uploader:
             return True
         time.sleep(min(delay_s, self._stop_deadline - now))
         return False
+
+    def send_status(self) -> bool:
+        """Send the status alone if its ``last_error`` differs from what the server heard last (a round
+        with nothing else to send); True when it was sent."""
+        status = self._status()
+        if status.last_error == self._told_error:
+            return False
+        self.link.report_status(status.model_dump(mode="json"))
+        self._told_error = status.last_error
+        return True
 
     def send_acks(self) -> bool:
         rows = self.db.unacked()
@@ -149,6 +173,7 @@ class Uploader:
             status=self._status(),
             wall_time_s=self._wall_time(up.version),
         )
+        self._told_error = delta.status.last_error if delta.status else None
         got = self.link.upload(
             delta.model_dump(mode="json"), f"r{self.robot_id}-{session}-{base}-{up.version}"
         )
@@ -173,6 +198,7 @@ class Uploader:
                 "wall_time_s": self._wall_time(version),
             }
         )
+        self._told_error = body.status.last_error if body.status else None
         got = self.link.upload(body.model_dump(mode="json"), f"r{self.robot_id}-{session}-snapshot-{version}")
         if isinstance(got, UploadConflict):
             self._conflict(got, session, version)

@@ -4,6 +4,11 @@ Walls are rows keyed by (robot, segment id), so a delta costs O(changed walls), 
 idempotency key is recorded in the same transaction as its changes: a retry finds the key and changes
 nothing. A delta must start from the version the server has (``base_version`` == current) or it is
 refused with 409 and the server's version, and the robot sends a snapshot instead.
+
+Bounded whatever the run's length: a robot's stored trajectory is thinned past
+:data:`shared.protocol.MAX_TRAJECTORY_POSES` poses (:func:`shared.protocol.thin_positions`, the rule the
+robot applies to its own), and the idempotency records keep the robot's last :data:`KEEP_UPLOAD_RECORDS`
+uploads; both are trimmed in the upload's transaction.
 """
 
 from __future__ import annotations
@@ -26,9 +31,10 @@ from server.models import MapSegment, MapState, MapUploadRecord, Robot, Trajecto
 from server.schemas import MapUpload, MapUploadOut
 from server.snapdiff import SnapshotDiff
 from server.wallcap import check_wall_cap  # importable from here as before
-from shared.protocol import MAP_FIELDS, STATUS_FIELDS, RobotStatus
+from shared.protocol import MAP_FIELDS, MAX_TRAJECTORY_POSES, STATUS_FIELDS, RobotStatus, thin_positions
 
 __all__ = [
+    "KEEP_UPLOAD_RECORDS",
     "AppliedUpload",
     "PreparedRows",
     "apply_upload",
@@ -36,6 +42,9 @@ __all__ = [
     "map_version",
     "prepare_rows",
     "read_map",
+    "status_columns",
+    "thin_trajectory",
+    "trim_upload_records",
 ]
 
 log = logging.getLogger(__name__)
@@ -61,6 +70,10 @@ _COORDS = ("x0_m", "y0_m", "x1_m", "y1_m", "version")
 #: First key of the per-robot upload advisory lock on PostgreSQL ("LMUP"; the second key is the robot id).
 #: Distinct from the high half of server.migrate.SCHEMA_LOCK_KEY, so the two never collide.
 _UPLOAD_LOCK_CLASS = 0x4C4D5550
+#: Idempotency records kept per robot (a retry older than that many uploads is answered as a new upload:
+#: a delta from an old base or an old snapshot version gets 409, never applied twice).
+KEEP_UPLOAD_RECORDS = 10_000
+_TRIM_EVERY = 256  # the records are trimmed when the upload's version is a multiple of this
 
 
 @functools.lru_cache(maxsize=16)
@@ -287,6 +300,12 @@ def apply_upload(
     rows = prepared or prepare_rows(robot_id, up)
     with pgrows.pipelined(conn):  # PostgreSQL: the writes below in one round trip
         _write_rows(conn, robot_id, up, rows, seen_at, key)
+    # bounded sizes (docs/reliability/bounded.md), in the same transaction, after the pipelined writes
+    # (these read rows): the trajectory thinned past its cap, the idempotency records trimmed now and then
+    if rows.trajectory:
+        thin_trajectory(conn, robot_id)
+    if v % _TRIM_EVERY == 0:
+        trim_upload_records(conn, robot_id)
     event = {
         "kind": "snapshot" if up.base_version is None else "delta",
         "robot_id": robot_id,
@@ -360,7 +379,7 @@ def _write_rows(
     if seen_at is not None:
         changes["last_seen_at"] = seen_at
     if up.status is not None:
-        changes.update(_status_columns(up.status))
+        changes.update(status_columns(up.status))
     conn.execute(update(_ROBOTS).where(_ROBOTS.c.id == robot_id).values(**changes))
     record = {
         "robot_id": robot_id,
@@ -375,7 +394,48 @@ def _write_rows(
     conn.execute(insert(_UPLOADS).inline(), record)  # inline: no RETURNING of the new id (none is read)
 
 
-def _status_columns(st: RobotStatus) -> dict[str, Any]:
+def _delete_ids(conn: Connection, table: Table, ids: list[int]) -> None:
+    for start in range(0, len(ids), _CHUNK_ROWS):
+        conn.execute(delete(table).where(table.c.id.in_(ids[start : start + _CHUNK_ROWS])))
+
+
+def thin_trajectory(conn: Connection, robot_id: int, max_poses: int = MAX_TRAJECTORY_POSES) -> int:
+    """Thin the robot's stored trajectory to at most ``max_poses`` poses
+    (:func:`shared.protocol.thin_positions`: the newest half whole, older ones ever sparser); the poses
+    dropped. One index probe when it fits; O(max_poses) when it does not (once per ~max_poses / 4 poses
+    stored)."""
+    over = conn.execute(
+        select(_TRAJ.c.id)
+        .where(_TRAJ.c.robot_id == robot_id)
+        .order_by(_TRAJ.c.id.desc())
+        .limit(1)
+        .offset(max_poses)
+    ).first()
+    if over is None:
+        return 0
+    ids = [
+        int(r[0])
+        for r in conn.execute(select(_TRAJ.c.id).where(_TRAJ.c.robot_id == robot_id).order_by(_TRAJ.c.id))
+    ]
+    drop = [ids[i] for i in thin_positions(len(ids), max_poses)]
+    _delete_ids(conn, _TRAJ, drop)
+    return len(drop)
+
+
+def trim_upload_records(conn: Connection, robot_id: int, keep: int = KEEP_UPLOAD_RECORDS) -> None:
+    """Drop the robot's idempotency records older than its last ``keep`` (:data:`KEEP_UPLOAD_RECORDS`)."""
+    edge = conn.execute(
+        select(_UPLOADS.c.id)
+        .where(_UPLOADS.c.robot_id == robot_id)
+        .order_by(_UPLOADS.c.id.desc())
+        .limit(1)
+        .offset(keep)
+    ).scalar()
+    if edge is not None:
+        conn.execute(delete(_UPLOADS).where(_UPLOADS.c.robot_id == robot_id, _UPLOADS.c.id <= edge))
+
+
+def status_columns(st: RobotStatus) -> dict[str, Any]:
     """The robot row's columns a status sets: each field of :class:`RobotStatus` (a column of the same
     name) that the robot sent, and ``last_error`` always (None clears it)."""
     columns: dict[str, Any] = {}

@@ -23,6 +23,7 @@ LAYERS: dict[str, int] = {
     "shared.signing": 1,
     "shared.protocol": 1,
     "shared.stopsignals": 1,
+    "shared.diskfull": 1,
     "shared.odometry": 2,
     "shared.metrics": 2,
     "shared.baselines": 2,

@@ -48,7 +48,7 @@ from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapSessionOut, MapUploa
 from shared.errors import InvalidInputError
 from shared.export import EmptyMapError, ExportError
 from shared.pipeline.snapshot import MapSnapshot
-from shared.protocol import MAP_SESSION_PATTERN, anchored
+from shared.protocol import MAP_SESSION_PATTERN, MAX_TRAJECTORY_POSES, anchored
 from shared.types import Pose2D
 
 __all__ = ["router"]
@@ -184,7 +184,23 @@ async def list_maps(robot_id: DbIdPath, who: RobotAccess, state: StateDep) -> li
     return await run_in_threadpool(_sessions, state, robot_id)
 
 
-@router.get("/latest", response_model=MapOut)
+#: said in the OpenAPI document of the map reads: their size does not grow with the run's length
+BOUNDED_DOC = (
+    f"Bounded whatever the run's length: the server keeps at most {MAX_TRAJECTORY_POSES} trajectory poses "
+    "of a map (past that, older poses are thinned: every recent pose, ever sparser older ones; the robot "
+    "thins its uploads by the same rule), so the answer holds the walls, at most 200 centroids and at "
+    "most that many poses."
+)
+
+
+_LATEST_DOC = (
+    "The whole current map (version 0 and empty before the first upload); with `version`, that version "
+    "(409 with `current_version` when the server no longer holds it); with `session`, that mapping "
+    "session's map; with `trajectory=N`, only the last N poses. " + BOUNDED_DOC
+)
+
+
+@router.get("/latest", response_model=MapOut, description=_LATEST_DOC)
 async def latest_map(
     robot_id: DbIdPath,
     who: RobotAccess,
@@ -197,7 +213,7 @@ async def latest_map(
 ) -> MapOut:
     """The whole current map (version 0 and empty before the first upload); with ``version``, that
     version (409 with ``current_version`` when the server no longer holds it); with ``session``, that
-    mapping session's map."""
+    mapping session's map (the OpenAPI description: ``_LATEST_DOC``)."""
     return await run_in_threadpool(read_held, state, robot_id, trajectory, version, session)
 
 
@@ -326,6 +342,14 @@ def _export(
     "/export",
     response_class=Response,
     responses={200: {"content": {media: {} for media in _MEDIA_TYPES.values()}}},
+    description=(
+        "The latest map as a file to download (`version`: that version, e.g. the YAML of the PGM just "
+        "fetched, whose version the `X-Map-Version` header and the file name give). 409 when an occupancy "
+        "map is asked of a map without walls, when the stored map has items outside the declared bounds "
+        "(unless `out_of_bounds=skip`), or when the version asked for is no longer held (with "
+        "`current_version`); 422 when the resolution would make a grid of more than 16 M cells. "
+        + BOUNDED_DOC
+    ),
 )
 async def export_map(
     robot_id: DbIdPath,

@@ -1,4 +1,5 @@
-"""``/robots``: register robots (operator), list them with their state, rotate their tokens, delete them."""
+"""``/robots``: register robots (operator), list them with their state, rotate their tokens, delete them;
+a robot reports its status without a map upload (``PUT /robots/{id}/status``)."""
 
 from __future__ import annotations
 
@@ -10,12 +11,14 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from server.audit import record
-from server.deps import AppState, OperatorDep, Principal, StateDep, robot_access
+from server.deps import AgentChecked, AppState, OperatorDep, Principal, RobotSelf, StateDep, robot_access
 from server.errors import ConflictError, NotFoundError
+from server.mapstore import status_columns
 from server.models import Message, Robot
 from server.schemas import DbIdPath, RobotCreate, RobotCreated, RobotOut
 from server.security import ROBOT_PREFIX, hash_token, new_token
 from server.tokens import lock_live_issuer
+from shared.protocol import RobotStatus
 
 __all__ = ["get_robot", "router"]
 
@@ -129,3 +132,19 @@ def delete_robot(robot_id: DbIdPath, who: OperatorDep, state: StateDep) -> None:
         s.delete(robot)
     state.forget_credentials()
     state.recent_maps.forget(robot_id)
+
+
+@router.put("/{robot_id}/status", status_code=status.HTTP_204_NO_CONTENT, dependencies=[AgentChecked])
+def report_status(robot_id: DbIdPath, body: RobotStatus, who: RobotSelf, state: StateDep) -> None:
+    """The robot's own status without a map upload (body: the status a map upload carries): a robot
+    with nothing to upload reports a changed ``last_error`` this way, e.g. that its recording paused on a
+    full disk. Sets the same robot columns as an upload's status (``last_error`` always: null clears
+    it)."""
+    changes = status_columns(body)
+    seen = state.last_seen(robot_id)
+    if seen is not None:
+        changes["last_seen_at"] = seen
+    with state.db.session() as s:
+        done = s.scalar(update(Robot).where(Robot.id == robot_id).values(**changes).returning(Robot.id))
+        if done is None:
+            raise NotFoundError(f"no robot with id {robot_id}")

@@ -32,6 +32,7 @@ from shared.protocol.patterns import (
     VERSION_RE,
     anchored,
 )
+from shared.protocol.trajectory import MAX_TRAJECTORY_POSES, thin_positions
 
 __all__ = [
     "AGENT_INSTANCE_HEADER",
@@ -46,6 +47,7 @@ __all__ = [
     "MAP_FIELDS",
     "MAP_SESSION_PATTERN",
     "MAP_SESSION_RE",
+    "MAX_TRAJECTORY_POSES",
     "SHA256_PATTERN",
     "SHA256_RE",
     "STATUS_FIELDS",
@@ -60,4 +62,5 @@ __all__ = [
     "RobotKernel",
     "RobotStatus",
     "anchored",
+    "thin_positions",
 ]

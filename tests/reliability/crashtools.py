@@ -4,7 +4,10 @@ it started), and the checks of the Robot DB and the server: after every kill and
 
 The checks (what "nothing lost, nothing twice" means here):
 
-- Robot DB: ``PRAGMA integrity_check`` is ``ok``; map versions and poses are exactly ``1..map_version``;
+- Robot DB: ``PRAGMA integrity_check`` is ``ok``; the map versions kept are ``k..map_version`` with every
+  undelivered one there (``k <= uploaded_version + 1``: the delivered ones before the newest delivered are
+  compacted away); the poses are ``1..map_version`` while the run is within the trajectory limit (past it,
+  the delivered ones are thinned: every undelivered pose stays);
   ``source_index`` == ``map_version`` (every scan of the replayable source mapped once, none skipped); the
   outbox is exactly ``uploaded_version+1..map_version``; applied messages are ``1..k`` (each once), and the
   configurations they put in force are recorded once each, in order.
@@ -187,10 +190,20 @@ def check_robot_db(view: RobotDbView, where: str) -> None:
     """The Robot DB's own invariants (see the module docstring); AssertionError names what broke."""
     assert view.integrity == "ok", f"{where}: PRAGMA integrity_check says {view.integrity!r}"
     n = view.map_version
-    assert view.versions == list(range(1, n + 1)), (
-        f"{where}: map versions are not 1..{n}: {_ends(view.versions)}"
+    from shared.protocol import MAX_TRAJECTORY_POSES
+
+    low = view.versions[0] if view.versions else n + 1
+    assert view.versions == list(range(low, n + 1)) and low <= view.uploaded_version + 1, (
+        f"{where}: map versions are not k..{n} with k <= uploaded_version + 1 "
+        f"({view.uploaded_version} + 1): {_ends(view.versions)}"
     )
-    assert view.pose_versions == view.versions, f"{where}: poses do not match the map versions"
+    if n <= MAX_TRAJECTORY_POSES:
+        assert view.pose_versions == list(range(1, n + 1)), f"{where}: poses are not 1..{n}"
+    else:
+        undelivered = list(range(view.uploaded_version + 1, n + 1))
+        assert view.pose_versions[-len(undelivered) :] == undelivered or not undelivered, (
+            f"{where}: an undelivered pose is missing"
+        )
     assert view.source_index == n, f"{where}: source_index {view.source_index} != map_version {n}"
     assert view.outbox == list(range(view.uploaded_version + 1, n + 1)), (
         f"{where}: outbox {_ends(view.outbox)} is not uploaded_version+1..map_version "

@@ -40,12 +40,13 @@ class AgentProcess:
         robot_id: int = 0,
         token: str = "",
         extra: list[str] | None = None,
+        log: Path | None = None,
     ):
         self.db = db
         args = [LINEMAP, "agent", "--db", str(db), *(extra or [])]
         if server is not None:
             args += ["--server", server, "--robot-id", str(robot_id), "--token", token]
-        self.log = db.with_suffix(".log")
+        self.log = log or db.with_suffix(".log")
         self._out = self.log.open("ab")
         # Its own process group: a power cut (tests/reliability) kills it and every child it started at once.
         self.proc = subprocess.Popen(

@@ -1,0 +1,248 @@
+"""A robot mapping for a day, fast-forwarded (issue 21's 24-hour target; docs/reliability/bounded.md): the
+agent's Robot DB and uploader driven at 10 Hz of simulated time against a real ``linemap server`` (SQLite),
+with a cheap synthetic map step instead of the sensor and the pipeline.
+
+    .venv/bin/python benchmarks/long_run.py [--hours 1 6 24] [--walls 1500] [--robot-dir DIR]
+
+Each step is what the agent records (:meth:`robot_agent.store.RobotDB.record_step`): a map version with
+the walls that changed (one new wall every 4 steps until ``--walls``, then 5 walls re-estimated a step),
+200 centroids, the pose on a 200 m patrol loop at 0.5 m/s, the scan's journal bytes (682 beams, the
+journal's own format) and every 50 steps a saved mapping state (a fixed 256 kB stand-in). Every 5 steps
+(the agent's 0.5 s upload period) the real :class:`robot_agent.uploader.Uploader` sends the outbox over
+HTTP. At each mark it forces one snapshot upload and measures: the Robot DB's size, the largest upload
+so far (snapshots included), ``GET /maps/latest`` (median of 3: time and bytes), the GeoJSON export, the
+server database's size and the poses each side keeps. Prints the table; exit 0 when it ran.
+
+The Robot DB goes to ``--robot-dir`` (default: /dev/shm when there is one, so that the per-step fsync of
+``synchronous=FULL`` does not set the pace; the sizes are the same on any disk).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from robot_agent.health import ErrorReport  # noqa: E402
+from robot_agent.journal import scan_to_bytes  # noqa: E402
+from robot_agent.link import ServerLink  # noqa: E402
+from robot_agent.store import RobotDB, SavedState, StepRecord  # noqa: E402
+from robot_agent.uploader import Uploader  # noqa: E402
+from shared.protocol import RobotStatus  # noqa: E402
+from shared.types import Pose2D, Scan  # noqa: E402
+
+LINEMAP = str(Path(sys.executable).parent / "linemap")
+RATE_HZ = 10.0
+STEPS_PER_UPLOAD = 5
+STATE_EVERY = 50
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _server(db: Path, port: int, log: Path) -> tuple[subprocess.Popen[str], str]:
+    proc = subprocess.Popen(
+        [LINEMAP, "server", "--db", str(db), "--port", str(port)],
+        stdout=subprocess.PIPE,
+        stderr=log.open("a"),
+        text=True,
+    )
+    assert proc.stdout is not None
+    token = None
+    for line in proc.stdout:
+        found = re.search(r"(lmo_\S+)", line)
+        token = token or (found.group(1) if found else None)
+        if "linemap server on" in line:
+            break
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=2).status_code == 200 and token:
+                threading.Thread(target=proc.stdout.read, daemon=True).start()  # keep its pipe drained
+                return proc, token
+        except httpx.TransportError:
+            time.sleep(0.1)
+    raise SystemExit(f"the server did not come up; see {log}")
+
+
+def _file_bytes(path: Path) -> int:
+    return sum(p.stat().st_size for p in (path, Path(f"{path}-wal"), Path(f"{path}-shm")) if p.exists())
+
+
+class World:
+    """The synthetic map: walls appear until ``n_walls``, then a few are re-estimated each step."""
+
+    def __init__(self, n_walls: int, seed: int = 1) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.n_walls = n_walls
+        self.walls: dict[int, list[float]] = {}
+        self.beams = np.linspace(0.5, 5.0, 682)
+
+    def wall(self, wid: int) -> list[float]:
+        x, y = self.rng.uniform(-60.0, 60.0, 2)
+        a = self.rng.uniform(0, np.pi)
+        return [float(wid), x, y, x + 2.0 * np.cos(a), y + 2.0 * np.sin(a)]
+
+    def step(self, version: int) -> StepRecord:
+        changed: list[list[float]] = []
+        if len(self.walls) < self.n_walls and version % 4 == 0:
+            wid = len(self.walls)
+            self.walls[wid] = self.wall(wid)
+            changed.append(self.walls[wid])
+        if self.walls:
+            for wid in self.rng.integers(0, len(self.walls), 5).tolist():
+                row = self.walls[wid]
+                self.walls[wid] = [row[0], *(v + float(self.rng.normal(0, 0.002)) for v in row[1:])]
+                changed.append(self.walls[wid])
+        t = version / RATE_HZ
+        s = (0.5 * t) % 200.0  # 0.5 m/s along a 50 m x 50 m square
+        side, along = int(s // 50.0), s % 50.0
+        x, y, th = [
+            (along, 0.0, 0.0),
+            (50.0, along, 1.57),
+            (50.0 - along, 50.0, 3.14),
+            (0.0, 50.0 - along, -1.57),
+        ][side]
+        cents = self.rng.uniform(-60, 60, (200, 2)).round(3).tolist()
+        return StepRecord(version, t, version, changed, [], [t, x - 25.0, y - 25.0, th], cents)
+
+    def scan(self, version: int) -> bytes:
+        t = version / RATE_HZ
+        return scan_to_bytes(Scan(t, -2.09, 0.00614, 0.02, 5.6, self.beams, None, Pose2D(0.0, 0.0, 0.0)))
+
+
+def _latest(client: httpx.Client, rid: int) -> tuple[float, int, int]:
+    times, size, poses = [], 0, 0
+    for _ in range(3):
+        t0 = time.perf_counter()
+        r = client.get(f"/api/v1/robots/{rid}/maps/latest")
+        times.append(time.perf_counter() - t0)
+        r.raise_for_status()
+        size, poses = len(r.content), len(r.json()["trajectory"])
+    return statistics.median(times), size, poses
+
+
+def _export(client: httpx.Client, rid: int) -> tuple[float, int]:
+    t0 = time.perf_counter()
+    r = client.get(f"/api/v1/robots/{rid}/maps/export", params={"format": "geojson"})
+    r.raise_for_status()
+    return time.perf_counter() - t0, len(r.content)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--hours", type=float, nargs="+", default=[1.0, 6.0, 24.0], help="marks [1 6 24]")
+    ap.add_argument("--walls", type=int, default=1500, help="walls of the synthetic map [1500]")
+    shm = Path("/dev/shm")
+    ap.add_argument("--robot-dir", type=Path, default=shm if shm.is_dir() else None)
+    args = ap.parse_args()
+    marks = sorted(int(h * 3600 * RATE_HZ) for h in args.hours)
+    with (
+        tempfile.TemporaryDirectory(prefix="linemap-longrun-") as tmp,
+        tempfile.TemporaryDirectory(prefix="linemap-longrun-robot-", dir=args.robot_dir) as robot_dir,
+    ):
+        server_db, port = Path(tmp) / "server.db", _port()
+        proc, operator = _server(server_db, port, Path(tmp) / "server.log")
+        base = f"http://127.0.0.1:{port}"
+        op = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {operator}"}, timeout=60)
+        made = op.post("/api/v1/robots", json={"name": "long-run"}).json()
+        rid, token = int(made["id"]), str(made["token"])
+        db = RobotDB(Path(robot_dir) / "robot.db")
+        link = ServerLink(base, rid, token, timeout_s=60)
+        sizes: list[int] = []
+        real_upload = link.upload
+
+        def measured(payload: dict[str, Any], key: str) -> Any:
+            sizes.append(len(json.dumps(payload, separators=(",", ":")).encode()))
+            return real_upload(payload, key)
+
+        link.upload = measured  # type: ignore[method-assign]
+        status = RobotStatus.model_validate({"mode": "online"})
+        uploader = Uploader(
+            link,
+            db,
+            lambda: status,
+            lambda v: None,
+            threading.Event(),
+            threading.Event(),
+            ErrorReport(),
+            robot_id=rid,
+        )
+        world, state = World(args.walls), b"\x00" * 256 * 1024
+        rows: list[dict[str, Any]] = []
+        t_start = time.perf_counter()
+        print(f"fast-forwarding {marks[-1]:,} steps at {RATE_HZ:g} Hz of simulated time ...", flush=True)
+        try:
+            for version in range(1, marks[-1] + 1):
+                saved = SavedState(version, "bench", 1, 0, state) if version % STATE_EVERY == 0 else None
+                db.record_step(world.step(version), world.scan(version), saved)
+                if version in marks:  # this round sends the whole map: the largest upload there is
+                    uploader.need_snapshot = True
+                if version % STEPS_PER_UPLOAD == 0 or version in marks:
+                    while uploader.send_maps() and db.outbox_size():
+                        pass
+                if version in marks:
+                    latest_s, latest_b, server_poses = _latest(op, rid)
+                    export_s, export_b = _export(op, rid)
+                    rows.append(
+                        {
+                            "hours": version / RATE_HZ / 3600,
+                            "poses": version,
+                            "robot_db_mb": db.size_bytes() / 1e6,
+                            "max_upload_kib": max(sizes) / 1024,
+                            "snapshot_kib": sizes[-1] / 1024,
+                            "latest_s": latest_s,
+                            "latest_mib": latest_b / 2**20,
+                            "export_s": export_s,
+                            "export_mib": export_b / 2**20,
+                            "server_db_mb": _file_bytes(server_db) / 1e6,
+                            "server_poses": server_poses,
+                            "walls": len(world.walls),
+                            "elapsed_s": time.perf_counter() - t_start,
+                        }
+                    )
+                    print(json.dumps({k: round(v, 3) for k, v in rows[-1].items()}), flush=True)
+        finally:
+            db.close()
+            link.close()
+            op.close()
+            proc.terminate()
+            proc.wait(30)
+    print()
+    print(
+        "| simulated | poses | Robot DB | max upload | snapshot | /maps/latest | export (GeoJSON) "
+        "| server DB | poses kept |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(
+            f"| {r['hours']:g} h | {r['poses']:,} | {r['robot_db_mb']:.1f} MB "
+            f"| {r['max_upload_kib']:.0f} KiB "
+            f"| {r['snapshot_kib']:.0f} KiB | {r['latest_s'] * 1000:.0f} ms, {r['latest_mib']:.2f} MiB "
+            f"| {r['export_s'] * 1000:.0f} ms, {r['export_mib']:.2f} MiB | {r['server_db_mb']:.1f} MB "
+            f"| {r['server_poses']:,} |"
+        )
+    print(f"\n{marks[-1]:,} steps in {rows[-1]['elapsed_s']:.0f} s ({args.walls} walls)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
