@@ -300,6 +300,7 @@ export class MapView {
     const t1 = performance.now();
     const st = stats();
     pushCapped(st.frame_ms, t1 - t0);
+    st.frames = (st.frames || 0) + 1; // frame_ms keeps the last STATS_KEEP only
     // the whole frame, the raster of the last slice included, for the slice size of the next one
     if (this.lastFrameAt !== undefined && more) this.walls.feedback(t0 - this.lastFrameAt - 16.7 + (t1 - t0));
     this.lastFrameAt = more ? t1 : undefined;
