@@ -1,6 +1,8 @@
 """What the delta log (server/maplog.py) adds to a map upload's write transaction: ``apply_upload`` of a
-200-wall delta against ``maplog.append`` of its event, each timed in the same transactions, in-process on
-one database (``--db``: a PostgreSQL URL, or a fresh SQLite temp file by default; a robot is added to it).
+200-wall delta against ``maplog.append`` of its event and against the undo record ``apply_upload`` now
+reads first (``server.maphistory.capture_undo``, timed by a second call of its own), each timed in the
+same transactions, in-process on one database (``--db``: a PostgreSQL URL, or a fresh SQLite temp file by
+default; a robot is added to it).
 
 Exit 0 when it ran (figures, not pass/fail).
 """
@@ -16,6 +18,7 @@ import uuid
 from pathlib import Path
 
 from server.database import Database
+from server.maphistory import capture_undo
 from server.maplog import append
 from server.mapstore import apply_upload
 from server.migrate import upgrade
@@ -56,21 +59,25 @@ def main(argv: list[str] | None = None) -> int:
         rid = robot.id
     with db.write_conn() as conn:
         apply_upload(conn, rid, _upload(1, None, args.walls), "v1")
-    applying, logging = [], []
+    applying, logging, undoing = [], [], []
     for v in range(2, args.uploads + 2):
         up = _upload(v, v - 1, args.walls)
         with db.write_conn() as conn:
+            tu = time.perf_counter()
+            capture_undo(conn, rid, up)  # what apply_upload reads again inside
             t0 = time.perf_counter()
             applied = apply_upload(conn, rid, up, f"v{v}")
             t1 = time.perf_counter()
             assert applied.event is not None
-            append(conn, rid, applied.event)
+            append(conn, rid, applied.event, undo=applied.undo)
             logging.append(time.perf_counter() - t1)
             applying.append(t1 - t0)
+            undoing.append(t0 - tu)
     db.dispose()
     logging.sort()
     print(f"{db.url.split(':')[0]}: {args.uploads} deltas of {args.walls} walls, in-process")
-    print(f"  apply_upload       median {statistics.median(applying) * 1e3:6.2f} ms")
+    print(f"  apply_upload      median {statistics.median(applying) * 1e3:6.2f} ms  (undo record included)")
+    print(f"  undo record alone median {statistics.median(undoing) * 1e3:6.2f} ms")
     print(
         f"  delta log append   median {statistics.median(logging) * 1e3:6.2f} ms  "
         f"p90 {logging[int(0.9 * (len(logging) - 1))] * 1e3:6.2f} ms"

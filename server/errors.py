@@ -93,7 +93,8 @@ class AgentSupersededError(ConflictError):
 
 
 class GoneError(ServerError):
-    """The resource existed and was deleted (a deleted kernel version)."""
+    """The resource existed and is no longer kept (a deleted kernel version, a map version older than the
+    map history holds)."""
 
     status = 410
     code = "gone"

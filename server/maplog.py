@@ -44,16 +44,21 @@ def clear(conn: Connection, robot_id: int) -> None:
     conn.execute(delete(_LOG).where(_LOG.c.robot_id == robot_id))
 
 
-def append(conn: Connection, robot_id: int, event: dict[str, Any], keep: int = KEEP_VERSIONS) -> LoggedUpload:
+def append(
+    conn: Connection, robot_id: int, event: dict[str, Any], keep: int = KEEP_VERSIONS, undo: str | None = None
+) -> LoggedUpload:
     """Log the upload whose stream event is ``event`` (:class:`server.mapstore.AppliedUpload`'s) in
-    ``conn``'s transaction, and drop the robot's entries ``keep`` or more versions older; returns the
+    ``conn``'s transaction, with a delta's undo record (``undo``, :func:`server.maphistory.capture_undo`),
+    and drop the robot's entries ``keep`` or more versions older; returns the
     entry (its JSON is what every stream sends, encoded once here). O(event)."""
     version = int(event["version"])
     if event["kind"] == "delta":
         base, body = event["base_version"], json.dumps(event, separators=(",", ":"))
     else:
         base, body = None, None
-    conn.execute(insert(_LOG).values(robot_id=robot_id, version=version, base_version=base, body=body))
+    conn.execute(
+        insert(_LOG).values(robot_id=robot_id, version=version, base_version=base, body=body, undo=undo)
+    )
     conn.execute(delete(_LOG).where(_LOG.c.robot_id == robot_id, _LOG.c.version <= version - keep))
     return LoggedUpload(version, base, body, event.get("map_session"))
 

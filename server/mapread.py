@@ -13,6 +13,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from server.errors import ConflictError, NotFoundError
+from server.maphistory import read_version
 from server.models import (
     MapSegment,
     MapSession,
@@ -184,8 +185,10 @@ def _current_session(state: AppState, robot_id: int) -> str | None:
 def read_held(
     state: AppState, robot_id: int, tail: int | None, version: int | None = None, session: str | None = None
 ) -> MapOut:
-    """The current map (``version`` None) or version ``version`` if it is the current one or this process
-    read it lately (:mod:`server.recentmaps`); 409 naming the versions held otherwise. ``tail``: only the
+    """The current map (``version`` None) or version ``version``: one this process read lately
+    (:mod:`server.recentmaps`), else rebuilt from the delta log (:mod:`server.maphistory`: 409 for a
+    version above the current one, 410 for one older than the replayable range, 404 for a number the robot
+    skipped, each naming the range). ``tail``: only the
     last N trajectory poses. ``session``: that mapping session's map (an ended one as it ended; 404 naming
     the robot's sessions when it has no such session)."""
     if session is not None:
@@ -206,18 +209,15 @@ def read_held(
         # (another server process may have started a new one)
         if kept is not None and _current_session(state, robot_id) == kept.map_session:
             return _tail_of(kept, tail)
-    with state.db.read() as s:
-        m = read_map(s, robot_id, tail)
-    if tail is None:
+        # rebuilt from the current map and the delta log's undo records (server.maphistory): 409 / 410 /
+        # 404 naming the replayable versions when it cannot be
+        with state.db.read() as s:
+            m = read_version(s, robot_id, version, tail)
+    else:
+        with state.db.read() as s:
+            m = read_map(s, robot_id, tail)
+    if tail is None and version is None:
         state.recent_maps.put(m)
-    if version is not None and m.version != version:
-        held = [v for v in state.recent_maps.held(robot_id) if v != m.version]
-        raise ConflictError(
-            f"version {version} of robot {robot_id}'s map is not held here (the current is {m.version}"
-            + (f"; also held: {', '.join(map(str, held))}" if held else "")
-            + "): ask again without version, or with the current one",
-            current_version=m.version,
-        )
     return m
 
 

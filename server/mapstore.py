@@ -25,6 +25,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 
 from server import pgrows
 from server.errors import ConflictError, MapSessionMismatchError, NotFoundError
+from server.maphistory import capture_undo
 from server.mapread import map_version, read_map  # the read side, importable from here as before
 from server.mapsessions import check_not_ended, start_session
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
@@ -59,6 +60,8 @@ class AppliedUpload:
     out: MapUploadOut
     event: dict[str, Any] | None
     new_session: bool = False
+    #: a delta's undo record (:func:`server.maphistory.capture_undo`), logged with it
+    undo: str | None = None
 
 
 _SEG: Table = MapSegment.__table__  # type: ignore[assignment]
@@ -232,7 +235,7 @@ def apply_upload(
     if seen is not None:  # answered with the session it was applied in: the robot checks it is its own
         return AppliedUpload(MapUploadOut(version=seen[0], duplicate=True, map_session=seen[1]), None)
     current, session = robot[0], robot[1]
-    new_session = up.map_session != session
+    new_session, undo = up.map_session != session, None
     if new_session:
         check_not_ended(conn, robot_id, up.map_session, session)
     if up.base_version is None and new_session:
@@ -296,6 +299,7 @@ def apply_upload(
             )
         if max_walls is not None:
             check_wall_cap(conn, robot_id, up, max_walls, reads.walls)
+        undo = capture_undo(conn, robot_id, up)  # reads what the delta replaces: before the writes
     v = up.version
     rows = prepared or prepare_rows(robot_id, up)
     with pgrows.pipelined(conn):  # PostgreSQL: the writes below in one round trip
@@ -312,7 +316,7 @@ def apply_upload(
         **{name: getattr(up, name) for name in MAP_FIELDS},  # the lists themselves, not copies
     }
     return AppliedUpload(
-        MapUploadOut(version=v, duplicate=False, map_session=up.map_session), event, new_session
+        MapUploadOut(version=v, duplicate=False, map_session=up.map_session), event, new_session, undo
     )
 
 

@@ -236,7 +236,8 @@ class MapUploadRecord(Base):
 class MapDeltaRecord(Base):
     """The last few uploads of each robot's map as its stream sends them, so that any server process can
     send a viewer the deltas it missed (server.maplog): a delta's event as JSON, or for a snapshot no
-    body (the stream reads the whole map instead)."""
+    body (the stream reads the whole map instead); a delta also keeps what it replaced, so that the history
+    slider can replay earlier versions (server.maphistory)."""
 
     __tablename__ = "map_deltas"
 
@@ -245,6 +246,9 @@ class MapDeltaRecord(Base):
     #: None for a snapshot
     base_version: Mapped[int | None] = mapped_column(BigInteger, default=None)
     body: Mapped[str | None] = mapped_column(Text, default=None)
+    #: for a delta: what it replaced (server.maphistory: the walls it changed or removed as they were,
+    #: the ids it added, and the map state before it), as JSON; None for a snapshot or an older row
+    undo: Mapped[str | None] = mapped_column(Text, default=None)
 
 
 class AuthFailure(Base):

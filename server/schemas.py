@@ -29,6 +29,8 @@ __all__ = [
     "AuditOut",
     "KernelOut",
     "LoginIn",
+    "MapHistoryOut",
+    "MapHistoryVersion",
     "MapOut",
     "MapSessionOut",
     "MapUpload",
@@ -170,6 +172,26 @@ class MapOut(BaseModel):
     pose: list[float]
     trajectory: list[list[float]]
     wall_time_s: float | None = None
+
+
+class MapHistoryVersion(BaseModel):
+    """One replayable version of a robot's map: its number and the scan time stamp (s) it was made at."""
+
+    version: int
+    stamp_s: float
+
+
+class MapHistoryOut(BaseModel):
+    """The versions of a robot's current mapping session that ``?version=N`` can replay, oldest first
+    (``first_version`` .. ``current_version``, numbers the robot skipped left out), and why older versions
+    cannot be (``older``)."""
+
+    robot_id: int
+    map_session: str | None = None
+    current_version: int
+    first_version: int
+    versions: list[MapHistoryVersion]
+    older: str
 
 
 class TokenCreate(_In):

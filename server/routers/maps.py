@@ -1,5 +1,7 @@
 """``/robots/{id}/maps``: the robot uploads temporary maps; operators read the latest or stream them (SSE),
-and list the robot's maps, one per mapping session (``GET /robots/{id}/maps``, :mod:`server.mapsessions`).
+and list the robot's maps, one per mapping session (``GET /robots/{id}/maps``, :mod:`server.mapsessions`),
+and the versions of the current one that can be replayed (``GET /robots/{id}/maps/history``,
+:mod:`server.maphistory`).
 
 Stream events (``text/event-stream``, :mod:`server.mapstream`): ``snapshot`` (the whole map,
 :class:`server.schemas.MapOut`) first and whenever the subscriber must resynchronise, then one ``delta``
@@ -35,6 +37,7 @@ from sqlalchemy import Connection
 from server.deps import AgentChecked, AppState, Principal, RobotSelf, StateDep, robot_access
 from server.errors import ConflictError, InvalidRequestError, RateLimitedError
 from server.mapbounds import screen_stored
+from server.maphistory import read_history
 from server.maplog import LoggedUpload
 from server.maplog import append as log_upload
 from server.maplog import clear as clear_log
@@ -44,7 +47,7 @@ from server.mapstream import map_events
 from server.parsepool import UploadParser, parse_upload
 from server.pgrows import pipelined
 from server.quota import UploadQuota
-from server.schemas import DB_INT_MAX, DbIdPath, MapOut, MapSessionOut, MapUpload, MapUploadOut
+from server.schemas import DB_INT_MAX, DbIdPath, MapHistoryOut, MapOut, MapSessionOut, MapUpload, MapUploadOut
 from shared.errors import InvalidInputError
 from shared.export import EmptyMapError, ExportError
 from shared.pipeline.snapshot import MapSnapshot
@@ -137,7 +140,7 @@ async def upload_map(
             if applied.new_session:  # the log holds the current session's uploads only: versions anew
                 clear_log(conn, robot_id)
             state.hub.announce(conn, f"maps:{robot_id}", body.version)
-            return applied, log_upload(conn, robot_id, applied.event)
+            return applied, log_upload(conn, robot_id, applied.event, undo=applied.undo)
 
     applied, logged = await state.writer.submit(write, heavy=heavy)
     if applied.new_session:  # versions count anew: a version kept from the old session is another map
@@ -152,7 +155,13 @@ async def upload_map(
 #: ``?version=N``: one version of the map (the current one, or one this process served lately)
 VersionQuery = Annotated[
     int | None,
-    Query(ge=0, le=DB_INT_MAX, description="This map version (409 with current_version if not held)."),
+    Query(
+        ge=0,
+        le=DB_INT_MAX,
+        description="This map version of the current session (the replayable ones: GET "
+        "/robots/{id}/maps/history; 409 above the current, 410 older than the history holds, 404 a skipped "
+        "number).",
+    ),
 ]
 
 
@@ -184,6 +193,22 @@ async def list_maps(robot_id: DbIdPath, who: RobotAccess, state: StateDep) -> li
     return await run_in_threadpool(_sessions, state, robot_id)
 
 
+def _history(state: AppState, robot_id: int) -> MapHistoryOut:
+    with state.db.read() as s:
+        return read_history(s, robot_id)
+
+
+@router.get("/history", response_model=MapHistoryOut)
+async def map_history(robot_id: DbIdPath, who: RobotAccess, state: StateDep) -> MapHistoryOut:
+    """The versions of the robot's current mapping session that ``/latest?version=N`` and
+    ``/export?version=N`` can replay (the dashboard's history slider), oldest first, with their scan time
+    stamps, and in ``older`` why earlier ones cannot be. Each delta upload keeps what it replaced in the
+    delta log, so a version is rebuilt by undoing the deltas above it: the range reaches back to the last
+    snapshot upload (it replaced the whole map), to the start of the session, or as far as the log keeps
+    (the last 256 uploads), whichever is nearest. Other sessions' maps: ``/latest?session=<id>``."""
+    return await run_in_threadpool(_history, state, robot_id)
+
+
 #: said in the OpenAPI document of the map reads: their size does not grow with the run's length
 BOUNDED_DOC = (
     f"Bounded whatever the run's length: the server keeps at most {MAX_TRAJECTORY_POSES} trajectory poses "
@@ -194,9 +219,11 @@ BOUNDED_DOC = (
 
 
 _LATEST_DOC = (
-    "The whole current map (version 0 and empty before the first upload); with `version`, that version "
-    "(409 with `current_version` when the server no longer holds it); with `session`, that mapping "
-    "session's map; with `trajectory=N`, only the last N poses. " + BOUNDED_DOC
+    "The whole current map (version 0 and empty before the first upload); with `version`, that version of "
+    "the current session (the versions held: `GET /robots/{id}/maps/history`; 409 with `current_version` "
+    "for one above the current, 410 for one older than the history holds, 404 for a number the robot "
+    "skipped); with `session`, that mapping session's map; with `trajectory=N`, only the last N poses. "
+    + BOUNDED_DOC
 )
 
 
@@ -212,8 +239,10 @@ async def latest_map(
     session: SessionQuery = None,
 ) -> MapOut:
     """The whole current map (version 0 and empty before the first upload); with ``version``, that
-    version (409 with ``current_version`` when the server no longer holds it); with ``session``, that
-    mapping session's map (the OpenAPI description: ``_LATEST_DOC``)."""
+    version of the current session (the versions held: ``GET /robots/{id}/maps/history``; 409 with
+    ``current_version`` for one above the current, 410 for one older than the history holds, 404 for a
+    number the robot skipped); with ``session``, that mapping session's map (the OpenAPI description:
+    ``_LATEST_DOC``)."""
     return await run_in_threadpool(read_held, state, robot_id, trajectory, version, session)
 
 

@@ -4,7 +4,7 @@
 import { h, mount } from "./dom.js";
 import { api, onUnauthorized } from "./api.js";
 import { loadStages } from "./schema.js";
-import { stats } from "./mapview.js";
+import { stats } from "./mapstats.js";
 import { renderRobots } from "./views/robots.js";
 import { renderRobot } from "./views/robot.js";
 import { renderKernels } from "./views/kernels.js";

@@ -1,6 +1,7 @@
 // Downloads of the robot's map from the live map (GET /robots/{id}/maps/export), pinned to the version on
-// screen: asked for with ?version=N; when the server no longer holds that version it answers 409 with the
-// current one, and the download is of that version, said so in the returned note (never silently). The
+// screen: asked for with ?version=N; when the server no longer holds that version it answers 410 (older than
+// the history it keeps) or 409 with the current one, and the download is of that version, said so in the
+// returned note (never silently). The
 // occupancy map is two files (PGM and the YAML that names it), fetched for one version.
 
 import { BASE, ApiError } from "./api.js";
@@ -50,7 +51,8 @@ export async function downloadMap(robotId, key, version) {
   try {
     file = await fetchExport(robotId, first, version);
   } catch (e) {
-    if (!(e instanceof ApiError) || e.status !== 409 || !Number.isInteger(e.body?.current_version)) throw e;
+    const gone = e instanceof ApiError && (e.status === 409 || e.status === 410);
+    if (!gone || !Number.isInteger(e.body?.current_version)) throw e;
     file = await fetchExport(robotId, first, e.body.current_version);
     note = `map v${version} is no longer held by the server: downloaded v${file.version}, the current one`;
   }

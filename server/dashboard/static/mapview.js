@@ -1,6 +1,7 @@
 // Live map: keeps the robot's map from the SSE stream (snapshot + deltas) and draws it on a canvas
 // (walls, centroids, trajectory, pose, grid, scale bar) with pan, zoom, fit and follow, layers switched on
-// and off, click-to-measure and downloads of the shown version (the controls: maptools.js).
+// and off, click-to-measure and downloads of the shown version (the controls: maptools.js), and a history
+// slider that shows a past version instead of the live one (history_slider.js; `pinned` while it does).
 // Redraws only when something changed, at most once per animation frame; records latency and frame
 // times in window.linemapStats (see brief: tests and a benchmark read them). Walls are drawn by
 // maplayer.js in bounded slices; nothing non-finite or beyond ±FAR_M reaches the canvas, and every
@@ -15,32 +16,10 @@ import { MapOverlay, poseText } from "./maptools.js";
 import { MEASURE_POINTS, drawMeasure, measureText } from "./measure.js";
 import { OccupancyLayer } from "./occupancy.js";
 import { clampScale, drawnBounds, fittedView, screenToWorld } from "./viewport.js";
+import { HistorySlider } from "./history_slider.js";
+import { STATS_KEEP, median, pushCapped, stats } from "./mapstats.js";
 
 const TRAJECTORY_KEEP = 5000;
-const STATS_KEEP = 1000;
-
-export function stats() {
-  if (!window.linemapStats) {
-    window.linemapStats = {
-      latencies_ms: [], frame_ms: [], version: null, segments: 0, drawn_at: null,
-      walls_drawn: 0, walls_complete: false, walls_far: 0, first_frame_ms: null, complete_ms: null,
-    };
-  }
-  return window.linemapStats;
-}
-
-const pushCapped = (arr, v) => {
-  arr.push(v);
-  if (arr.length > STATS_KEEP) arr.splice(0, arr.length - STATS_KEEP);
-};
-
-function median(values) {
-  if (!values.length) return null;
-  const s = [...values].sort((a, b) => a - b);
-  const m = s.length >> 1;
-  return s.length % 2 ? s[m] : (s[m - 1] + s[m]) / 2;
-}
-
 export class MapView {
   constructor() {
     this.segments = new Map(); // id -> [x0, y0, x1, y1]
@@ -74,7 +53,11 @@ export class MapView {
       clearMeasure: () => { this.measurePoints = []; this.setMeasuring(true); },
       download: (key) => this.download(key),
     });
-    this.el = h("div", { class: "map-wrap" }, this.canvas, this.overlay.el);
+    this.pinned = null; // a past version shown by the history slider: {version, segments, centroids, trajectory, pose}
+    this.history = new HistorySlider({
+      showVersion: (m) => this.showVersion(m), goLive: () => this.showVersion(null), liveVersion: () => this.version,
+    });
+    this.el = h("div", { class: "map-wrap" }, this.canvas, this.overlay.el, this.history.el);
     this.ctx = this.canvas.getContext("2d", { alpha: false });
     this.bindInput();
     this.resizeObserver = new ResizeObserver(() => this.invalidate());
@@ -87,6 +70,7 @@ export class MapView {
     this.robotId = robotId;
     this.closed = false;
     this.open();
+    this.history.connect(robotId);
   }
 
   open() {
@@ -114,6 +98,7 @@ export class MapView {
 
   close() {
     this.closed = true;
+    this.history.close();
     clearTimeout(this.retryTimer);
     if (this.es) this.es.close();
     this.es = null;
@@ -144,18 +129,33 @@ export class MapView {
   }
 
   async download(key) {
-    this.overlay.showDownload(`Preparing map v${this.version ?? "—"}…`);
+    const version = this.shown().version;
+    this.overlay.showDownload(`Preparing map v${version ?? "—"}…`);
     try {
-      const got = await downloadMap(this.robotId, key, this.version);
+      const got = await downloadMap(this.robotId, key, version);
       this.overlay.showDownload(`${got.note || `Downloaded map v${got.version}`}: ${got.files.join(", ")}`);
     } catch (e) {
       this.overlay.showDownload(`Download failed: ${e.detail || e.message}`, true);
     }
   }
 
+  /** What is drawn: the past version the history slider pinned, else the live map. */
+  shown() { return this.pinned || this; }
+
+  /** Show map `m` (a MapOut) instead of the live map; null: the live map again. */
+  showVersion(m) {
+    this.pinned = m && {
+      version: m.version, centroids: m.centroids || [], trajectory: m.trajectory || [],
+      pose: m.pose && m.pose.length >= 2 ? m.pose : null,
+      segments: new Map((m.segments || []).map((s) => [s[0], [s[1], s[2], s[3], s[4]]])),
+    };
+    this.walls.changed();
+    this.invalidate();
+  }
+
   onSnapshot(m) {
     this.receivedAt = performance.now();
-    this.walls.changed();
+    if (!this.pinned) this.walls.changed();
     this.segments.clear();
     for (const s of m.segments || []) this.segments.set(s[0], [s[1], s[2], s[3], s[4]]);
     this.centroids = m.centroids || [];
@@ -175,7 +175,7 @@ export class MapView {
     }
     for (const s of d.segments || []) this.segments.set(s[0], [s[1], s[2], s[3], s[4]]);
     for (const id of d.removed || []) this.segments.delete(id);
-    if ((d.segments && d.segments.length) || (d.removed && d.removed.length)) this.walls.changed();
+    if (!this.pinned && ((d.segments && d.segments.length) || (d.removed && d.removed.length))) this.walls.changed();
     if (d.centroids) this.centroids = d.centroids;
     if (d.pose && d.pose.length >= 2) this.pose = d.pose;
     if (d.trajectory && d.trajectory.length) {
@@ -193,6 +193,7 @@ export class MapView {
       this.pendingWallTimes.push(ev.wall_time_s);
       if (this.pendingWallTimes.length > STATS_KEEP) this.pendingWallTimes.shift(); // no frames while hidden
     }
+    this.history.onLive(this.version);
     this.invalidate();
   }
 
@@ -211,7 +212,8 @@ export class MapView {
 
   /** Bounds of everything drawn: [minX, minY, maxX, maxY] or null (items beyond ±FAR_M are not drawn). */
   bounds() {
-    return drawnBounds(this.segments.values(), this.trajectory, this.centroids, this.pose);
+    const m = this.shown();
+    return drawnBounds(m.segments.values(), m.trajectory, m.centroids, m.pose);
   }
 
   /** Fit everything in view (computed at the next frame, when the canvas has its size). */
@@ -298,12 +300,14 @@ export class MapView {
     const t1 = performance.now();
     const st = stats();
     pushCapped(st.frame_ms, t1 - t0);
+    st.frames = (st.frames || 0) + 1; // frame_ms keeps the last STATS_KEEP only
     // the whole frame, the raster of the last slice included, for the slice size of the next one
     if (this.lastFrameAt !== undefined && more) this.walls.feedback(t0 - this.lastFrameAt - 16.7 + (t1 - t0));
     this.lastFrameAt = more ? t1 : undefined;
-    st.version = this.version;
+    st.version = this.shown().version;
+    st.live_version = this.version;
     st.scale = this.view.scale;
-    st.segments = this.segments.size;
+    st.segments = this.shown().segments.size;
     st.drawn_at = performance.timeOrigin + t1;
     const p = this.walls.progress();
     st.walls_drawn = p.drawn;
@@ -336,10 +340,10 @@ export class MapView {
   }
 
   updateHud() {
-    const o = this.overlay;
-    o.version.textContent = this.version === null ? "—" : String(this.version);
-    o.walls.textContent = String(this.segments.size);
-    o.pose.textContent = poseText(this.pose);
+    const o = this.overlay, m = this.shown();
+    o.version.textContent = m.version === null ? "—" : String(m.version);
+    o.walls.textContent = String(m.segments.size);
+    o.pose.textContent = poseText(m.pose);
     const lat = median(stats().latencies_ms.slice(-50));
     o.latency.textContent = lat === null ? "—" : `${Math.round(lat)} ms`;
   }
@@ -357,9 +361,10 @@ export class MapView {
     ctx.fillRect(0, 0, w, hgt);
 
     if (this.pendingFit && w > 1 && hgt > 1) this.applyFit(w, hgt);
-    if (this.follow && this.pose && drawable(this.pose[0], this.pose[1])) {
-      this.view.cx = this.pose[0];
-      this.view.cy = this.pose[1];
+    const m = this.shown();
+    if (this.follow && m.pose && drawable(m.pose[0], m.pose[1])) {
+      this.view.cx = m.pose[0];
+      this.view.cy = m.pose[1];
     }
     const { cx, cy, scale } = this.view;
     const ox = w / 2 - cx * scale;
@@ -368,21 +373,21 @@ export class MapView {
 
     drawGrid(ctx, w, hgt, scale, ox, oy);
     if (this.layers.occupancy) {
-      this.occupancy.want(this.robotId, this.version);
+      this.occupancy.want(this.robotId, m.version);
       this.occupancy.draw(ctx, scale, ox, oy);
     }
 
     // Walls: a small map in one path; else the progressive layer (maplayer.js) and what it has so far.
     let more = false;
-    if (this.layers.walls && !this.walls.direct(ctx, this.segments, this.view, w, hgt)) {
-      more = this.walls.step(this.segments, this.view, w, hgt, dpr);
+    if (this.layers.walls && !this.walls.direct(ctx, m.segments, this.view, w, hgt)) {
+      more = this.walls.step(m.segments, this.view, w, hgt, dpr);
       this.walls.composite(ctx, this.view, w, hgt);
     }
-    if (this.layers.trajectory) drawTrajectory(ctx, this.trajectory, scale, ox, oy, w, hgt);
-    if (this.layers.centroids) drawCentroids(ctx, this.centroids, scale, ox, oy, w, hgt);
-    if (this.layers.robot && this.pose && drawable(this.pose[0], this.pose[1])) {
-      const sx = this.pose[0] * scale + ox, sy = oy - this.pose[1] * scale;
-      const theta = Number.isFinite(this.pose[2]) ? this.pose[2] : 0;
+    if (this.layers.trajectory) drawTrajectory(ctx, m.trajectory, scale, ox, oy, w, hgt);
+    if (this.layers.centroids) drawCentroids(ctx, m.centroids, scale, ox, oy, w, hgt);
+    if (this.layers.robot && m.pose && drawable(m.pose[0], m.pose[1])) {
+      const sx = m.pose[0] * scale + ox, sy = oy - m.pose[1] * scale;
+      const theta = Number.isFinite(m.pose[2]) ? m.pose[2] : 0;
       if (sx >= -20 && sx <= w + 20 && sy >= -20 && sy <= hgt + 20) drawRobot(ctx, sx, sy, theta);
     }
     if (this.measuring) drawMeasure(ctx, this.measurePoints, scale, ox, oy);
@@ -391,6 +396,4 @@ export class MapView {
     this.updateScaleBar(scale);
     return more;
   }
-
-
 }

@@ -61,7 +61,7 @@ export class OccupancyLayer {
       try {
         pgm = await fetchExport(robotId, "pgm", version);
       } catch (e) {
-        if (e.status !== 409 || !Number.isInteger(e.body?.current_version)) throw e;
+        if ((e.status !== 409 && e.status !== 410) || !Number.isInteger(e.body?.current_version)) throw e;
         pgm = await fetchExport(robotId, "pgm", e.body.current_version); // that version is no longer held
       }
       const yaml = await fetchExport(robotId, "yaml", pgm.version);

@@ -5,6 +5,7 @@ stored them): absurd coordinates, and 130,000 long overlapping walls. Shared by 
 from __future__ import annotations
 
 import json
+import math
 import random
 from typing import Any
 
@@ -72,18 +73,45 @@ def store_absurd_map(live: Live) -> int:
     return rid
 
 
-def store_big_map(live: Live, n_walls: int = 130_000, seed: int = 18) -> int:
-    """A robot whose stored map has ``n_walls`` long walls (20-200 m) criss-crossing a 200 m square."""
+def store_big_map(
+    live: Live,
+    n_walls: int = 130_000,
+    seed: int = 18,
+    centroids: int = 0,
+    poses: int = 0,
+    half_m: float = 100.0,
+) -> int:
+    """A robot whose stored map has ``n_walls`` long walls criss-crossing a square of ``2 * half_m`` metres
+    (by default 200 m, walls 20-200 m long), and ``centroids`` centroids and a trajectory of ``poses``
+    poses (a spiral) in it."""
     rid, _ = live.new_robot()
     rng = random.Random(seed)
     rows = []
     for i in range(n_walls):
-        x0, y0 = rng.uniform(-100, 100), rng.uniform(-100, 100)
-        x1, y1 = rng.uniform(-100, 100), rng.uniform(-100, 100)
+        x0, y0 = rng.uniform(-half_m, half_m), rng.uniform(-half_m, half_m)
+        x1, y1 = rng.uniform(-half_m, half_m), rng.uniform(-half_m, half_m)
         rows.append((i, x0, y0, x1, y1))
     for start in range(0, n_walls, 10_000):
         _walls(live, rid, rows[start : start + 10_000])
-    _new_map(live, rid, 1, (0.0, 0.0, 0.0), [])
+    xy = [[rng.uniform(-half_m, half_m), rng.uniform(-half_m, half_m)] for _ in range(centroids)]
+    _new_map(live, rid, 1, (0.0, 0.0, 0.0), xy)
+    if poses:
+        spiral = [
+            (
+                0.1 * i,
+                0.9 * half_m * i / poses * math.cos(i / 50),
+                0.9 * half_m * i / poses * math.sin(i / 50),
+            )
+            for i in range(poses)
+        ]
+        with live.state.db.write_conn() as conn:
+            conn.execute(
+                text(
+                    "INSERT INTO trajectory_points (robot_id, version, stamp_s, x_m, y_m, theta_rad) "
+                    "VALUES (:r, 1, :t, :x, :y, 0.0)"
+                ),
+                [{"r": rid, "t": t, "x": x, "y": y} for t, x, y in spiral],
+            )
     return rid
 
 

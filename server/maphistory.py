@@ -1,0 +1,243 @@
+"""A robot's map history: which earlier versions of its current mapping session can be replayed, and
+version N rebuilt (the dashboard's history slider; ``?version=N`` on ``/maps/latest`` and the exports).
+
+The database holds only each robot's current map. Each delta logged in the delta log
+(:mod:`server.maplog`, the last :data:`server.maplog.KEEP_VERSIONS` uploads of the current session) also
+keeps its *undo record* (:func:`capture_undo`, written in the upload's transaction): the walls it changed
+or removed as they were before it, the ids it added, and the centroids, pose and stamps before it. Version
+N is rebuilt by undoing, newest first, the logged deltas above N from the current map; its trajectory is
+the stored poses uploaded at or before N.
+
+So the replayable versions are the current one and, going down the log, each delta's base version, as long
+as the deltas chain (each one's base is the version logged below it). The chain stops at a snapshot upload
+(it replaced the whole map and keeps no undo record: its own version is the oldest replayable), at a
+version that has left the log (it keeps the last ``KEEP_VERSIONS`` uploads), at a delta logged before undo
+records were kept, and at the start of the session (a new session clears the log).
+
+Costs: the undo record costs one primary-key read of the touched walls and of the map state per delta
+upload, O(walls in the delta); listing is O(log rows); rebuilding is O(walls + poses + the undone deltas).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import Connection, Table, select
+from sqlalchemy.orm import Session
+
+from server.errors import ConflictError, GoneError, NotFoundError, UnavailableError
+from server.maplog import KEEP_VERSIONS
+from server.models import MapDeltaRecord, MapSegment, MapState, Robot, TrajectoryPoint
+from server.schemas import MapHistoryOut, MapHistoryVersion, MapOut, MapUpload
+
+__all__ = ["capture_undo", "map_version", "read_history", "read_version"]
+
+_LOG: Table = MapDeltaRecord.__table__  # type: ignore[assignment]
+_SEG: Table = MapSegment.__table__  # type: ignore[assignment]
+_STATE: Table = MapState.__table__  # type: ignore[assignment]
+_TRAJ: Table = TrajectoryPoint.__table__  # type: ignore[assignment]
+_CHUNK = 500
+#: reads retried when an upload commits in between (PostgreSQL reads each statement at its own time)
+_READ_TRIES = 5
+
+
+def capture_undo(conn: Connection, robot_id: int, up: MapUpload) -> str:
+    """The undo record of delta ``up`` as JSON, read in ``conn``'s transaction before it is applied: the
+    touched walls as they are (``walls``: rows ``[id, x0, y0, x1, y1]``), the touched ids that do not exist
+    yet (``absent``), and the map state (``stamp_s``, ``centroids``, ``pose``, ``wall_time_s``).
+    O(walls in ``up``) primary-key reads."""
+    touched = sorted({int(r[0]) for r in up.segments} | {int(i) for i in up.removed})
+    walls: list[list[float]] = []
+    for start in range(0, len(touched), _CHUNK):
+        chunk = touched[start : start + _CHUNK]
+        q = select(_SEG.c.segment_id, _SEG.c.x0_m, _SEG.c.y0_m, _SEG.c.x1_m, _SEG.c.y1_m).where(
+            _SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(chunk)
+        )
+        walls.extend([int(i), x0, y0, x1, y1] for i, x0, y0, x1, y1 in conn.execute(q))
+    present = {int(w[0]) for w in walls}
+    st = conn.execute(
+        select(_STATE.c.stamp_s, _STATE.c.centroids, _STATE.c.pose, _STATE.c.wall_time_s).where(
+            _STATE.c.robot_id == robot_id
+        )
+    ).first()
+    record: dict[str, Any] = {
+        "walls": walls,
+        "absent": [i for i in touched if i not in present],
+        "stamp_s": st[0] if st else 0.0,
+        "centroids": list((st[1] or {}).get("xy", [])) if st else [],
+        "pose": [st[2]["x_m"], st[2]["y_m"], st[2]["theta_rad"]] if st else [0.0, 0.0, 0.0],
+        "wall_time_s": st[3] if st else None,
+    }
+    return json.dumps(record, separators=(",", ":"))
+
+
+def map_version(s: Session, robot_id: int) -> tuple[str | None, int]:
+    """The robot's current (map session, map version), read anew."""
+    robot = s.get(Robot, robot_id, populate_existing=True)
+    if robot is None:
+        raise NotFoundError(f"no robot with id {robot_id}")
+    return robot.map_session, robot.map_version
+
+
+@dataclass(frozen=True, slots=True)
+class _Chain:
+    """The replayable versions, newest first, with their scan stamps, and why the chain ends there."""
+
+    session: str | None
+    current: int
+    versions: list[tuple[int, float]]
+    undo: dict[int, dict[str, Any]]  # by the version of the delta that keeps it
+    stop: str
+
+
+def _chain(s: Session, robot_id: int, below: int = -1) -> _Chain:
+    """Walk the delta log down from the current version (to ``below`` at the lowest, exclusive)."""
+    session, current = map_version(s, robot_id)
+    st = s.get(MapState, robot_id, populate_existing=True)
+    rows = {
+        int(v): (None if b is None else int(b), u)
+        for v, b, u in s.execute(
+            select(_LOG.c.version, _LOG.c.base_version, _LOG.c.undo).where(
+                _LOG.c.robot_id == robot_id, _LOG.c.version > below
+            )
+        )
+    }
+    versions = [(current, st.stamp_s if st else 0.0)]
+    undo: dict[int, dict[str, Any]] = {}
+    v, stop = current, ""
+    while v > below and not stop:
+        if v == 0:
+            stop = "version 0 is the empty map before the first upload"
+        elif v not in rows:
+            stop = (
+                "versions before it have left the delta log, which keeps each robot's last "
+                f"{KEEP_VERSIONS} uploads of its current mapping session"
+            )
+        elif rows[v][0] is None:
+            stop = "it is a snapshot upload, which replaced the whole map (nothing before it is kept)"
+        elif rows[v][1] is None:
+            stop = "the delta after it was logged before undo records were kept"
+        else:
+            base, record = rows[v][0], json.loads(str(rows[v][1]))
+            assert base is not None
+            undo[v] = record
+            versions.append((base, float(record["stamp_s"])))
+            v = base
+    return _Chain(session, current, versions, undo, stop)
+
+
+def read_history(s: Session, robot_id: int) -> MapHistoryOut:
+    """The versions of the robot's current map session that can be replayed, oldest first, with the
+    reason older ones cannot. O(log rows)."""
+    for _ in range(_READ_TRIES):
+        chain = _chain(s, robot_id)
+        if map_version(s, robot_id) == (chain.session, chain.current):
+            break
+    else:
+        raise UnavailableError(f"robot {robot_id}'s map kept changing while its history was read: ask again")
+    versions = [MapHistoryVersion(version=v, stamp_s=t) for v, t in reversed(chain.versions)]
+    return MapHistoryOut(
+        robot_id=robot_id,
+        map_session=chain.session,
+        current_version=chain.current,
+        first_version=versions[0].version,
+        versions=versions,
+        older=f"version {versions[0].version} is the oldest replayable: {chain.stop}",
+    )
+
+
+def _range(chain: _Chain) -> str:
+    lo = chain.versions[-1][0]
+    return f"{lo}..{chain.current}" if lo != chain.current else str(lo)
+
+
+def read_version(s: Session, robot_id: int, version: int, tail: int | None) -> MapOut:
+    """Version ``version`` of the robot's current map session, rebuilt from the current map and the undo
+    records above it; 409 (with ``current_version``) for a version above the current one, 410 for one
+    older than the replayable range, 404 for a number inside it that was never a version; each names the
+    replayable range. ``tail``: only the last N trajectory poses. O(walls + poses + undone deltas)."""
+    for _ in range(_READ_TRIES):
+        chain = _chain(s, robot_id, below=version - 1)
+        if version > chain.current or version not in {v for v, _t in chain.versions}:
+            _refuse(_chain(s, robot_id), robot_id, version)  # the whole range, to name it
+            continue  # held after all: an upload came between the two reads
+        m = _rebuild(s, robot_id, chain, version, tail)
+        if map_version(s, robot_id) == (chain.session, chain.current):
+            return m
+    raise UnavailableError(
+        f"robot {robot_id}'s map kept changing while version {version} was rebuilt: ask again"
+    )
+
+
+def _refuse(chain: _Chain, robot_id: int, version: int) -> None:
+    """Raise the refusal of ``version`` naming the replayable range of ``chain`` (the whole one); returns
+    only if ``version`` is held after all (an upload came between the two reads)."""
+    held = {v for v, _t in chain.versions}
+    session = f" (session {chain.session})" if chain.session else ""
+    where = f"replayable versions of robot {robot_id}'s map{session}: {_range(chain)}"
+    if version > chain.current:
+        raise ConflictError(
+            f"version {version} of robot {robot_id}'s map is not held here (the current is "
+            f"{chain.current}; {where}): ask again without version, or with one of those",
+            current_version=chain.current,
+        )
+    if version not in held:
+        lowest = chain.versions[-1][0]
+        if version < lowest:
+            raise GoneError(
+                f"version {version} of robot {robot_id}'s map is no longer held ({where}; version {lowest} "
+                f"is the oldest because {chain.stop})",
+                current_version=chain.current,
+                first_version=lowest,
+            )
+        raise NotFoundError(
+            f"robot {robot_id}'s map has no version {version} (uploads skipped that number; {where})",
+            current_version=chain.current,
+            first_version=lowest,
+        )
+
+
+def _rebuild(s: Session, robot_id: int, chain: _Chain, version: int, tail: int | None) -> MapOut:
+    """Version ``version`` (held by ``chain``) from the current map and the undo records above it."""
+    walls = {
+        int(i): [float(i), x0, y0, x1, y1]
+        for i, x0, y0, x1, y1 in s.execute(
+            select(_SEG.c.segment_id, _SEG.c.x0_m, _SEG.c.y0_m, _SEG.c.x1_m, _SEG.c.y1_m).where(
+                _SEG.c.robot_id == robot_id
+            )
+        )
+    }
+    st = s.get(MapState, robot_id, populate_existing=True)
+    state: dict[str, Any] = {
+        "stamp_s": st.stamp_s if st else 0.0,
+        "centroids": list(st.centroids.get("xy", [])) if st else [],
+        "pose": [st.pose["x_m"], st.pose["y_m"], st.pose["theta_rad"]] if st else [0.0, 0.0, 0.0],
+        "wall_time_s": st.wall_time_s if st else None,
+    }
+    for v in sorted((v for v in chain.undo if v > version), reverse=True):
+        record = chain.undo[v]
+        for i in record["absent"]:
+            walls.pop(int(i), None)
+        for row in record["walls"]:
+            walls[int(row[0])] = [float(row[0]), *map(float, row[1:5])]
+        state = {k: record[k] for k in ("stamp_s", "centroids", "pose", "wall_time_s")}
+    tq = select(_TRAJ.c.stamp_s, _TRAJ.c.x_m, _TRAJ.c.y_m, _TRAJ.c.theta_rad).where(
+        _TRAJ.c.robot_id == robot_id, _TRAJ.c.version <= version
+    )
+    if tail is not None:
+        traj = list(s.execute(tq.order_by(_TRAJ.c.id.desc()).limit(tail)))[::-1]
+    else:
+        traj = list(s.execute(tq.order_by(_TRAJ.c.id)))
+    return MapOut(
+        robot_id=robot_id,
+        version=version,
+        map_session=chain.session,
+        stamp_s=float(state["stamp_s"]),
+        segments=[walls[i] for i in sorted(walls)],
+        centroids=[list(c) for c in state["centroids"]],
+        pose=[float(x) for x in state["pose"]],
+        trajectory=[list(t) for t in traj],
+        wall_time_s=state["wall_time_s"],
+    )
