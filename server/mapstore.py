@@ -19,6 +19,7 @@ from sqlalchemy import Connection, Table, delete, func, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 
 from server.errors import ConflictError, InvalidRequestError, MapSessionMismatchError, NotFoundError
+from server.mapgraph import graph_columns
 from server.mapread import map_version, read_map  # the read side, importable from here as before
 from server.mapsessions import check_not_ended, start_session
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
@@ -334,6 +335,8 @@ def apply_upload(
     v = up.version
     rows = prepared or prepare_rows(robot_id, up)
     _bulk_segments(conn, robot_id, v, up.segments, rows)
+    # the pose graph's rows; a delta's corrected keyframes move the stored poses first (server.mapgraph)
+    graph = graph_columns(conn, robot_id, up, whole=up.base_version is None)
     _multi_row(conn, _TRAJECTORY_SQL, 6, rows.trajectory)
     now = utcnow()
     pose = {"x_m": up.pose[0], "y_m": up.pose[1], "theta_rad": up.pose[2]}
@@ -341,7 +344,7 @@ def apply_upload(
         conn,
         _STATE,
         ["robot_id"],
-        ("version", "stamp_s", "centroids", "pose", "wall_time_s", "updated_at"),
+        ("version", "stamp_s", "centroids", "pose", "wall_time_s", "updated_at", *graph),
         [
             {
                 "robot_id": robot_id,
@@ -351,6 +354,7 @@ def apply_upload(
                 "pose": pose,
                 "wall_time_s": up.wall_time_s,
                 "updated_at": now,
+                **graph,
             }
         ],
     )

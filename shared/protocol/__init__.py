@@ -32,6 +32,7 @@ from shared.protocol.patterns import (
     VERSION_RE,
     anchored,
 )
+from shared.protocol.posegraph import check_covariance, correct_trajectory, sigmas
 
 __all__ = [
     "AGENT_INSTANCE_HEADER",
@@ -60,4 +61,7 @@ __all__ = [
     "RobotKernel",
     "RobotStatus",
     "anchored",
+    "check_covariance",
+    "correct_trajectory",
+    "sigmas",
 ]
