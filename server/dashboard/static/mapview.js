@@ -14,32 +14,13 @@ import { FAR_M, WallLayer, drawable } from "./maplayer.js";
 import { MapOverlay, poseText } from "./maptools.js";
 import { MEASURE_POINTS, drawMeasure, measureText } from "./measure.js";
 import { OccupancyLayer } from "./occupancy.js";
+import { STATS_KEEP, median, pushCapped, stats } from "./mapstats.js";
+import { PoseGraphLayer, drawnSample, sigmaText } from "./posegraph.js";
+
+export { stats };
 import { clampScale, drawnBounds, fittedView, screenToWorld } from "./viewport.js";
 
 const TRAJECTORY_KEEP = 5000;
-const STATS_KEEP = 1000;
-
-export function stats() {
-  if (!window.linemapStats) {
-    window.linemapStats = {
-      latencies_ms: [], frame_ms: [], version: null, segments: 0, drawn_at: null,
-      walls_drawn: 0, walls_complete: false, walls_far: 0, first_frame_ms: null, complete_ms: null,
-    };
-  }
-  return window.linemapStats;
-}
-
-const pushCapped = (arr, v) => {
-  arr.push(v);
-  if (arr.length > STATS_KEEP) arr.splice(0, arr.length - STATS_KEEP);
-};
-
-function median(values) {
-  if (!values.length) return null;
-  const s = [...values].sort((a, b) => a - b);
-  const m = s.length >> 1;
-  return s.length % 2 ? s[m] : (s[m - 1] + s[m]) / 2;
-}
 
 export class MapView {
   constructor() {
@@ -48,8 +29,10 @@ export class MapView {
     this.centroids = [];
     this.trajectory = []; // [stamp_s, x, y, theta]
     this.pose = null;
+    this.graph = new PoseGraphLayer(); // keyframes, loop closures, pose covariance (posegraph.js)
     this.version = null;
     this.pendingWallTimes = [];
+    this.pendingCorrections = []; // wall times of deltas that moved keyframes, until their frame
     this.view = { cx: 0, cy: 0, scale: 40 }; // world centre (m) and CSS px per metre
     this.follow = false;
     this.fitted = false;
@@ -59,7 +42,7 @@ export class MapView {
     this.closed = false;
     this.status = "connecting";
 
-    this.layers = { walls: true, centroids: true, trajectory: true, robot: true, occupancy: false };
+    this.layers = { walls: true, centroids: true, trajectory: true, keyframes: true, loopClosures: true, robot: true, occupancy: false };
     this.occupancy = new OccupancyLayer(() => this.invalidate());
     this.measuring = false;
     this.measurePoints = []; // world [x, y] of the clicks, at most MEASURE_POINTS
@@ -155,12 +138,14 @@ export class MapView {
 
   onSnapshot(m) {
     this.receivedAt = performance.now();
+    stats().snapshots++;
     this.walls.changed();
     this.segments.clear();
     for (const s of m.segments || []) this.segments.set(s[0], [s[1], s[2], s[3], s[4]]);
     this.centroids = m.centroids || [];
     this.trajectory = (m.trajectory || []).slice(-TRAJECTORY_KEEP);
     this.pose = m.pose && m.pose.length >= 2 ? m.pose : null;
+    this.graph.fromMap(m);
     this.version = m.version;
     this.setStatus(m.version ? "" : "no map yet: waiting for the robot's first upload");
     this.noteEvent(m);
@@ -178,6 +163,9 @@ export class MapView {
     if ((d.segments && d.segments.length) || (d.removed && d.removed.length)) this.walls.changed();
     if (d.centroids) this.centroids = d.centroids;
     if (d.pose && d.pose.length >= 2) this.pose = d.pose;
+    const corrections = this.graph.corrections;
+    this.graph.applyDelta(d, this.trajectory); // corrected keyframes move the trajectory held, in place
+    if (this.graph.corrections > corrections && typeof d.wall_time_s === "number") this.pendingCorrections.push(d.wall_time_s);
     if (d.trajectory && d.trajectory.length) {
       for (const row of d.trajectory) this.trajectory.push(row);
       if (this.trajectory.length > TRAJECTORY_KEEP * 1.2) this.trajectory = this.trajectory.slice(-TRAJECTORY_KEEP);
@@ -320,6 +308,8 @@ export class MapView {
       const now = performance.timeOrigin + performance.now();
       for (const wt of this.pendingWallTimes) pushCapped(st.latencies_ms, now - wt * 1000);
       this.pendingWallTimes = [];
+      for (const wt of this.pendingCorrections) pushCapped(st.correction_latencies_ms, now - wt * 1000);
+      this.pendingCorrections = [];
     }
     this.updateHud();
   }
@@ -340,6 +330,8 @@ export class MapView {
     o.version.textContent = this.version === null ? "—" : String(this.version);
     o.walls.textContent = String(this.segments.size);
     o.pose.textContent = poseText(this.pose);
+    o.sigma.textContent = sigmaText(this.graph.covariance);
+    o.sigma.hidden = !o.sigma.textContent;
     const lat = median(stats().latencies_ms.slice(-50));
     o.latency.textContent = lat === null ? "—" : `${Math.round(lat)} ms`;
   }
@@ -380,13 +372,20 @@ export class MapView {
     }
     if (this.layers.trajectory) drawTrajectory(ctx, this.trajectory, scale, ox, oy, w, hgt);
     if (this.layers.centroids) drawCentroids(ctx, this.centroids, scale, ox, oy, w, hgt);
+    this.graph.draw(ctx, this.layers, scale, ox, oy, w, hgt);
     if (this.layers.robot && this.pose && drawable(this.pose[0], this.pose[1])) {
       const sx = this.pose[0] * scale + ox, sy = oy - this.pose[1] * scale;
       const theta = Number.isFinite(this.pose[2]) ? this.pose[2] : 0;
+      this.graph.drawEllipse(ctx, sx, sy, scale);
       if (sx >= -20 && sx <= w + 20 && sy >= -20 && sy <= hgt + 20) drawRobot(ctx, sx, sy, theta);
     }
     if (this.measuring) drawMeasure(ctx, this.measurePoints, scale, ox, oy);
     stats().layers = { ...this.layers };
+    stats().graph = this.graph.stats();
+    if (this.sampledAt !== this.version) { // what is drawn, for tests: walls' coordinate sum, every 25th pose
+      this.sampledAt = this.version;
+      Object.assign(stats(), drawnSample(this.segments, this.trajectory));
+    }
     stats().occupancy_version = this.occupancy.grid?.version ?? null;
     this.updateScaleBar(scale);
     return more;
