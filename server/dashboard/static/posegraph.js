@@ -100,7 +100,7 @@ export class PoseGraphLayer {
       const moved = new Map();
       for (const r of d.keyframes) {
         const old = this.keyframes.get(r[0]);
-        if (old && (old[1] !== r[2] || old[2] !== r[3] || old[3] !== r[4])) moved.set(r[0], r);
+        if (old && (old[1] !== r[2] || old[2] !== r[3] || old[3] !== r[4])) moved.set(r[0], [r[1], r[2], r[3], r[4]]);
       }
       if (moved.size) {
         this.movedPoses = correctTrajectory(trajectory, this.keyframes, moved);
