@@ -18,16 +18,17 @@ from __future__ import annotations
 
 import contextlib
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
-from sqlalchemy import delete, func, select
+import numpy as np
+from sqlalchemy import Table, bindparam, delete, func, select, update
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 
-from robot_agent.models import MapVersion, OutboxEntry, PoseRecord, Wall
+from robot_agent.models import MapVersion, Meta, OutboxEntry, PoseRecord, Wall
 from robot_agent.store_db import RobotDBFile, put_meta
 from robot_agent.store_resume import SavedState, write_resume
-from shared.protocol import MAX_TRAJECTORY_POSES, thin_positions
+from shared.protocol import MAX_TRAJECTORY_POSES, correct_trajectory, thin_positions
 
 __all__ = ["MapTables", "PendingUpload", "StepRecord"]
 
@@ -35,7 +36,10 @@ __all__ = ["MapTables", "PendingUpload", "StepRecord"]
 @dataclass(frozen=True, slots=True)
 class StepRecord:
     """What one step changed: new or changed walls ``[id, x0, y0, x1, y1]``, removed ids, the pose row
-    ``[stamp_s, x_m, y_m, theta_rad]``, the latest centroids, and the source position (scans consumed)."""
+    ``[stamp_s, x_m, y_m, theta_rad]``, the latest centroids, and the source position (scans consumed).
+    With loop closure on (:mod:`shared.protocol.posegraph`): the keyframes that are new or were moved
+    ``[keyframe_id, stamp_s, x_m, y_m, theta_rad]``, the new loop closures ``[id_a, id_b]``, and the
+    pose's covariance (3x3, None: the pipeline has none)."""
 
     version: int
     stamp_s: float
@@ -44,6 +48,10 @@ class StepRecord:
     removed: list[int]
     pose: list[float]
     centroids: list[list[float]]
+    keyframes: list[list[float]] = field(default_factory=list)
+    loop_closures: list[list[int]] = field(default_factory=list)
+    pose_covariance: list[list[float]] | None = None
+    graph: bool = False  # the pipeline has a pose graph (its rows go on the wire, even when empty)
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +66,9 @@ class PendingUpload:
     centroids: list[list[float]]
     pose: list[float]
     trajectory: list[list[float]]
+    keyframes: list[list[float]] | None = None
+    loop_closures: list[list[int]] | None = None
+    pose_covariance: list[list[float]] | None = None
 
 
 class MapTables(RobotDBFile):
@@ -79,9 +90,19 @@ class MapTables(RobotDBFile):
                     version=rec.version,
                     stamp_s=rec.stamp_s,
                     source_index=rec.source_index,
-                    change={"segments": rec.segments, "removed": rec.removed, "centroids": rec.centroids},
+                    change={
+                        "segments": rec.segments,
+                        "removed": rec.removed,
+                        "centroids": rec.centroids,
+                        **_graph_change(rec),
+                    },
                 )
             )
+            # the current keyframes and closures kept for snapshots: written when a step changes them
+            # (and once to start), so a step that changes none costs no statement more
+            if rec.graph and (rec.keyframes or rec.loop_closures or not getattr(self, "_graph_kept", False)):
+                _keep_graph(s, rec)
+                self._graph_kept = True
             if rec.removed:
                 s.execute(delete(Wall).where(Wall.segment_id.in_(rec.removed)))
             if rec.segments:
@@ -157,6 +178,7 @@ class MapTables(RobotDBFile):
                 "centroids": mv.change.get("centroids", []),
                 "pose": [pose.x_m, pose.y_m, pose.theta_rad],
                 "trajectory": _thinned([list(r) for r in traj], self.max_poses),
+                **_graph_snapshot(s, mv.change),
             }
 
     def outbox_size(self) -> int:
@@ -179,7 +201,13 @@ class MapTables(RobotDBFile):
             return None
         segments: dict[int, list[float]] = {}
         removed: set[int] = set()
+        keyframes: dict[int, list[float]] | None = None
+        closures: list[list[int]] | None = None
         for mv, _pose in rows:
+            if "keyframes" in mv.change:  # a step of the pose graph: later poses of a keyframe win
+                keyframes = keyframes if keyframes is not None else {}
+                keyframes.update({int(r[0]): r for r in mv.change["keyframes"]})
+                closures = [*(closures or []), *mv.change.get("loop_closures", [])]
             for sid in mv.change.get("removed", []):
                 segments.pop(int(sid), None)
                 removed.add(int(sid))
@@ -197,6 +225,9 @@ class MapTables(RobotDBFile):
             centroids=last_mv.change.get("centroids", []),
             pose=[last_pose.x_m, last_pose.y_m, last_pose.theta_rad],
             trajectory=traj,
+            keyframes=None if keyframes is None else [keyframes[k] for k in sorted(keyframes)],
+            loop_closures=closures,
+            pose_covariance=last_mv.change.get("pose_covariance"),
         )
 
     def mark_uploaded(self, up_to_version: int) -> None:
@@ -270,3 +301,79 @@ def _thinned(rows: list[list[float]], max_poses: int = MAX_TRAJECTORY_POSES) -> 
     """``rows`` thinned to at most ``max_poses`` by :func:`shared.protocol.thin_positions`. O(rows)."""
     drop = set(thin_positions(len(rows), max_poses))
     return [r for i, r in enumerate(rows) if i not in drop] if drop else rows
+
+
+# ------------------------------------------------------------ the pose graph's rows
+#: meta keys holding the pose graph's current keyframes and loop closures (for snapshots)
+_KEYFRAMES_META, _CLOSURES_META = "graph_keyframes", "graph_loop_closures"
+
+
+def _graph_change(rec: StepRecord) -> dict[str, Any]:
+    """A step's pose-graph part of its recorded change (nothing for a pipeline without a graph)."""
+    out: dict[str, Any] = {}
+    if rec.graph:
+        out["keyframes"] = rec.keyframes
+        out["loop_closures"] = rec.loop_closures
+    if rec.pose_covariance is not None:
+        out["pose_covariance"] = rec.pose_covariance
+    return out
+
+
+def _keep_graph(s: Any, rec: StepRecord) -> None:
+    """Fold a step's keyframes and loop closures into the current ones kept in meta (what a snapshot
+    sends). O(keyframes)."""
+    kept = s.get(Meta, _KEYFRAMES_META)
+    rows = {int(r[0]): r for r in ((kept.value or {}).get("v") or [])} if kept is not None else {}
+    _correct_poses(s, rows, rec.keyframes)
+    rows.update({int(r[0]): r for r in rec.keyframes})
+    put_meta(s, _KEYFRAMES_META, [rows[k] for k in sorted(rows)])
+    if rec.loop_closures or s.get(Meta, _CLOSURES_META) is None:
+        got = s.get(Meta, _CLOSURES_META)
+        closures = list((got.value or {}).get("v") or []) if got is not None else []
+        seen = {(int(a), int(b)) for a, b in closures}
+        put_meta(s, _CLOSURES_META, [*closures, *(c for c in rec.loop_closures if (c[0], c[1]) not in seen)])
+
+
+def _correct_poses(s: Any, kept: dict[int, list[float]], rows: list[list[float]]) -> None:
+    """Move the recorded poses after each keyframe that ``rows`` move with it (the rule the server and
+    the dashboard apply to what they hold: :func:`shared.protocol.posegraph.correct_trajectory`), so that
+    unsent deltas and later snapshots carry the corrected trajectory. O(poses after the earliest moved
+    keyframe)."""
+    moved = {int(r[0]): r[1:] for r in rows if int(r[0]) in kept and list(r[1:]) != list(kept[int(r[0])][1:])}
+    if not moved:
+        return
+    before = {k: r[1:] for k, r in kept.items()}
+    since = min(float(before[k][0]) for k in moved)
+    poses: Table = PoseRecord.__table__  # type: ignore[assignment]
+    got = s.execute(
+        select(poses.c.version, poses.c.stamp_s, poses.c.x_m, poses.c.y_m, poses.c.theta_rad).where(
+            poses.c.stamp_s >= since
+        )
+    ).all()
+    if not got:
+        return
+    table = np.array(got, dtype=np.float64).reshape(-1, 5)
+    fixed = correct_trajectory(table[:, 1:], before, moved)
+    s.execute(
+        update(poses)
+        .where(poses.c.version == bindparam("v"))
+        .values(x_m=bindparam("x"), y_m=bindparam("y"), theta_rad=bindparam("th")),
+        [
+            {"v": int(v), "x": x, "y": y, "th": th}
+            for v, (_t, x, y, th) in zip(table[:, 0].tolist(), fixed.tolist(), strict=True)
+        ],
+    )
+
+
+def _graph_snapshot(s: Any, change: dict[str, Any]) -> dict[str, Any]:
+    """A snapshot's pose-graph fields: the kept keyframes and closures (absent without a graph) and the
+    latest step's covariance."""
+    out: dict[str, Any] = {}
+    kept = s.get(Meta, _KEYFRAMES_META)
+    if kept is not None:
+        out["keyframes"] = (kept.value or {}).get("v") or []
+        got = s.get(Meta, _CLOSURES_META)
+        out["loop_closures"] = ((got.value or {}).get("v") or []) if got is not None else []
+    if change.get("pose_covariance") is not None:
+        out["pose_covariance"] = change["pose_covariance"]
+    return out

@@ -170,6 +170,9 @@ class Uploader:
             centroids=up.centroids,
             pose=up.pose,
             trajectory=up.trajectory,
+            keyframes=up.keyframes,
+            loop_closures=up.loop_closures,
+            pose_covariance=up.pose_covariance,
             status=self._status(),
             wall_time_s=self._wall_time(up.version),
         )

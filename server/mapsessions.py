@@ -117,11 +117,26 @@ def start_session(
         walls = conn.execute(select(func.count()).select_from(_SEG).where(_SEG.c.robot_id == robot_id))
         st = conn.execute(
             select(
-                _STATE.c.stamp_s, _STATE.c.pose, _STATE.c.centroids, _STATE.c.wall_time_s, _STATE.c.updated_at
+                _STATE.c.stamp_s,
+                _STATE.c.pose,
+                _STATE.c.centroids,
+                _STATE.c.wall_time_s,
+                _STATE.c.updated_at,
+                _STATE.c.keyframes,
+                _STATE.c.loop_closures,
+                _STATE.c.pose_covariance,
             ).where(_STATE.c.robot_id == robot_id)
         ).first()
         state = (
-            {"stamp_s": st[0], "pose": st[1], "centroids": st[2], "wall_time_s": st[3]}
+            {
+                "stamp_s": st[0],
+                "pose": st[1],
+                "centroids": st[2],
+                "wall_time_s": st[3],
+                "keyframes": st[5],
+                "loop_closures": st[6],
+                "pose_covariance": st[7],
+            }
             if st is not None
             else None
         )

@@ -25,6 +25,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 
 from server import pgrows
 from server.errors import ConflictError, MapSessionMismatchError, NotFoundError
+from server.mapgraph import graph_columns
 from server.maphistory import capture_undo
 from server.mapread import map_version, read_map  # the read side, importable from here as before
 from server.mapsessions import check_not_ended, start_session
@@ -302,8 +303,11 @@ def apply_upload(
         undo = capture_undo(conn, robot_id, up)  # reads what the delta replaces: before the writes
     v = up.version
     rows = prepared or prepare_rows(robot_id, up)
+    # the pose graph's rows; a delta's corrected keyframes move the stored poses first (server.mapgraph:
+    # it reads the stored keyframes, so before the pipelined writes, and before the delta's own poses)
+    graph = graph_columns(conn, robot_id, up, whole=up.base_version is None)
     with pgrows.pipelined(conn):  # PostgreSQL: the writes below in one round trip
-        _write_rows(conn, robot_id, up, rows, seen_at, key)
+        _write_rows(conn, robot_id, up, rows, seen_at, key, graph)
     # bounded sizes (docs/reliability/bounded.md), in the same transaction, after the pipelined writes
     # (these read rows): the trajectory thinned past its cap, the idempotency records trimmed now and then
     if rows.trajectory:
@@ -349,9 +353,11 @@ def _write_rows(
     rows: PreparedRows,
     seen_at: datetime | None,
     key: str,
+    graph: dict[str, Any],
 ) -> None:
     """The upload's writes, after its checks: the delta's removed walls, the walls and poses, the map
-    state, the robot row, the upload record. No statement here returns rows (PostgreSQL pipelines them)."""
+    state (with the pose graph's columns ``graph``), the robot row, the upload record. No statement here
+    returns rows (PostgreSQL pipelines them)."""
     v = up.version
     if up.base_version is not None:
         _delete_walls(conn, robot_id, up.removed)
@@ -366,7 +372,7 @@ def _write_rows(
         conn,
         _STATE,
         ["robot_id"],
-        ("version", "stamp_s", "centroids", "pose", "wall_time_s", "updated_at"),
+        ("version", "stamp_s", "centroids", "pose", "wall_time_s", "updated_at", *graph),
         [
             {
                 "robot_id": robot_id,
@@ -376,6 +382,7 @@ def _write_rows(
                 "pose": pose,
                 "wall_time_s": up.wall_time_s,
                 "updated_at": now,
+                **graph,
             }
         ],
     )

@@ -186,6 +186,13 @@ class MapState(Base):
     #: Unix time (s) at which the robot finished the step of ``version`` (None if it did not say).
     wall_time_s: Mapped[float | None] = mapped_column(Float, default=None)
     updated_at: Mapped[datetime] = mapped_column(default=utcnow)
+    #: The pose graph's keyframes ``{"rows": [[keyframe_id, stamp_s, x_m, y_m, theta_rad], ...]}`` by id, as
+    #: last corrected (None: the robot sent none).
+    keyframes: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+    #: The loop closures ``{"rows": [[keyframe_id_a, keyframe_id_b], ...]}`` (None: none sent).
+    loop_closures: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
+    #: The covariance of ``pose``, 3x3 over (x_m, y_m, theta_rad) (None: the robot did not send one).
+    pose_covariance: Mapped[list[list[float]] | None] = mapped_column(JSON, default=None)
 
 
 class MapSegment(Base):

@@ -172,6 +172,19 @@ class MapOut(BaseModel):
     pose: list[float]
     trajectory: list[list[float]]
     wall_time_s: float | None = None
+    keyframes: list[list[float]] | None = Field(
+        None,
+        description="The pose graph's keyframes [keyframe_id, stamp_s, x_m, y_m, theta_rad] as last "
+        "corrected (absent: the robot sent none).",
+    )
+    loop_closures: list[list[int]] | None = Field(
+        None, description="Accepted loop closures [keyframe_id_a, keyframe_id_b] (absent: none sent)."
+    )
+    pose_covariance: list[list[float]] | None = Field(
+        None,
+        description="Covariance of pose over (x_m, y_m, theta_rad), 3x3, world frame (m^2, m*rad, rad^2); "
+        "absent when the robot's pipeline has none.",
+    )
 
 
 class MapHistoryVersion(BaseModel):

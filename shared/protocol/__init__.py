@@ -32,6 +32,7 @@ from shared.protocol.patterns import (
     VERSION_RE,
     anchored,
 )
+from shared.protocol.posegraph import check_covariance, correct_trajectory, sigmas
 from shared.protocol.trajectory import MAX_TRAJECTORY_POSES, thin_positions
 
 __all__ = [
@@ -62,5 +63,8 @@ __all__ = [
     "RobotKernel",
     "RobotStatus",
     "anchored",
+    "check_covariance",
+    "correct_trajectory",
+    "sigmas",
     "thin_positions",
 ]

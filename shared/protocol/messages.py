@@ -27,6 +27,7 @@ from pydantic import (
 )
 
 from shared.protocol.patterns import MAP_SESSION_PATTERN, anchored
+from shared.protocol.posegraph import MAX_KEYFRAMES, MAX_LOOP_CLOSURES, check_covariance
 
 __all__ = [
     "AGENT_INSTANCE_HEADER",
@@ -37,9 +38,12 @@ __all__ = [
     "INT64_MAX",
     "MAP_FIELDS",
     "STATUS_FIELDS",
+    "CovRow",
+    "EdgeRow",
     "Finite",
     "Int64",
     "KernelMeta",
+    "KeyframeRow",
     "MapDelta",
     "MapSnapshot",
     "MapUpload",
@@ -62,6 +66,12 @@ SegmentRow = Annotated[list[Finite], Field(min_length=5, max_length=5)]
 PointRow = Annotated[list[Finite], Field(min_length=2, max_length=2)]
 PoseRow = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 TrajRow = Annotated[list[Finite], Field(min_length=4, max_length=4)]
+#: ``[keyframe_id, stamp_s, x_m, y_m, theta_rad]`` (:mod:`shared.protocol.posegraph`)
+KeyframeRow = Annotated[list[Finite], Field(min_length=5, max_length=5)]
+#: ``[keyframe_id_a, keyframe_id_b]``: a loop closure between two keyframes
+EdgeRow = Annotated[list[Annotated[int, Field(ge=0, le=2**53)]], Field(min_length=2, max_length=2)]
+#: one row of the 3x3 pose covariance over ``(x_m, y_m, theta_rad)``
+CovRow = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 #: What became of a control message; ``rolled-back``: applied, then undone by the robot (a kernel that
 #: failed at run time).
 Outcome = Literal["applied", "rejected", "rolled-back"]
@@ -104,8 +114,11 @@ class RobotStatus(_Body):
     kernels: list[RobotKernel] | None = Field(None, max_length=1000, description="The robot's kernel store.")
 
 
-#: The fields of an upload that name its map session; left out of the JSON when absent.
-_SESSION_FIELDS = ("map_session", "map_session_reason")
+#: Largest keyframe id: a row of floats holds integers exactly up to 2**53 (so does a browser's JSON).
+_KEYFRAME_ID_MAX = 2**53
+#: The optional fields of an upload (its map session, the pose graph's rows); left out of the JSON when
+#: absent, so a robot that has none talks to a server from before them as it did.
+_OPTIONAL_FIELDS = ("map_session", "map_session_reason", "keyframes", "loop_closures", "pose_covariance")
 
 
 class MapUpload(_Body):
@@ -117,7 +130,14 @@ class MapUpload(_Body):
     ``map_session``: the id of the mapping session the versions belong to (a UUID the robot creates when
     its Robot DB starts a new map); versions count within a session. A snapshot of a session the server has
     not seen starts a new map there (the old one is kept); a delta must be of the server's current session.
-    Absent: a robot from before map sessions, whose uploads all go to one legacy session."""
+    Absent: a robot from before map sessions, whose uploads all go to one legacy session.
+
+    The pose graph's rows (:mod:`shared.protocol.posegraph`; each absent when the robot has none):
+    ``keyframes`` ``[keyframe_id, stamp_s, x_m, y_m, theta_rad]``, for a snapshot all of them, for a delta
+    the new ones and those an optimisation moved (a loop closure's correction: the server and viewers move
+    the trajectory they hold with them, :func:`~shared.protocol.posegraph.correct_trajectory`);
+    ``loop_closures`` ``[keyframe_id_a, keyframe_id_b]``, all (snapshot) or the new ones (delta);
+    ``pose_covariance`` the 3x3 covariance of ``pose`` (m^2, m*rad, rad^2, world frame)."""
 
     map_session: str | None = Field(
         None, pattern=anchored(MAP_SESSION_PATTERN), description="The mapping session (a lower-case UUID)."
@@ -136,14 +156,31 @@ class MapUpload(_Body):
     centroids: list[PointRow] = Field(default_factory=list, max_length=100_000)
     pose: PoseRow = Field(default_factory=lambda: [0.0, 0.0, 0.0])
     trajectory: list[TrajRow] = Field(default_factory=list, max_length=1_000_000)
+    keyframes: list[KeyframeRow] | None = Field(
+        None,
+        max_length=MAX_KEYFRAMES,
+        description="Keyframes [keyframe_id, stamp_s, x_m, y_m, theta_rad]: all (snapshot) or new and "
+        "corrected ones (delta).",
+    )
+    loop_closures: list[EdgeRow] | None = Field(
+        None,
+        max_length=MAX_LOOP_CLOSURES,
+        description="Loop closures [keyframe_id_a, keyframe_id_b]: all (snapshot) or new ones (delta).",
+    )
+    pose_covariance: list[CovRow] | None = Field(
+        None,
+        min_length=3,
+        max_length=3,
+        description="Covariance of pose over (x_m, y_m, theta_rad), 3x3, world frame (m^2, m*rad, rad^2).",
+    )
     status: RobotStatus | None = None
 
     @model_serializer(mode="wrap")
     def _without_absent_session(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
-        """An upload without a map session serialises as before sessions (the legacy fields only). O(1)
-        beyond the fields' own serialisation."""
+        """An upload without a map session or pose-graph rows serialises as before them (the legacy
+        fields only). O(1) beyond the fields' own serialisation."""
         out: dict[str, Any] = handler(self)
-        for name in _SESSION_FIELDS:
+        for name in _OPTIONAL_FIELDS:
             if name in out and out[name] is None:
                 del out[name]
         return out
@@ -157,7 +194,28 @@ class MapUpload(_Body):
         for row in self.segments:
             if row[0] != int(row[0]) or not 0 <= row[0] <= INT64_MAX:
                 raise ValueError(f"segment id must be an integer in 0..2**63-1, got {row[0]}")
+        self._check_graph()
         return self
+
+    def _check_graph(self) -> None:
+        """The pose graph's rows: integer keyframe ids, each once; a snapshot's loop closures between its
+        own keyframes; the covariance symmetric and positive semi-definite. O(keyframes + closures)."""
+        ids: set[int] = set()
+        for row in self.keyframes or ():
+            if row[0] != int(row[0]) or not 0 <= row[0] <= _KEYFRAME_ID_MAX:
+                raise ValueError(f"keyframe id must be an integer in 0..2**53, got {row[0]}")
+            if int(row[0]) in ids:
+                raise ValueError(f"keyframe {int(row[0])} is listed twice")
+            ids.add(int(row[0]))
+        if self.base_version is None and self.loop_closures:
+            for a, b in self.loop_closures:
+                if a not in ids or b not in ids:
+                    raise ValueError(
+                        f"loop closure [{a}, {b}] names a keyframe the snapshot does not list "
+                        "(a snapshot lists every keyframe its loop closures join)"
+                    )
+        if self.pose_covariance is not None:
+            check_covariance(self.pose_covariance)
 
 
 class MapDelta(MapUpload):

@@ -206,6 +206,20 @@ class PoseGraph:
         """Every node's current estimate, in order."""
         return list(self._estimate)
 
+    def covariance(self, index: int) -> FloatArray:
+        """The marginal covariance of node ``index`` ``(3, 3)`` over world-frame ``(x_m, y_m, theta_rad)``
+        (iSAM2's, in the node's own frame, rotated into the world's). Cost: a Bayes tree marginal, small
+        for recent nodes (they sit near the root)."""
+        try:
+            local = np.asarray(self._isam.marginalCovariance(index), dtype=np.float64)
+        except RuntimeError as exc:
+            raise OptimisationError(f"no marginal covariance of node {index}: {exc}") from exc
+        th = self._estimate[index].theta_rad
+        c, s = math.cos(th), math.sin(th)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        out: FloatArray = rot @ local @ rot.T
+        return 0.5 * (out + out.T)
+
     def residual_sigmas(self, edge: Edge) -> float:
         """How far the current estimate is from ``edge``'s measurement, in the edge's standard deviations
         (Mahalanobis distance). A loop edge far beyond ``robust_sigmas`` is one the kernel outvoted."""

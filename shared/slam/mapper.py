@@ -342,6 +342,21 @@ class GraphMapper:
         kf = self.keyframes[key]
         return self.graph.pose(key) @ kf.frontend.between(frontend)
 
+    def keyframe_rows(self) -> list[list[float]]:
+        """The keyframes as the wire has them (:mod:`shared.protocol.posegraph`): ``[keyframe_id,
+        stamp_s, x_m, y_m, theta_rad]`` at the graph's current estimate. O(keyframes)."""
+        out: list[list[float]] = []
+        for k, kf in enumerate(self.keyframes):
+            if k >= len(self.graph) or kf.step >= len(self._steps):
+                break
+            p = self.graph.pose(k)
+            out.append([float(k), self._steps[kf.step][0], p.x_m, p.y_m, p.theta_rad])
+        return out
+
+    def closure_pairs(self) -> list[list[int]]:
+        """The accepted loop closures as ``[keyframe_id, keyframe_id]`` (earlier place first). O(closures)."""
+        return [[c.candidate, c.current] for c in self.closures]
+
     def trajectory(self) -> FloatArray:
         """The corrected trajectory ``(N, 4)``: stamp (s), x, y (m), heading (rad) per step. O(N)."""
         rows = [(t, *self._corrected(p, k).as_tuple()) for t, p, k in self._steps]

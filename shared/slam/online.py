@@ -109,6 +109,8 @@ class OnlineGraphMapper:
         self.rebuilds = 0
         self.redraw_ms: list[float] = []  # each redraw of the shown map, its catch-up included
         self.failure: str | None = None  # the worker's last error (the robot keeps mapping)
+        self._cov: FloatArray | None = None  # pose_covariance's cache, valid for the graph at _cov_key
+        self._cov_key: tuple[int, int, int] | None = None
         self._jobs: queue.Queue[int] = queue.Queue()
         self._idle = threading.Condition()
         self._outstanding = 0  # jobs submitted and not finished
@@ -379,6 +381,34 @@ class OnlineGraphMapper:
         return MapSnapshot(
             self._version, snap.stamp_s, snap.segments, snap.segment_ids, snap.centroids, pose, trajectory
         )
+
+    def keyframe_rows(self) -> list[list[float]]:
+        """The keyframes ``[keyframe_id, stamp_s, x_m, y_m, theta_rad]`` as corrected now. O(keyframes)."""
+        with self._lock:
+            return self._mapper.keyframe_rows()
+
+    def closure_pairs(self) -> list[list[int]]:
+        """The accepted loop closures ``[keyframe_id_a, keyframe_id_b]``. O(closures)."""
+        with self._lock:
+            return self._mapper.closure_pairs()
+
+    def pose_covariance(self) -> FloatArray | None:
+        """The covariance ``(3, 3)`` (world frame; m^2, m*rad, rad^2) of the newest keyframe, the pose
+        graph's uncertainty of where the robot is (the motion since that keyframe is not in it); None before
+        the first keyframe or when the solver cannot give it. Cached until the graph changes."""
+        with self._lock:
+            n = len(self._mapper.graph)
+            key = (n, len(self._mapper.closures), len(self._mapper.optimise_ms))
+            if n == 0:
+                return None
+            if self._cov_key != key:
+                try:
+                    self._cov = self._mapper.graph.covariance(n - 1)
+                except LinemapError as exc:
+                    log.debug("no pose covariance: %s", exc)
+                    self._cov = None
+                self._cov_key = key
+            return self._cov
 
     def trajectory(self) -> FloatArray:
         """The corrected trajectory ``(N, 4)`` (stamp s, x m, y m, heading rad); with a ``front`` that had

@@ -4,8 +4,12 @@ server's last map is the corrected one."""
 
 from __future__ import annotations
 
+import json
+import math
+import sqlite3
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -47,6 +51,41 @@ def test_two_laps_close_their_loop_on_the_robot(live: Live, tmp_path: Path) -> N
     acc = line_accuracy(walls.reshape(-1, 4), case.run.world.walls)
     assert acc.mean_distance_m < 0.025
     assert acc.spurious_share < 0.03
+    _check_pose_graph(latest, closures, agent.db)
+
+
+def _check_pose_graph(latest: dict[str, Any], closures: int, db: Path) -> None:
+    """The corrections reached the server as the robot holds them: every loop closure once, the keyframes,
+    a covariance, and a trajectory that passes through each keyframe's corrected pose (the server moved the
+    poses it held when the keyframes moved) and equals the Robot DB's own (corrected there too)."""
+    keyframes = latest["keyframes"]
+    assert keyframes and len(latest["loop_closures"]) == closures
+    assert len({tuple(p) for p in latest["loop_closures"]}) == closures
+    cov = np.array(latest["pose_covariance"])
+    assert cov.shape == (3, 3) and np.allclose(cov, cov.T) and np.linalg.eigvalsh(cov)[0] >= -1e-12
+    by_stamp = {row[0]: row[1:] for row in latest["trajectory"]}
+    off = [
+        max(
+            abs(by_stamp[k[1]][0] - k[2]),
+            abs(by_stamp[k[1]][1] - k[3]),
+            abs(math.remainder(by_stamp[k[1]][2] - k[4], math.tau)),
+        )
+        for k in keyframes
+    ]
+    assert max(off) < 1e-6, f"the server's trajectory is off its keyframes by up to {max(off)}"
+    with sqlite3.connect(db) as conn:
+        own = conn.execute("SELECT stamp_s, x_m, y_m, theta_rad FROM poses ORDER BY version").fetchall()
+    assert np.allclose(np.array(own), np.array(latest["trajectory"]), atol=1e-9)
+    # corrections went as keyframe rows sent again (moved), not as every pose
+    with sqlite3.connect(db) as conn:
+        changes = [json.loads(c) for (c,) in conn.execute("SELECT change FROM map_versions ORDER BY version")]
+    seen: set[float] = set()
+    resent = 0
+    for change in changes:
+        ids = {row[0] for row in change.get("keyframes", [])}
+        resent += len(ids & seen)
+        seen |= ids
+    assert resent > 0, "no keyframe was ever corrected"
 
 
 @pytest.mark.parametrize(

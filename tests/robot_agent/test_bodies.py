@@ -5,15 +5,18 @@ from __future__ import annotations
 
 import json
 import threading
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
+import pytest
 
 from robot_agent.agent import Agent, AgentSettings
 from robot_agent.health import ErrorReport
 from robot_agent.link import ServerLink, UploadConflict
-from robot_agent.store import RobotDB
+from robot_agent.store import RobotDB, StepRecord
 from robot_agent.uploader import Uploader
 from server.schemas import AckIn, MapUpload, RobotStatus
 from shared.protocol import RobotStatus as SentStatus
@@ -69,8 +72,65 @@ def test_uploaded_snapshots_and_deltas_validate_against_the_servers_model(tmp_pa
     assert (got.base_version, got.version, got.removed) == (2, 4, [2, 3])
     assert got.status is not None and got.status.active_kernels == {"clustering": "kmeans@1.0.0"}
     # every field the server's model has; a delta leaves out only why its session began (a snapshot's)
-    assert set(snapshot) == set(MapUpload.model_fields)
-    assert set(delta) == set(MapUpload.model_fields) - {"map_session_reason"}
+    # every field the server's model has but the pose graph's (no graph here: left out, as before them);
+    # a delta leaves out only why its session began (a snapshot's)
+    graph = {"keyframes", "loop_closures", "pose_covariance"}
+    assert set(snapshot) == set(MapUpload.model_fields) - graph
+    assert set(delta) == set(MapUpload.model_fields) - {"map_session_reason"} - graph
+
+
+_COV = [[1e-4, 0.0, 0.0], [0.0, 2e-4, 0.0], [0.0, 0.0, 1e-5]]
+
+
+def _graph_step(version: int, keyframes: list[list[float]], closures: list[list[int]]) -> StepRecord:
+    return replace(
+        step_record(version), keyframes=keyframes, loop_closures=closures, pose_covariance=_COV, graph=True
+    )
+
+
+def test_a_correction_goes_as_moved_keyframes_and_the_robot_db_moves_its_poses(tmp_path: Path) -> None:
+    """With a pose graph the bodies carry the keyframes, closures and covariance; a step that moves a
+    keyframe goes as that keyframe's row, and the Robot DB moves the poses it recorded after it (so the
+    delta's poses and a later snapshot's are the corrected ones)."""
+    db = RobotDB(tmp_path / "robot.db")
+    link = _Recorder()
+    uploader = Uploader(
+        link,  # type: ignore[arg-type]
+        db,
+        _status,
+        lambda version: 1.8e9 + version,
+        threading.Event(),
+        threading.Event(),
+        ErrorReport(60.0),
+        robot_id=3,
+    )
+    kf0 = [0, 0.1, 1.0, 2.0, 0.5]  # at step 1's pose (x 1, y 2, heading 0.5)
+    kf0_moved = [0, 0.1, 2.0, 2.0, 0.5]  # a loop closure moved it 1 m along x
+    kf1 = [1, 0.3, 1.0, 2.0, 0.5]
+    try:
+        db.record_step(_graph_step(1, [kf0], []))
+        assert uploader.send_maps()  # a snapshot of version 1
+        db.record_step(_graph_step(2, [], []))  # its pose recorded after keyframe 0
+        db.record_step(_graph_step(3, [kf0_moved, kf1], [[0, 1]]))
+        assert db.trajectory()[1] == pytest.approx([0.2, 2.0, 2.0, 0.5])  # moved with keyframe 0
+        assert db.trajectory()[2] == pytest.approx([0.3, 1.0, 2.0, 0.5])  # its own pose
+        assert uploader.send_maps()  # a delta 1 -> 3
+        uploader.need_snapshot = True
+        db.record_step(_graph_step(4, [], []))
+        assert uploader.send_maps()
+    finally:
+        db.close()
+    (snap, _), (delta, _), (snap2, _) = link.bodies
+    assert snap["keyframes"] == [kf0] and snap["loop_closures"] == [] and snap["pose_covariance"] == _COV
+    got = MapUpload.model_validate(delta)
+    assert got.base_version == 1 and got.keyframes == [kf0_moved, kf1] and got.loop_closures == [[0, 1]]
+    assert got.trajectory[0] == pytest.approx([0.2, 2.0, 2.0, 0.5])  # unsent when corrected: sent corrected
+    again = MapUpload.model_validate(snap2)
+    assert again.keyframes == [kf0_moved, kf1] and again.loop_closures == [[0, 1]]
+    assert np.allclose(
+        again.trajectory,
+        [[0.1, 2.0, 2.0, 0.5], [0.2, 2.0, 2.0, 0.5], [0.3, 1.0, 2.0, 0.5], [0.4, 1.0, 2.0, 0.5]],
+    )
 
 
 def test_acknowledgements_validate_against_the_servers_model() -> None:

@@ -11,6 +11,8 @@ export const LAYERS = [
   { key: "walls", label: "walls" },
   { key: "centroids", label: "centroids" },
   { key: "trajectory", label: "trajectory" },
+  { key: "keyframes", label: "keyframes" }, // the pose graph's (with loop closure on)
+  { key: "loopClosures", label: "loop closures" },
   { key: "robot", label: "robot" },
   { key: "occupancy", label: "occupancy grid", off: true }, // fetched from the server when switched on
 ];
@@ -30,6 +32,8 @@ export class MapOverlay {
     this.walls = h("span", { "data-testid": "map-walls" }, "0");
     this.latency = h("span", { "data-testid": "map-latency" }, "—");
     this.pose = h("span", { "data-testid": "map-pose" }, "—");
+    this.sigma = h("div", { class: "hud-sigma", "data-testid": "map-pose-sigma", hidden: true,
+      title: "1 standard deviation of the pose (the robot's pose graph); the ring at the robot is its 95 % ellipse" });
     this.status = h("span", { class: "hud-status", "data-testid": "map-status" }, "connecting…");
     this.far = h("div", { class: "hud-far", "data-testid": "map-far", hidden: true });
     this.scaleText = h("span", { class: "map-scale-text" });
@@ -60,6 +64,7 @@ export class MapOverlay {
       h("div", { class: "map-hud" },
         h("div", null, "map v", this.version, " · ", this.walls, " walls"),
         h("div", null, "pose ", this.pose),
+        this.sigma,
         h("div", null, "link latency ", this.latency),
         this.far,
         this.status),

@@ -15,9 +15,12 @@ import { FAR_M, WallLayer, drawable } from "./maplayer.js";
 import { MapOverlay, poseText } from "./maptools.js";
 import { MEASURE_POINTS, drawMeasure, measureText } from "./measure.js";
 import { OccupancyLayer } from "./occupancy.js";
+import { STATS_KEEP, median, pushCapped, stats } from "./mapstats.js";
+import { PoseGraphLayer, drawnSample, sigmaText } from "./posegraph.js";
+
+export { stats };
 import { clampScale, drawnBounds, fittedView, screenToWorld } from "./viewport.js";
 import { HistorySlider } from "./history_slider.js";
-import { STATS_KEEP, median, pushCapped, stats } from "./mapstats.js";
 
 const TRAJECTORY_KEEP = 5000;
 export class MapView {
@@ -27,8 +30,10 @@ export class MapView {
     this.centroids = [];
     this.trajectory = []; // [stamp_s, x, y, theta]
     this.pose = null;
+    this.graph = new PoseGraphLayer(); // keyframes, loop closures, pose covariance (posegraph.js)
     this.version = null;
     this.pendingWallTimes = [];
+    this.pendingCorrections = []; // wall times of deltas that moved keyframes, until their frame
     this.view = { cx: 0, cy: 0, scale: 40 }; // world centre (m) and CSS px per metre
     this.follow = false;
     this.fitted = false;
@@ -38,7 +43,7 @@ export class MapView {
     this.closed = false;
     this.status = "connecting";
 
-    this.layers = { walls: true, centroids: true, trajectory: true, robot: true, occupancy: false };
+    this.layers = { walls: true, centroids: true, trajectory: true, keyframes: true, loopClosures: true, robot: true, occupancy: false };
     this.occupancy = new OccupancyLayer(() => this.invalidate());
     this.measuring = false;
     this.measurePoints = []; // world [x, y] of the clicks, at most MEASURE_POINTS
@@ -155,12 +160,14 @@ export class MapView {
 
   onSnapshot(m) {
     this.receivedAt = performance.now();
+    stats().snapshots++;
     if (!this.pinned) this.walls.changed();
     this.segments.clear();
     for (const s of m.segments || []) this.segments.set(s[0], [s[1], s[2], s[3], s[4]]);
     this.centroids = m.centroids || [];
     this.trajectory = (m.trajectory || []).slice(-TRAJECTORY_KEEP);
     this.pose = m.pose && m.pose.length >= 2 ? m.pose : null;
+    this.graph.fromMap(m);
     this.version = m.version;
     this.setStatus(m.version ? "" : "no map yet: waiting for the robot's first upload");
     this.noteEvent(m);
@@ -178,6 +185,9 @@ export class MapView {
     if (!this.pinned && ((d.segments && d.segments.length) || (d.removed && d.removed.length))) this.walls.changed();
     if (d.centroids) this.centroids = d.centroids;
     if (d.pose && d.pose.length >= 2) this.pose = d.pose;
+    const corrections = this.graph.corrections;
+    this.graph.applyDelta(d, this.trajectory); // corrected keyframes move the trajectory held, in place
+    if (this.graph.corrections > corrections && typeof d.wall_time_s === "number") this.pendingCorrections.push(d.wall_time_s);
     if (d.trajectory && d.trajectory.length) {
       for (const row of d.trajectory) this.trajectory.push(row);
       if (this.trajectory.length > TRAJECTORY_KEEP * 1.2) this.trajectory = this.trajectory.slice(-TRAJECTORY_KEEP);
@@ -324,6 +334,8 @@ export class MapView {
       const now = performance.timeOrigin + performance.now();
       for (const wt of this.pendingWallTimes) pushCapped(st.latencies_ms, now - wt * 1000);
       this.pendingWallTimes = [];
+      for (const wt of this.pendingCorrections) pushCapped(st.correction_latencies_ms, now - wt * 1000);
+      this.pendingCorrections = [];
     }
     this.updateHud();
   }
@@ -344,6 +356,8 @@ export class MapView {
     o.version.textContent = m.version === null ? "—" : String(m.version);
     o.walls.textContent = String(m.segments.size);
     o.pose.textContent = poseText(m.pose);
+    o.sigma.textContent = this.pinned ? "" : sigmaText(this.graph.covariance); // the live pose's only
+    o.sigma.hidden = !o.sigma.textContent;
     const lat = median(stats().latencies_ms.slice(-50));
     o.latency.textContent = lat === null ? "—" : `${Math.round(lat)} ms`;
   }
@@ -385,13 +399,20 @@ export class MapView {
     }
     if (this.layers.trajectory) drawTrajectory(ctx, m.trajectory, scale, ox, oy, w, hgt);
     if (this.layers.centroids) drawCentroids(ctx, m.centroids, scale, ox, oy, w, hgt);
+    if (!this.pinned) this.graph.draw(ctx, this.layers, scale, ox, oy, w, hgt); // the live graph's
     if (this.layers.robot && m.pose && drawable(m.pose[0], m.pose[1])) {
       const sx = m.pose[0] * scale + ox, sy = oy - m.pose[1] * scale;
       const theta = Number.isFinite(m.pose[2]) ? m.pose[2] : 0;
+      if (!this.pinned) this.graph.drawEllipse(ctx, sx, sy, scale);
       if (sx >= -20 && sx <= w + 20 && sy >= -20 && sy <= hgt + 20) drawRobot(ctx, sx, sy, theta);
     }
     if (this.measuring) drawMeasure(ctx, this.measurePoints, scale, ox, oy);
     stats().layers = { ...this.layers };
+    stats().graph = this.graph.stats();
+    if (this.sampledAt !== this.version) { // what is drawn, for tests: walls' coordinate sum, every 25th pose
+      this.sampledAt = this.version;
+      Object.assign(stats(), drawnSample(this.segments, this.trajectory));
+    }
     stats().occupancy_version = this.occupancy.grid?.version ?? null;
     this.updateScaleBar(scale);
     return more;

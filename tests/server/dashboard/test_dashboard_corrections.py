@@ -1,0 +1,110 @@
+"""Loop-closure corrections in a real browser (Debian's Chromium via Playwright): a real agent process with
+loop closure maps two laps round a block (``sim:loop-block``) into a real server on 127.0.0.1 while the
+robot's live map is open. The page follows the corrections delta by delta, without a reload or a new
+snapshot: its walls, keyframes, loop closures and its trajectory (moved in place by the corrected keyframes)
+end up equal to what the server holds; the "keyframes" and "loop closures" layers switch; the pose readout
+shows the 1-sigma uncertainty the robot sent."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.robot_agent.agentproc import AgentProcess, wait_for
+from tests.server.dashboard.browser import ARTIFACTS, launch_chromium
+from tests.server.live import Live, start_live
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is a dev dependency")
+expect = sync_api.expect
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
+    yield from start_live("sqlite", tmp_path_factory.mktemp("corrections-dashboard"), poll_recheck_s=1.0)
+
+
+def _stats(page: Any) -> dict[str, Any]:
+    got: dict[str, Any] = page.evaluate("window.linemapStats")
+    return got
+
+
+def test_a_loop_closure_redraws_in_place(live: Live, tmp_path: Path) -> None:
+    rid, token = live.new_robot()
+    with sync_api.sync_playwright() as p:
+        browser = launch_chromium(p)
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        page.set_default_timeout(30_000)
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(live.base_url + "/")
+        page.get_by_test_id("login-token").fill(live.admin_token)
+        page.get_by_test_id("login-submit").click()
+        expect(page.locator(f'[data-testid="robot-row"][data-robot-id="{rid}"]')).to_be_visible()
+        page.goto(f"{live.base_url}/#/robots/{rid}")
+        expect(page.get_by_test_id("map-canvas")).to_be_visible()
+        expect(page.get_by_test_id("map-layer-keyframes")).to_be_checked()
+        expect(page.get_by_test_id("map-layer-loopClosures")).to_be_checked()
+        page.evaluate("window.__sameDocument = true")
+
+        agent = AgentProcess(
+            tmp_path / "robot.db",
+            server=live.base_url,
+            robot_id=rid,
+            token=token,
+            extra=["--source", "sim:loop-block", "--rate", "0", "--loop-closure", "--exit-at-end"],
+        )
+        try:
+            wait_for(
+                "the first keyframes on the page",
+                lambda: (_stats(page).get("graph") or {}).get("keyframes", 0) > 0,
+                300,
+            )
+            snapshots = _stats(page)["snapshots"]  # from here on, only deltas
+            assert agent.proc.wait(600) == 0, agent.output()
+        finally:
+            agent.stop()
+        with live.operator() as op:
+            latest = op.get(f"/robots/{rid}/maps/latest").json()
+        wait_for("the page at the server's version", lambda: _stats(page)["version"] == latest["version"], 60)
+        st = _stats(page)
+        assert page.evaluate("window.__sameDocument") is True, "the page was reloaded"
+        assert st["snapshots"] == snapshots, "the corrections came as a new snapshot, not as deltas"
+        graph = st["graph"]
+        assert graph["corrections"] >= 1 and graph["moved_poses"] > 0
+        assert graph["loop_closures"] == len(latest["loop_closures"]) >= 1
+        assert graph["keyframes"] == len(latest["keyframes"])
+        # the walls the page drew are the server's, moved ones included
+        assert st["segments"] == len(latest["segments"])
+        assert st["walls_sum"] == pytest.approx(sum(sum(s[1:]) for s in latest["segments"]), abs=1e-6)
+        # the trajectory, corrected in place, is the server's (which moved its poses the same way)
+        server = {row[0]: row[1:] for row in latest["trajectory"]}
+        sample = st["trajectory_sample"]
+        assert len(sample) > 20
+        worst = max(
+            max(
+                abs(r[1] - server[r[0]][0]),
+                abs(r[2] - server[r[0]][1]),
+                abs(math.remainder(r[3] - server[r[0]][2], math.tau)),
+            )
+            for r in sample
+        )
+        assert worst < 1e-6, f"the page's trajectory is {worst} m off the server's"
+        # the uncertainty readout and the layer switches
+        expect(page.get_by_test_id("map-pose-sigma")).to_contain_text("±x")
+        expect(page.get_by_test_id("map-pose-sigma")).to_contain_text("cm")
+        page.get_by_test_id("map-fit").click()
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(ARTIFACTS / "map-loop-closure.png"))
+        page.get_by_test_id("map-layer-loopClosures").uncheck()
+        page.get_by_test_id("map-layer-keyframes").uncheck()
+        wait_for(
+            "the layers off",
+            lambda: not _stats(page)["layers"]["keyframes"] and not _stats(page)["layers"]["loopClosures"],
+            10,
+        )
+        browser.close()
+    assert not errors, errors
