@@ -21,7 +21,7 @@ from server.models import MapState, TrajectoryPoint
 from server.schemas import MapUpload
 from shared.protocol import correct_trajectory
 
-__all__ = ["GRAPH_COLUMNS", "graph_columns"]
+__all__ = ["GRAPH_COLUMNS", "graph_columns", "graph_fields"]
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +36,17 @@ _MOVED_M, _MOVED_RAD = 1e-6, 1e-7
 
 def _rows(value: dict[str, Any] | None) -> list[list[float]]:
     return list((value or {}).get("rows", []))
+
+
+def graph_fields(st: dict[str, Any]) -> dict[str, Any]:
+    """The pose graph's fields of a map (``keyframes``, ``loop_closures``, ``pose_covariance`` of
+    :class:`server.schemas.MapOut`) from a stored state's columns (a dict of :data:`GRAPH_COLUMNS`)."""
+    kf, lc = st.get("keyframes"), st.get("loop_closures")
+    return {
+        "keyframes": None if kf is None else kf.get("rows", []),
+        "loop_closures": None if lc is None else [[int(a), int(b)] for a, b in lc.get("rows", [])],
+        "pose_covariance": st.get("pose_covariance"),
+    }
 
 
 def graph_columns(conn: Connection, robot_id: int, up: MapUpload, whole: bool) -> dict[str, Any]:

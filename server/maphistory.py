@@ -28,6 +28,7 @@ from sqlalchemy import Connection, Table, select
 from sqlalchemy.orm import Session
 
 from server.errors import ConflictError, GoneError, NotFoundError, UnavailableError
+from server.mapgraph import GRAPH_COLUMNS, graph_fields
 from server.maplog import KEEP_VERSIONS
 from server.models import MapDeltaRecord, MapSegment, MapState, Robot, TrajectoryPoint
 from server.schemas import MapHistoryOut, MapHistoryVersion, MapOut, MapUpload
@@ -230,10 +231,13 @@ def _rebuild(s: Session, robot_id: int, chain: _Chain, version: int, tail: int |
         traj = list(s.execute(tq.order_by(_TRAJ.c.id.desc()).limit(tail)))[::-1]
     else:
         traj = list(s.execute(tq.order_by(_TRAJ.c.id)))
+    # the pose graph is kept for the current version only (a past one's keyframes are not rebuilt)
+    graph = {c: getattr(st, c) for c in GRAPH_COLUMNS} if st is not None and version == chain.current else {}
     return MapOut(
         robot_id=robot_id,
         version=version,
         map_session=chain.session,
+        **graph_fields(graph),
         stamp_s=float(state["stamp_s"]),
         segments=[walls[i] for i in sorted(walls)],
         centroids=[list(c) for c in state["centroids"]],

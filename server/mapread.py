@@ -7,12 +7,13 @@ when it ended, and the list of the robot's maps, one per session. Reads only; th
 from __future__ import annotations
 
 from datetime import datetime
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from server.errors import ConflictError, NotFoundError
+from server.mapgraph import graph_fields
 from server.maphistory import read_version
 from server.models import (
     MapSegment,
@@ -65,7 +66,7 @@ def read_map(s: Session, robot_id: int, trajectory_tail: int | None = None) -> M
         pose=[state.pose["x_m"], state.pose["y_m"], state.pose["theta_rad"]] if state else [0.0, 0.0, 0.0],
         trajectory=[list(t) for t in traj],
         wall_time_s=state.wall_time_s if state else None,
-        **_graph(
+        **graph_fields(
             {
                 "keyframes": state.keyframes,
                 "loop_closures": state.loop_closures,
@@ -75,16 +76,6 @@ def read_map(s: Session, robot_id: int, trajectory_tail: int | None = None) -> M
             else {}
         ),
     )
-
-
-def _graph(st: dict[str, Any]) -> dict[str, Any]:
-    """The pose graph's fields of a map from a stored state (:mod:`server.mapgraph`'s columns)."""
-    kf, lc = st.get("keyframes"), st.get("loop_closures")
-    return {
-        "keyframes": None if kf is None else kf.get("rows", []),
-        "loop_closures": None if lc is None else [[int(a), int(b)] for a, b in lc.get("rows", [])],
-        "pose_covariance": st.get("pose_covariance"),
-    }
 
 
 def list_sessions(s: Session, robot_id: int) -> list[MapSessionOut]:
@@ -193,7 +184,7 @@ def read_session_map(s: Session, robot_id: int, session_id: str, trajectory_tail
         pose=[pose["x_m"], pose["y_m"], pose["theta_rad"]],
         trajectory=[list(t) for t in traj],
         wall_time_s=st.get("wall_time_s"),
-        **_graph(st),
+        **graph_fields(st),
     )
 
 

@@ -21,7 +21,7 @@ LAYERS: dict[str, int] = {
     "shared.types": 1,
     "shared.sqltypes": 1,
     "shared.signing": 1,
-    "shared.protocol": 1,
+    "shared.protocol": 2,  # its pose-graph rows use shared.types
     "shared.stopsignals": 1,
     "shared.diskfull": 1,
     "shared.odometry": 2,
