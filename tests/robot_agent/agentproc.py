@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sqlite3
@@ -54,10 +55,17 @@ class AgentProcess:
         )
 
     def stop(self, timeout_s: float = 60.0) -> int:
+        """SIGINT, and its exit status; one that does not exit within ``timeout_s`` is killed with its whole
+        process group before the timeout is raised (a failing test never leaves an agent running)."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
         try:
             return self.proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(30)
+            raise
         finally:
             self._out.close()
 
@@ -68,6 +76,19 @@ class AgentProcess:
 
     def output(self) -> str:
         return self.log.read_text(errors="replace")
+
+
+def stop_all(agents: list[AgentProcess]) -> None:
+    """Stop every agent of ``agents`` (each one even when an earlier one failed to stop), then assert that
+    each exited with status 0, naming the first that did not, with its output."""
+    codes: list[int | BaseException] = []
+    for agent in agents:
+        try:
+            codes.append(agent.stop())
+        except subprocess.TimeoutExpired as exc:
+            codes.append(exc)
+    for agent, code in zip(agents, codes, strict=True):
+        assert code == 0, f"agent {agent.db} ended with {code!r}: {agent.output()[-3000:]}"
 
 
 def robot_db_meta(db: Path, key: str) -> Any:

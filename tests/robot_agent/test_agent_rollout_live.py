@@ -12,7 +12,7 @@ import httpx
 import pytest
 
 from shared.signing import KeyPair, generate_keypair, load_private_key, sha256_hex, sign_digest
-from tests.robot_agent.agentproc import AgentProcess, wait_for
+from tests.robot_agent.agentproc import AgentProcess, stop_all, wait_for
 from tests.robot_agent.test_agent_kernels_live import FLAKY, GOOD
 from tests.server.live import Live, start_live
 
@@ -46,8 +46,7 @@ def fleet(live: Live, key: KeyPair, tmp_path_factory: pytest.TempPathFactory) ->
                 wait_for("first map", functools.partial(_mapped, op, rid))
         yield ids
     finally:
-        for agent in agents:
-            assert agent.stop() == 0, agent.output()
+        stop_all(agents)
 
 
 def _mapped(op: httpx.Client, rid: int) -> bool:

@@ -76,6 +76,15 @@ def _start(url: str, env: dict[str, str], args: tuple[str, ...] = ()) -> tuple[S
         text=True,
         env={**os.environ, **env},
     )
+    try:
+        return _ready(proc, port)
+    except BaseException:  # a server that did not come up is not left running
+        proc.kill()
+        proc.communicate()
+        raise
+
+
+def _ready(proc: subprocess.Popen[str], port: int) -> tuple[ServerProc, str]:
     assert proc.stdout is not None
     lines = [proc.stdout.readline()]
     while lines[-1] and "linemap server on" not in lines[-1]:  # the token line, if any, comes first
