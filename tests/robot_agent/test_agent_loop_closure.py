@@ -51,13 +51,32 @@ def test_two_laps_close_their_loop_on_the_robot(live: Live, tmp_path: Path) -> N
     acc = line_accuracy(walls.reshape(-1, 4), case.run.world.walls)
     assert acc.mean_distance_m < 0.025
     assert acc.spurious_share < 0.03
-    _check_pose_graph(latest, closures, agent.db)
+    _check_pose_graph(latest, closures, agent.db, _logged_keyframe_ids(live, rid))
 
 
-def _check_pose_graph(latest: dict[str, Any], closures: int, db: Path) -> None:
+#: the robot re-sends a keyframe once it moved by more than this (m, rad; robot_agent.mapping), so the
+#: server's keyframes and the trajectory it moved with them agree to this precision, not exactly
+KEYFRAME_RESEND = 1e-3
+
+
+def _logged_keyframe_ids(live: Live, rid: int) -> list[set[int]]:
+    """The keyframe ids of each delta upload in the server's delta log (its last 256 uploads), in order."""
+    from server.models import MapDeltaRecord
+
+    with live.state.db.read() as s:
+        bodies = (
+            s.query(MapDeltaRecord.body)
+            .filter(MapDeltaRecord.robot_id == rid)
+            .order_by(MapDeltaRecord.version)
+        )
+        return [{int(r[0]) for r in json.loads(b).get("keyframes") or []} for (b,) in bodies if b]
+
+
+def _check_pose_graph(latest: dict[str, Any], closures: int, db: Path, logged: list[set[int]]) -> None:
     """The corrections reached the server as the robot holds them: every loop closure once, the keyframes,
     a covariance, and a trajectory that passes through each keyframe's corrected pose (the server moved the
-    poses it held when the keyframes moved) and equals the Robot DB's own (corrected there too)."""
+    poses it held when the keyframes moved; within the robot's re-send threshold) and equals the Robot DB's
+    own (corrected there too); and corrections went as keyframe rows sent again (the delta log's uploads)."""
     keyframes = latest["keyframes"]
     assert keyframes and len(latest["loop_closures"]) == closures
     assert len({tuple(p) for p in latest["loop_closures"]}) == closures
@@ -72,20 +91,18 @@ def _check_pose_graph(latest: dict[str, Any], closures: int, db: Path) -> None:
         )
         for k in keyframes
     ]
-    assert max(off) < 1e-6, f"the server's trajectory is off its keyframes by up to {max(off)}"
+    assert max(off) <= KEYFRAME_RESEND, f"the server's trajectory is off its keyframes by up to {max(off)}"
     with sqlite3.connect(db) as conn:
         own = conn.execute("SELECT stamp_s, x_m, y_m, theta_rad FROM poses ORDER BY version").fetchall()
     assert np.allclose(np.array(own), np.array(latest["trajectory"]), atol=1e-9)
-    # corrections went as keyframe rows sent again (moved), not as every pose
-    with sqlite3.connect(db) as conn:
-        changes = [json.loads(c) for (c,) in conn.execute("SELECT change FROM map_versions ORDER BY version")]
-    seen: set[float] = set()
+    # corrections went as keyframe rows sent again (moved), not as every pose: read from the server's delta
+    # log (the Robot DB drops delivered versions: robot_agent.store_map's compaction)
+    seen: set[int] = set()
     resent = 0
-    for change in changes:
-        ids = {row[0] for row in change.get("keyframes", [])}
+    for ids in logged:
         resent += len(ids & seen)
         seen |= ids
-    assert resent > 0, "no keyframe was ever corrected"
+    assert resent > 0, "no keyframe was ever sent again corrected"
 
 
 @pytest.mark.parametrize(
