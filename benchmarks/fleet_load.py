@@ -44,7 +44,7 @@ from sqlalchemy.engine import make_url
 
 from benchmarks.server_load import Config, Load, Server, SetupError, report
 
-__all__ = ["Chains", "chains", "main"]
+__all__ = ["Chains", "chains", "fresh_postgres", "main"]
 
 RECOVERY_TARGET_S = 5.0
 
@@ -76,9 +76,10 @@ def chains(rows: Sequence[tuple[int, int, int | None]]) -> Chains:
 
 
 @contextmanager
-def fresh_postgres(server_url: str) -> Iterator[str]:
-    """A new database on the PostgreSQL server of ``server_url`` (dropped afterwards)."""
-    name = f"lm_fleet_{uuid.uuid4().hex[:8]}"
+def fresh_postgres(server_url: str, prefix: str = "lm_fleet") -> Iterator[str]:
+    """A new database on the PostgreSQL server of ``server_url`` (dropped afterwards; also the tests' way to
+    a database no one else uses: tests/server/procs.py)."""
+    name = f"{prefix}_{uuid.uuid4().hex[:10]}"
     admin = create_engine(
         make_url(server_url).set(drivername="postgresql+psycopg"), isolation_level="AUTOCOMMIT"
     )

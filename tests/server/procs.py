@@ -16,10 +16,8 @@ from pathlib import Path
 
 import httpx
 import pytest
-from sqlalchemy import create_engine, text
-from sqlalchemy.engine import make_url
 
-from server.database import normalize_url
+from benchmarks.fleet_load import fresh_postgres
 from tests.server.live import POSTGRES_ENV
 
 __all__ = ["ServerProc", "fresh_database", "server_procs"]
@@ -55,16 +53,8 @@ def fresh_database(backend: str, tmp: Path) -> Iterator[str]:
     base = os.environ.get(POSTGRES_ENV)
     if not base:
         pytest.skip(f"{POSTGRES_ENV} is not set (CI sets it to its PostgreSQL)")
-    name = f"lm_procs_{uuid.uuid4().hex[:10]}"
-    admin = create_engine(normalize_url(base), isolation_level="AUTOCOMMIT")
-    with admin.connect() as conn:
-        conn.execute(text(f'CREATE DATABASE "{name}"'))
-    try:
-        yield make_url(base).set(database=name).render_as_string(hide_password=False)
-    finally:
-        with admin.connect() as conn:
-            conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
-        admin.dispose()
+    with fresh_postgres(base, "lm_procs") as url:
+        yield url
 
 
 def _start(url: str, env: dict[str, str], args: tuple[str, ...] = ()) -> tuple[ServerProc, str]:
