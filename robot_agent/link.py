@@ -281,6 +281,10 @@ class ServerLink:
             )
         if not 200 <= resp.status_code < 300 and resp.status_code not in answers:
             raise UnexpectedAnswerError(where, resp, f"2xx with {expect}", retry_after_s=retry)
+        if resp.status_code == 204 and not expect:  # No Content: nothing to check but that it is empty
+            if resp.content:
+                raise UnexpectedAnswerError(where, resp, "204 with no body", retry_after_s=retry)
+            return resp
         if _content_type(resp) != (expect if resp.status_code < 300 else "application/json"):
             raise UnexpectedAnswerError(where, resp, expect, retry_after_s=retry)
         return resp

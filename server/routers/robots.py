@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, status
+from fastapi import APIRouter, Depends, Response, status
 from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
@@ -134,8 +134,13 @@ def delete_robot(robot_id: DbIdPath, who: OperatorDep, state: StateDep) -> None:
     state.recent_maps.forget(robot_id)
 
 
-@router.put("/{robot_id}/status", status_code=status.HTTP_204_NO_CONTENT, dependencies=[AgentChecked])
-def report_status(robot_id: DbIdPath, body: RobotStatus, who: RobotSelf, state: StateDep) -> None:
+@router.put(
+    "/{robot_id}/status",
+    status_code=status.HTTP_204_NO_CONTENT,
+    response_class=Response,
+    dependencies=[AgentChecked],
+)
+def report_status(robot_id: DbIdPath, body: RobotStatus, who: RobotSelf, state: StateDep) -> Response:
     """The robot's own status without a map upload (body: the status a map upload carries): a robot
     with nothing to upload reports a changed ``last_error`` this way, e.g. that its recording paused on a
     full disk. Sets the same robot columns as an upload's status (``last_error`` always: null clears
@@ -148,3 +153,4 @@ def report_status(robot_id: DbIdPath, body: RobotStatus, who: RobotSelf, state: 
         done = s.scalar(update(Robot).where(Robot.id == robot_id).values(**changes).returning(Robot.id))
         if done is None:
             raise NotFoundError(f"no robot with id {robot_id}")
+    return Response(status_code=status.HTTP_204_NO_CONTENT)  # no body, so no Content-Type

@@ -22,7 +22,7 @@ from robot_agent.errors import LinkError, UnexpectedAnswerError
 from robot_agent.link import DEFAULT_MAX_RETRY_AFTER_S, Backoff, ServerLink, is_transient, parse_retry_after
 from tests.robot_agent.answerproxy import AnswerProxy
 from tests.server.authlimits import BLOCK_S, LIMIT, SteppedClock, start_limited
-from tests.server.live import Live
+from tests.server.live import Live, start_live
 
 NOW = datetime(2026, 12, 2, 10, 0, tzinfo=UTC)
 
@@ -190,3 +190,21 @@ def test_the_robot_agent_link_sees_retry_after(live: Live) -> None:
     finally:
         good.close()
         live.state.limiter.clear()
+
+
+def test_a_status_alone_reaches_the_real_server(tmp_path: Path) -> None:
+    """``ServerLink.report_status`` through a real server: its 204 (no body) is the answer it expects, and
+    the server shows the robot's ``last_error`` (found when every status-only report failed with
+    "unexpected answer (HTTP 204, application/json)", overwriting the error it was to report)."""
+    for live in start_live("sqlite", tmp_path):
+        rid, token = live.new_robot()
+        link = ServerLink(live.base_url, rid, token)
+        try:
+            link.report_status({"mode": "online", "last_error": "message 3 rejected: bad signature"})
+            with live.operator() as op:
+                assert op.get(f"/robots/{rid}").json()["last_error"] == "message 3 rejected: bad signature"
+            link.report_status({"mode": "online", "last_error": None})
+            with live.operator() as op:
+                assert op.get(f"/robots/{rid}").json()["last_error"] is None
+        finally:
+            link.close()
