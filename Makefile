@@ -44,9 +44,11 @@ $(NUMBA_STAMP): $(shell find shared -name '*.py' 2>/dev/null) | $(STAMP)
 	find shared -name '*.nbi' -delete -o -name '*.nbc' -delete
 	touch $@
 
-# pytest exits 5 when it collected no test: that must fail, never pass silently.
+# pytest exits 5 when it collected no test: that must fail, never pass silently. WORKERS: pytest-xdist
+# processes, each taking a whole test file at a time (module fixtures stay in one process); 0 runs serially.
+WORKERS ?= 2
 pytest: install $(NUMBA_STAMP)
-	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not soak"; rc=$$?; \
+	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not soak" -n $(WORKERS) --dist loadfile; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing" >&2; exit 1; fi; exit $$rc
 
 soak: install $(NUMBA_STAMP)  ## the whole reliability suite, long runs included (under 30 min: see tests/reliability/soakrun.py)

@@ -2,12 +2,13 @@
 
 Backends: a SQLite file always; PostgreSQL when ``LINEMAP_TEST_POSTGRES_URL`` is set (``.ci/run`` sets
 it). The PostgreSQL database is emptied (its public schema dropped and made again) before the session's server
-migrates it.
+migrates it; under pytest-xdist each worker has a database of its own on that server (:func:`postgres_url`).
 Tests share one server per backend and create their own robots, so they do not depend on each other.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import socket
 import threading
@@ -21,7 +22,7 @@ import httpx
 import pytest
 import uvicorn
 from fastapi import FastAPI
-from sqlalchemy import create_engine, text
+from sqlalchemy import create_engine, make_url, text
 
 from server.app import create_app
 from server.bootstrap import ensure_admin_token
@@ -59,10 +60,32 @@ class Live:
             return int(body["id"]), str(body["token"])
 
 
+@functools.cache
+def postgres_url() -> str | None:
+    """The PostgreSQL database this test process may empty and fill: ``LINEMAP_TEST_POSTGRES_URL``'s, or
+    under pytest-xdist ``<that database>_<worker>`` on the same server (made on first use), so parallel
+    workers never drop each other's tables. None when the variable is not set."""
+    url = os.environ.get(POSTGRES_ENV)
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if not url or not worker:
+        return url
+    base = make_url(normalize_url(url))
+    name = f"{base.database}_{worker}"
+    admin = create_engine(base, isolation_level="AUTOCOMMIT")
+    try:
+        with admin.connect() as conn:
+            known = conn.execute(text("SELECT 1 FROM pg_database WHERE datname = :n"), {"n": name}).first()
+            if known is None:
+                conn.execute(text(f'CREATE DATABASE "{name}"'))
+    finally:
+        admin.dispose()
+    return make_url(url).set(database=name).render_as_string(hide_password=False)
+
+
 def database_url(backend: str, tmp: Path) -> str:
     if backend == "sqlite":
         return f"sqlite:///{tmp / 'server.db'}"
-    url = os.environ.get(POSTGRES_ENV)
+    url = postgres_url()
     if not url:
         pytest.skip(f"{POSTGRES_ENV} is not set (CI sets it to its PostgreSQL)")
     # An empty database whatever an earlier run left (another branch's migrations, a killed run): every

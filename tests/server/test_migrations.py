@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,7 @@ from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from sqlalchemy import create_engine, inspect
 
+from benchmarks.fleet_load import fresh_postgres
 from server.database import normalize_url
 from server.migrate import current_revision, downgrade, head_revision, upgrade
 from server.models import Base
@@ -21,18 +23,17 @@ from tests.server.live import POSTGRES_ENV
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _url(backend: str, tmp_path: Path) -> str:
-    if backend == "sqlite":
-        return f"sqlite:///{tmp_path / 'm.db'}"
-    url = os.environ.get(POSTGRES_ENV)
-    if not url:
-        pytest.skip(f"{POSTGRES_ENV} is not set")
-    return url
-
-
 @pytest.fixture(params=["sqlite", "postgresql"])
-def engine_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
-    return normalize_url(_url(request.param, tmp_path))
+def engine_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    """A database of the test's own (the PostgreSQL one made and dropped here: the round trip empties it)."""
+    if request.param == "sqlite":
+        yield f"sqlite:///{tmp_path / 'm.db'}"
+        return
+    base = os.environ.get(POSTGRES_ENV)
+    if not base:
+        pytest.skip(f"{POSTGRES_ENV} is not set")
+    with fresh_postgres(base, "lm_migrations") as url:
+        yield normalize_url(url)
 
 
 def test_round_trip_and_no_drift(engine_url: str) -> None:
