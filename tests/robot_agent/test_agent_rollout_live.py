@@ -88,7 +88,8 @@ def test_healthy_then_failing_canary(live: Live, key: KeyPair, fleet: list[int])
         r = op.post("/rollouts", json={**body, "version": "1.1.0", "sha256": good, "commit_window_s": 2.0})
         assert r.status_code == 201, r.text
         first = wait_for("the healthy rollout", lambda: _settled(op, r.json()["id"]), 180)
-        assert first["state"] == "completed" and first["counts"] == {"installed": 3}, first
+        why = first["stop_reason"], [(x["robot_id"], x["state"], x["reason"]) for x in first["robots"]]
+        assert first["state"] == "completed" and first["counts"] == {"installed": 3}, why
         rows = {x["robot_id"]: x for x in first["robots"]}
         assert rows[canary]["finished_at"] <= min(rows[o]["sent_at"] for o in others), "canary first"
         for rid in fleet:
