@@ -102,6 +102,7 @@ class Agent:
                 self.stats.errors,
                 poll_wait_s=settings.poll_wait_s,
                 retry_base_s=settings.retry_base_s,
+                retry_cap_s=settings.retry_cap_s,
             )
             self.uploader = Uploader(
                 self.link,
@@ -115,6 +116,7 @@ class Agent:
                 upload_period_s=settings.upload_period_s,
                 upload_batch=settings.upload_batch,
                 retry_base_s=settings.retry_base_s,
+                retry_cap_s=settings.retry_cap_s,
                 stop_grace_s=settings.stop_grace_s,
             )
 

@@ -51,6 +51,7 @@ def _file_settings(path: Path | None) -> dict[str, Any]:
         "laps",
         "encoders",
         "retry_base",
+        "retry_cap",
         "max_retry_after",
         "error_clear",
         "loop_closure",
@@ -141,8 +142,16 @@ def agent_cmd(
         typer.Option(
             min=0.001,
             max=60,
-            help="First retry delay after a network fault, s (doubles per failure up to 30 s, full jitter) "
-            "[0.5].",
+            help="First retry delay after a network fault, s (doubles per failure up to --retry-cap, full "
+            "jitter) [0.5].",
+        ),
+    ] = None,
+    retry_cap: Annotated[
+        float | None,
+        typer.Option(
+            min=0.001,
+            max=3600,
+            help="Longest retry delay after network faults, s (a server's Retry-After may ask more) [30].",
         ),
     ] = None,
     max_retry_after: Annotated[
@@ -204,6 +213,9 @@ def agent_cmd(
         laps=laps if laps is not None else int(f.get("laps", 1)),
         encoders=encoders or f.get("encoders"),
         retry_base_s=retry_base if retry_base is not None else _retry_base(f.get("retry_base", 0.5), file),
+        retry_cap_s=retry_cap
+        if retry_cap is not None
+        else _seconds(f.get("retry_cap", 30.0), file, "retry_cap", 0.001, 3600),
         max_retry_after_s=max_retry_after
         if max_retry_after is not None
         else _seconds(f.get("max_retry_after", 60.0), file, "max_retry_after", 0, 3600),
@@ -212,6 +224,11 @@ def agent_cmd(
         else _seconds(f.get("error_clear", 60.0), file, "error_clear", 0, 86400),
         loop_closure=_loop_settings(loop_closure, f.get("loop_closure", False), file),
     )
+    if settings.retry_cap_s < settings.retry_base_s:
+        raise LinemapError(
+            f"retry cap {settings.retry_cap_s:g} s is below the first retry delay "
+            f"{settings.retry_base_s:g} s: expected --retry-cap >= --retry-base"
+        )
     if settings.allow_unsigned:
         typer.echo("WARNING: --allow-unsigned: kernels without a valid signature will run", err=True)
     agent = Agent(settings)

@@ -39,6 +39,7 @@ class Poller:
         *,
         poll_wait_s: float = 20.0,
         retry_base_s: float = 0.5,
+        retry_cap_s: float = 30.0,
     ) -> None:
         self.link = link
         self._applied_seq = applied_seq
@@ -46,12 +47,13 @@ class Poller:
         self._inbox = inbox
         self._errors = errors
         self.poll_wait_s = poll_wait_s
-        self.retry_base_s = retry_base_s
+        self.retry_base_s, self.retry_cap_s = retry_base_s, retry_cap_s
         self.handed = 0  # the highest seq handed to the mapping thread (kept across restarts of run)
         self.polls_ok = 0
 
     def run(self, stop: threading.Event) -> None:
-        backoff, download_backoff = Backoff(self.retry_base_s), Backoff(self.retry_base_s)
+        backoff = Backoff(self.retry_base_s, self.retry_cap_s)
+        download_backoff = Backoff(self.retry_base_s, self.retry_cap_s)
         while not stop.is_set():
             after = max(self._applied_seq(), self.handed)
             try:

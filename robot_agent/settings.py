@@ -45,7 +45,8 @@ class AgentSettings:
     seed: int = 0
     laps: int = 1
     encoders: str | None = None  # serial device of the wheel-encoder bridge (a ``urg:`` source only)
-    retry_base_s: float = 0.5  # first delay after a network fault (doubles per failure, capped at 30 s)
+    retry_base_s: float = 0.5  # first delay after a network fault (doubles per failure up to retry_cap_s)
+    retry_cap_s: float = 30.0  # longest delay between two tries after network faults (full jitter below it)
     stop_grace_s: float = 10.0  # after a stop, the uploader keeps retrying this long to empty the outbox
     max_retry_after_s: float = DEFAULT_MAX_RETRY_AFTER_S  # a longer Retry-After is capped to this
     error_clear_s: float = 60.0  # last_error is cleared after this long without a new one (health.py)

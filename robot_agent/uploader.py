@@ -53,6 +53,7 @@ class Uploader:
         upload_period_s: float = 0.5,
         upload_batch: int = 50,
         retry_base_s: float = 0.5,
+        retry_cap_s: float = 30.0,
         stop_grace_s: float = 10.0,
     ) -> None:
         self.link, self.db = link, db
@@ -61,7 +62,7 @@ class Uploader:
         self.robot_id = robot_id
         self.upload_period_s = upload_period_s
         self.upload_batch = upload_batch
-        self.retry_base_s = retry_base_s
+        self.retry_base_s, self.retry_cap_s = retry_base_s, retry_cap_s
         self.stop_grace_s = stop_grace_s
         self.need_snapshot = False
         self._stop_deadline: float | None = None  # the last try after a stop
@@ -69,7 +70,7 @@ class Uploader:
         self._told_error: str | None = None  # the last_error the server heard last
 
     def run(self, stop: threading.Event) -> None:
-        backoff = Backoff(self.retry_base_s)
+        backoff = Backoff(self.retry_base_s, self.retry_cap_s)
         while True:
             over = self._mapping_over.is_set()  # before the round: a step recorded during it is seen next
             try:

@@ -42,3 +42,20 @@ def test_a_bad_server_in_the_agent_file_is_named(tmp_path: Path, toml: str, said
     out = linemap("agent", "--file", str(file), "--db", str(tmp_path / "r.db"))
     assert out.returncode == 2, out.stderr
     assert said in out.stderr and "Traceback" not in out.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "toml", "said"),
+    [
+        (["--retry-base", "2", "--retry-cap", "1"], "", "retry cap 1 s is below the first retry delay 2 s"),
+        ([], "retry_cap = 0\n", "retry_cap = 0: expected seconds in [0.001, 3600]"),
+        ([], 'retry_cap = "soon"\n', "retry_cap = 'soon'"),
+    ],
+)
+def test_a_bad_retry_cap_is_named(tmp_path: Path, args: list[str], toml: str, said: str) -> None:
+    file = tmp_path / "agent.toml"
+    file.write_text(toml, encoding="utf-8")
+    out = linemap("agent", "--file", str(file), *args, "--db", str(tmp_path / "r.db"))
+    assert out.returncode == 2, out.stderr
+    assert said in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "r.db").exists()
