@@ -51,7 +51,7 @@ pytest: install $(NUMBA_STAMP)
 	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not soak" -n $(WORKERS) --dist loadfile; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing" >&2; exit 1; fi; exit $$rc
 
-soak: install $(NUMBA_STAMP)  ## the whole reliability suite, long runs included (under 30 min: see tests/reliability/soakrun.py)
+soak: install $(NUMBA_STAMP)  ## the whole reliability suite and every long run make test leaves out (see tests/reliability/soakrun.py)
 	$(BIN)/python -m tests.reliability.soakrun
 
 report: install $(NUMBA_STAMP)  ## regenerate docs/report/ (the paper's results against EKF-SLAM; ~15 min)

@@ -8,7 +8,10 @@ Run one after the other, the suite takes ~35 minutes; so it runs in two phases:
    mostly CPU) and everything else but the load soak (network faults, hostile input, supply chain, auth:
    mostly waiting on sockets, timeouts and back-offs, and in-process fuzzing);
 2. alone, the load soak (``test_rel_soak_load.py``), so that its latency and memory figures are the
-   server's, not its neighbours'.
+   server's, not its neighbours';
+3. the long runs outside ``tests/reliability`` (marked ``soak``, left out of ``make test`` to keep CI well
+   under its limit), on two xdist workers: e.g. the half-hour patrol's accuracy and agents killed with loop
+   closure on.
 
 Each process's output goes to ``test-artifacts/reliability/soak-<part>.log`` and is printed when it ends,
 with its time. Exit status: 0 when every part passed; 1 when a part failed or collected no tests (pytest's
@@ -31,6 +34,7 @@ LOAD = f"{HERE}/test_rel_soak_load.py"
 PHASES: list[list[tuple[str, list[str]]]] = [
     [("crash", [CRASH]), ("rest", [HERE, f"--ignore={CRASH}", f"--ignore={LOAD}"])],
     [("load", [LOAD])],
+    [("long", ["tests", f"--ignore={HERE}", "-m", "soak", "-n", "2", "--dist", "loadfile"])],
 ]
 
 

@@ -96,6 +96,7 @@ def _final_graph(db: Path) -> OnlineGraphMapper:
         store.close()
 
 
+@pytest.mark.soak  # two whole drives of sim:loop-block with loop closure, 300 s on CI: make soak
 def test_killed_agents_with_loop_closure_resume_the_same_graph(live: Live, tmp_path: Path) -> None:
     extra = ["--source", "sim:loop-block", "--rate", "0", "--loop-closure"]
     runs = {}

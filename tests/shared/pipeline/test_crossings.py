@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -70,6 +71,7 @@ def test_the_wall_map_hides_a_crossing_piece_and_shows_it_again_when_the_wall_go
     assert len(walls.ids) == 1 and np.allclose(walls.segments()[0], [2.0, -0.4, 2.4, 0.4])
 
 
+@pytest.mark.soak  # 95-150 s: make soak
 def test_the_room_patrolled_half_an_hour_stays_as_accurate_as_after_one_lap() -> None:
     """The demo's room, 18,000 steps (30 minutes at 10 Hz) of patrol by the front end: the map at the end
     is within 10 % of the first lap's wall error (it rose 31 % while confirmed noisy pieces crossing the
