@@ -45,7 +45,7 @@ def _upload(version: int, base: int | None) -> MapUpload:
         "stamp_s": float(version),
         "segments": [[version, float(version), 0.0, float(version), 1.0], [0, 0.0, 0.0, float(version), 0.0]],
         "removed": [],
-        "centroids": [],
+        "centroids": [[float(version), 0.5]],
         "pose": [float(version), 0.0, 0.0],
         "trajectory": [[float(version), float(version), 0.0, 0.0]],
     }
@@ -66,17 +66,20 @@ def test_the_history_ends_where_the_log_does(db: Database) -> None:
         _apply(db, rid, _upload(v, v - 1), keep=3)
     with db.read() as s:
         hist = read_history(s, rid)
-        assert [v.version for v in hist.versions] == [4, 5, 6, 7]  # deltas 5..7 kept: back to 4
+        # deltas 5..7 kept: those versions (version 4's centroids left with its entry: the undo records
+        # do not repeat them, server.maphistory.capture_undo)
+        assert [v.version for v in hist.versions] == [5, 6, 7]
         assert "left the delta log" in hist.older
-        m = read_version(s, rid, 4, None)
-        # wall 0 as version 4 set it; walls 1..4 (5..7 added later are gone)
+        m = read_version(s, rid, 5, None)
+        # wall 0 as version 5 set it; walls 1..5 (6 and 7 added later are gone)
         assert {int(r[0]): r[1:] for r in m.segments} == {
-            0: [0.0, 0.0, 4.0, 0.0],
-            **{i: [float(i), 0.0, float(i), 1.0] for i in range(1, 5)},
+            0: [0.0, 0.0, 5.0, 0.0],
+            **{i: [float(i), 0.0, float(i), 1.0] for i in range(1, 6)},
         }
-        assert m.pose == [4.0, 0.0, 0.0] and [p[0] for p in m.trajectory] == [1.0, 2.0, 3.0, 4.0]
-        with pytest.raises(GoneError, match=r"4\.\.7.*left the delta log"):
-            read_version(s, rid, 3, None)
+        assert m.pose == [5.0, 0.0, 0.0] and [p[0] for p in m.trajectory] == [1.0, 2.0, 3.0, 4.0, 5.0]
+        assert m.centroids == [[5.0, 0.5]], "version 5's centroids, from its own log entry"
+        with pytest.raises(GoneError, match=r"5\.\.7.*left the delta log"):
+            read_version(s, rid, 4, None)
 
 
 def test_a_delta_without_an_undo_record_ends_the_history(db: Database) -> None:
