@@ -3,7 +3,6 @@ the migrated schema matches the models (no drift between ``server.models`` and `
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -14,25 +13,18 @@ from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from sqlalchemy import create_engine, inspect
 
-from benchmarks.fleet_load import fresh_postgres
 from server.database import normalize_url
 from server.migrate import current_revision, downgrade, head_revision, upgrade
 from server.models import Base
-from tests.server.live import POSTGRES_ENV
+from tests.server.procs import fresh_database
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
 def engine_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
-    """A database of the test's own (the PostgreSQL one made and dropped here: the round trip empties it)."""
-    if request.param == "sqlite":
-        yield f"sqlite:///{tmp_path / 'm.db'}"
-        return
-    base = os.environ.get(POSTGRES_ENV)
-    if not base:
-        pytest.skip(f"{POSTGRES_ENV} is not set")
-    with fresh_postgres(base, "lm_migrations") as url:
+    """A database of the test's own (a PostgreSQL one is made and dropped: the round trip empties it)."""
+    with fresh_database(request.param, tmp_path) as url:
         yield normalize_url(url)
 
 
