@@ -58,10 +58,12 @@ def capture_undo(conn: Connection, robot_id: int, up: MapUpload) -> str:
     sent = {int(r[0]): (r[1], r[2], r[3], r[4]) for r in up.segments}
     # a wall the delta sends again unchanged needs no undo (a robot re-sending a window of walls: most)
     walls = [[int(i), x0, y0, x1, y1] for i, x0, y0, x1, y1 in rows if sent.get(int(i)) != (x0, y0, x1, y1)]
+    base_logged = conn.execute(
+        select(_LOG.c.body.is_not(None)).where(_LOG.c.robot_id == robot_id, _LOG.c.version == up.base_version)
+    ).scalar()
+    columns = [_STATE.c.stamp_s, _STATE.c.pose, _STATE.c.wall_time_s]
     st = conn.execute(
-        select(_STATE.c.stamp_s, _STATE.c.pose, _STATE.c.wall_time_s, _STATE.c.centroids).where(
-            _STATE.c.robot_id == robot_id
-        )
+        select(*columns, *([] if base_logged else [_STATE.c.centroids])).where(_STATE.c.robot_id == robot_id)
     ).first()
     record: dict[str, Any] = {
         "walls": walls,
@@ -70,9 +72,6 @@ def capture_undo(conn: Connection, robot_id: int, up: MapUpload) -> str:
         "pose": [st[1]["x_m"], st[1]["y_m"], st[1]["theta_rad"]] if st else [0.0, 0.0, 0.0],
         "wall_time_s": st[2] if st else None,
     }
-    base_logged = conn.execute(
-        select(_LOG.c.body.is_not(None)).where(_LOG.c.robot_id == robot_id, _LOG.c.version == up.base_version)
-    ).scalar()
     if not base_logged:
         record["centroids"] = list((st[3] or {}).get("xy", [])) if st else []
     return json.dumps(record, separators=(",", ":"))
@@ -139,26 +138,28 @@ def _chain(s: Session, robot_id: int, below: int = -1) -> _Chain:
     }
     versions = [(current, st.stamp_s if st else 0.0)]
     undo: dict[int, dict[str, Any]] = {}
+    left_log = (
+        "versions before it have left the delta log, which keeps each robot's last "
+        f"{KEEP_VERSIONS} uploads of its current mapping session"
+    )
     v, stop = current, ""
     while v > below and not stop:
         if v == 0:
             stop = "version 0 is the empty map before the first upload"
         elif v not in rows:
-            stop = (
-                "versions before it have left the delta log, which keeps each robot's last "
-                f"{KEEP_VERSIONS} uploads of its current mapping session"
-            )
+            stop = left_log
         elif rows[v][0] is None:
             stop = "it is a snapshot upload, which replaced the whole map (nothing before it is kept)"
         elif rows[v][1] is None:
             stop = "the delta after it was logged before undo records were kept"
-        elif "centroids" not in json.loads(str(rows[v][1])) and rows[v][0] not in rows and rows[v][0] != 0:
-            stop = (  # its base's centroids were in the base's own entry (capture_undo)
-                "versions before it have left the delta log, which keeps each robot's last "
-                f"{KEEP_VERSIONS} uploads of its current mapping session"
-            )
+        elif (
+            "centroids" not in (record := json.loads(str(rows[v][1])))
+            and rows[v][0] not in rows
+            and rows[v][0]
+        ):
+            stop = left_log  # its base's centroids were in the base's own entry (capture_undo), gone now
         else:
-            base, record = rows[v][0], json.loads(str(rows[v][1]))
+            base = rows[v][0]
             assert base is not None
             undo[v] = record
             versions.append((base, float(record["stamp_s"])))
