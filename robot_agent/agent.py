@@ -103,6 +103,8 @@ class Agent:
                 poll_wait_s=settings.poll_wait_s,
                 retry_base_s=settings.retry_base_s,
                 retry_cap_s=settings.retry_cap_s,
+                delivered_map=self.db.delivered_map,
+                map_lost=lambda reason: self.uploader.resend_map(reason),
             )
             self.uploader = Uploader(
                 self.link,

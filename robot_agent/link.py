@@ -44,6 +44,7 @@ from shared.protocol import (
 __all__ = [
     "Backoff",
     "KernelDownload",
+    "PollAnswer",
     "ServerLink",
     "UploadConflict",
     "is_transient",
@@ -96,6 +97,16 @@ class UploadConflict:
 
 
 @dataclass(frozen=True, slots=True)
+class PollAnswer:
+    """A long-poll's answer: the messages (each ``{"seq": int, "xml": str}``) and the map the server holds
+    for this robot when it answered (``map_version`` 0: none; None: a server that does not say)."""
+
+    messages: list[dict[str, Any]]
+    map_version: int | None = None
+    map_session: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class KernelDownload:
     source: bytes
     sha256: str
@@ -114,6 +125,8 @@ class _Message(_Answer):
 
 class _Messages(_Answer):
     messages: list[_Message]
+    map_version: int | None = Field(None, ge=0)
+    map_session: str | None = None
 
 
 class _Uploaded(_Answer):
@@ -304,13 +317,18 @@ class ServerLink:
     def poll(self, after: int, wait_s: float) -> list[dict[str, Any]]:
         """Messages with seq above ``after``, waiting up to ``wait_s`` for one (long-poll); each
         ``{"seq": int, "xml": str}``."""
+        return self.poll_answer(after, wait_s).messages
+
+    def poll_answer(self, after: int, wait_s: float) -> PollAnswer:
+        """:meth:`poll`, with the map version and session the server holds for this robot."""
         resp = self._call(
             "GET",
             f"/robots/{self.robot_id}/messages",
             params={"after": after, "wait": wait_s},
             timeout_s=wait_s + 10.0,
         )
-        return [m.model_dump() for m in self._json(resp, _Messages).messages]
+        got = self._json(resp, _Messages)
+        return PollAnswer([m.model_dump() for m in got.messages], got.map_version, got.map_session)
 
     def ack(self, seq: int, outcome: str, reason: str | None) -> None:
         """Report a message's outcome; a conflicting earlier acknowledgement (409) is logged, not retried,

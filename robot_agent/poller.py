@@ -4,6 +4,12 @@ verify kernels: see ``Agent._prepare``) and hands it to the mapping thread throu
 Any link fault (no answer, an error status, an answer that is not the API's, see :mod:`robot_agent.link`)
 is reported and retried after a backoff: whatever the network answers, the loop goes on. An exception it
 does not expect ends :meth:`Poller.run`; the supervisor (:mod:`robot_agent.supervise`) restarts it.
+
+Each answer also says which map version and session the server holds for this robot. The server's map
+never goes back within a session, so when it holds less than the version it had confirmed before the poll
+was sent, it lost versions (its database was restored from an older copy, docs/reliability/identity.md):
+the poller tells the uploader (``map_lost``), which sends the map again as a snapshot even when the
+robot has nothing new to send.
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ from typing import Any
 from robot_agent.control import Prepared
 from robot_agent.errors import LinkError
 from robot_agent.health import ErrorReport
-from robot_agent.link import Backoff, ServerLink
+from robot_agent.link import Backoff, PollAnswer, ServerLink
 
 __all__ = ["Poller"]
 
@@ -27,7 +33,9 @@ log = logging.getLogger(__name__)
 class Poller:
     """Collaborators: ``link`` (the server), ``applied_seq`` (the highest message dealt with, from the Robot
     DB), ``prepare`` (a raw message to a :class:`Prepared`; raises :class:`LinkError` on a download fault),
-    ``inbox`` (to the mapping thread), ``errors`` (last_error)."""
+    ``inbox`` (to the mapping thread), ``errors`` (last_error); ``delivered_map`` (the Robot DB's map
+    session and the newest version the server confirmed, or None) and ``map_lost`` (told why the server
+    must be sent the map again) check the server's map after each poll, when both are given."""
 
     def __init__(
         self,
@@ -40,6 +48,8 @@ class Poller:
         poll_wait_s: float = 20.0,
         retry_base_s: float = 0.5,
         retry_cap_s: float = 30.0,
+        delivered_map: Callable[[], tuple[str, int | None]] | None = None,
+        map_lost: Callable[[str], None] | None = None,
     ) -> None:
         self.link = link
         self._applied_seq = applied_seq
@@ -48,6 +58,7 @@ class Poller:
         self._errors = errors
         self.poll_wait_s = poll_wait_s
         self.retry_base_s, self.retry_cap_s = retry_base_s, retry_cap_s
+        self._delivered_map, self._map_lost = delivered_map, map_lost
         self.handed = 0  # the highest seq handed to the mapping thread (kept across restarts of run)
         self.polls_ok = 0
 
@@ -56,8 +67,9 @@ class Poller:
         download_backoff = Backoff(self.retry_base_s, self.retry_cap_s)
         while not stop.is_set():
             after = max(self._applied_seq(), self.handed)
+            held = self._delivered_map() if self._delivered_map is not None else None
             try:
-                messages = self.link.poll(after, self.poll_wait_s)
+                answer = self.link.poll_answer(after, self.poll_wait_s)
             except LinkError as exc:
                 self._errors.report(str(exc))
                 log.warning("poll failed, retrying: %s", exc)
@@ -67,7 +79,9 @@ class Poller:
             self.polls_ok += 1
             if stop.is_set():
                 return
-            for raw in messages:
+            if held is not None:
+                self._check_map(held, answer)
+            for raw in answer.messages:
                 seq = int(raw["seq"])
                 if seq <= after:
                     continue
@@ -81,3 +95,19 @@ class Poller:
                 download_backoff.reset()
                 self._inbox.put(prepared)
                 self.handed = after = seq
+
+    def _check_map(self, held: tuple[str, int | None], answer: PollAnswer) -> None:
+        """Tell ``map_lost`` when the server holds less than the version ``held`` it confirmed before the
+        poll (in the same session), or another session's map, or none. O(1)."""
+        session, version = held
+        if answer.map_version is None or version is None or self._map_lost is None:
+            return  # a server that does not say, or nothing confirmed in this session yet
+        if answer.map_session == session and answer.map_version >= version:
+            return
+        assert self._delivered_map is not None
+        if self._delivered_map()[0] != session:
+            return  # the robot started a new session during the poll: its snapshot goes out anyway
+        self._map_lost(
+            f"the server holds version {answer.map_version} of map session {answer.map_session}, not "
+            f"version {version} of session {session} that it confirmed (restored from an older copy?)"
+        )

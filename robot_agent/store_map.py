@@ -275,6 +275,19 @@ class MapTables(RobotDBFile):
             return self.new_map_session("the Robot DB had no map session id")
         return str(value)
 
+    def delivered_map(self) -> tuple[str, int | None]:
+        """This Robot DB's map session and the newest version the server confirmed in it (None: none yet),
+        read together (a new session resets the version)."""
+        with self._factory() as s, s.begin():  # one read transaction: both from the same commit
+            rows = {
+                m.key: m.value.get("v")
+                for m in s.scalars(select(Meta).where(Meta.key.in_(("map_session", "uploaded_version"))))
+            }
+        if rows.get("map_session") is None:
+            return self.map_session(), None  # a Robot DB whose meta lost it: a new session
+        version = rows.get("uploaded_version")
+        return str(rows["map_session"]), None if version is None else int(version)
+
     def map_session_reason(self) -> str | None:
         """Why the current map session began (sent with its snapshots)."""
         value = self.get("map_session_reason")

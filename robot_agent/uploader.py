@@ -126,6 +126,15 @@ class Uploader:
         time.sleep(min(delay_s, self._stop_deadline - now))
         return False
 
+    def resend_map(self, reason: str) -> None:
+        """The server lost map versions it had confirmed (``reason`` says what it holds): send the whole map
+        as a snapshot in the next round, even if nothing new was recorded (the poller calls this from its
+        thread; the flag is read in the next round)."""
+        if not self.need_snapshot:
+            log.warning("%s: sending the map again as a snapshot", reason)
+        self.need_snapshot = True
+        self._wake.set()
+
     def send_status(self) -> bool:
         """Send the status alone if its ``last_error`` differs from what the server heard last (a round
         with nothing else to send); True when it was sent."""
@@ -155,8 +164,8 @@ class Uploader:
         restored from an older copy, or another agent uploaded there), or one that ended this session,
         makes the robot start a new session, so the server keeps the old map and starts a new one."""
         up = self.db.pending_upload(self.upload_batch)
-        if up is None:
-            return False
+        if up is None:  # nothing new; the map again if the server lost it (see :meth:`resend_map`)
+            return self._send_snapshot() if self.need_snapshot else False
         base = self.db.get("uploaded_version")
         if self.need_snapshot or base is None or int(base) != up.first_version - 1:
             return self._send_snapshot()

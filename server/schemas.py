@@ -110,6 +110,13 @@ class MessageOut(BaseModel):
 class MessageList(BaseModel):
     messages: list[MessageOut]
     last_seq: int = Field(description="Newest sequence number queued for this robot.")
+    map_version: int = Field(
+        0,
+        description="The newest map version the server holds for this robot (0: none). A robot that was "
+        "told it holds a later one in the same session sends its map again (the server was restored from "
+        "an older copy).",
+    )
+    map_session: str | None = Field(None, description="The map session of ``map_version`` (None: no map).")
 
 
 class AckIn(MessageAck):

@@ -111,7 +111,12 @@ def _read(state: AppState, robot_id: int, after: int, limit: int) -> dict[str, o
             .order_by(Message.seq)
             .limit(limit)
         )
-        return {"messages": [_out(m) for m in rows], "last_seq": robot.last_seq}
+        return {
+            "messages": [_out(m) for m in rows],
+            "last_seq": robot.last_seq,
+            "map_version": robot.map_version,
+            "map_session": robot.map_session,
+        }
 
 
 def _resync(state: AppState, robot_id: int, applied: int, who: Principal) -> None:

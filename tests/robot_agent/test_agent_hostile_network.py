@@ -18,7 +18,7 @@ import httpx
 import pytest
 
 from robot_agent.agent import Agent, AgentSettings
-from robot_agent.link import ServerLink
+from robot_agent.link import PollAnswer, ServerLink
 from tests.robot_agent.agentproc import AgentProcess, wait_for
 from tests.robot_agent.answerproxy import AnswerProxy
 from tests.server.live import Live, start_live
@@ -131,11 +131,11 @@ class _Flaky(ServerLink):
         super().__init__(*args, **kwargs)
         self.raised: set[str] = set()
 
-    def poll(self, after: int, wait_s: float) -> list[dict[str, Any]]:
+    def poll_answer(self, after: int, wait_s: float) -> PollAnswer:
         if "poll" not in self.raised:
             self.raised.add("poll")
             raise KeyError("seq")
-        return super().poll(after, wait_s)
+        return super().poll_answer(after, wait_s)
 
 
 def test_a_dead_poller_is_restarted_and_reported(live: Live, tmp_path: Path) -> None:

@@ -7,6 +7,7 @@ uploader runs in-process against a real server (uvicorn on 127.0.0.1, SQLite on 
 
 from __future__ import annotations
 
+import queue
 import shutil
 import threading
 from collections.abc import Iterator
@@ -16,7 +17,8 @@ import pytest
 
 from robot_agent.errors import SupersededError
 from robot_agent.health import ErrorReport
-from robot_agent.link import ServerLink
+from robot_agent.link import PollAnswer, ServerLink
+from robot_agent.poller import Poller
 from robot_agent.store import RobotDB
 from robot_agent.uploader import Uploader
 from shared.protocol import MAP_SESSION_RE, RobotStatus
@@ -187,3 +189,89 @@ def test_a_superseded_agent_is_refused_and_the_new_one_goes_on(live: Live, tmp_p
         actions = [e["action"] for e in op.get("/audit").json() if e["target"] == f"robot:{rid}"]
     assert robot["agent_instance"] == "00000000-0000-4000-8000-00000000000b"
     assert "agent.takeover" in actions and "agent.refused" in actions
+
+
+def test_an_idle_robot_sends_its_map_again_to_a_server_that_lost_it(live: Live, tmp_path: Path) -> None:
+    """A server restored from an older copy holds less than it confirmed; a robot with nothing new to
+    send learns it from its next poll's answer and sends a snapshot. Here the "restored" server is a
+    second robot record that holds no map, talked to with a copy of a Robot DB whose 6 versions robot
+    ``first`` confirmed."""
+    first, first_token = live.new_robot()
+    path = tmp_path / "robot.db"
+    db = RobotDB(path)
+    _record(db, 1, 6)
+    _drain(_uploader(live, first, first_token, db))
+    session = db.map_session()
+    assert db.delivered_map() == (session, 6)
+    db.close()
+    rid, token = live.new_robot()  # the server's record of this robot knows no map
+    db = RobotDB(path)
+    up = _uploader(live, rid, token, db)
+    assert up.send_maps() is False  # the outbox is empty: nothing to send on its own
+    told: list[str] = []
+    link = up.link  # one agent: the poller and the uploader share its link
+    poller = Poller(
+        link,
+        lambda: 0,
+        lambda raw: pytest.fail(f"no message was queued: {raw}"),
+        queue.Queue(),
+        ErrorReport(60.0),
+        poll_wait_s=0.0,
+        delivered_map=db.delivered_map,
+        map_lost=lambda reason: (told.append(reason), up.resend_map(reason)),
+    )
+    stop = threading.Event()
+    thread = threading.Thread(target=poller.run, args=(stop,))
+    thread.start()
+    try:
+        assert up._wake.wait(30.0), "the poll's answer did not make the uploader send the map"
+    finally:
+        stop.set()
+        thread.join(30.0)
+    assert (
+        told
+        and f"not version 6 of session {session}" in told[0]
+        and "version 0 of map session None" in told[0]
+    )
+    assert up.send_maps() is True  # the snapshot
+    assert up.need_snapshot is False
+    assert _wall_ids(live, rid) == _wall_ids(live, first)
+    with live.operator() as op:
+        latest = op.get(f"/robots/{rid}/maps/latest").json()
+    assert (latest["version"], latest["map_session"]) == (6, session)
+    answer = link.poll_answer(0, 0.0)
+    assert (answer.map_version, answer.map_session) == (6, session)
+    assert up.send_maps() is False  # and nothing more once the server holds it
+
+
+S, T = "00000000-0000-4000-8000-000000000001", "00000000-0000-4000-8000-000000000002"
+
+
+@pytest.mark.parametrize(
+    ("held", "now", "answer", "lost"),
+    [
+        ((S, 6), S, PollAnswer([], 6, S), False),  # the server holds what it confirmed
+        ((S, 6), S, PollAnswer([], 9, S), False),  # and more (uploads during the poll)
+        ((S, None), S, PollAnswer([], 0, None), False),  # nothing confirmed in this session yet
+        ((S, 6), S, PollAnswer([], None, None), False),  # a server that does not say
+        ((S, 6), T, PollAnswer([], 0, None), False),  # the robot began a new session during the poll
+        ((S, 6), S, PollAnswer([], 5, S), True),  # restored: fewer versions of the session
+        ((S, 6), S, PollAnswer([], 0, None), True),  # restored: no map at all
+        ((S, 6), S, PollAnswer([], 40, T), True),  # restored to another session's map
+    ],
+)
+def test_the_poller_tells_a_lost_map_only_when_the_server_holds_less(
+    held: tuple[str, int | None], now: str, answer: PollAnswer, lost: bool
+) -> None:
+    told: list[str] = []
+    poller = Poller(
+        ServerLink("http://127.0.0.1:9", 1, "t"),  # never called here
+        lambda: 0,
+        lambda raw: pytest.fail("no message"),
+        queue.Queue(),
+        ErrorReport(60.0),
+        delivered_map=lambda: (now, held[1]),
+        map_lost=told.append,
+    )
+    poller._check_map(held, answer)
+    assert bool(told) is lost, told

@@ -107,7 +107,7 @@ def test_long_poll_with_nothing_returns_empty(live: Live) -> None:
     rid, token = live.new_robot()
     with live.client(token) as robot:
         got = robot.get(f"/robots/{rid}/messages", params={"after": 0, "wait": 0.2}).json()
-    assert got == {"messages": [], "last_seq": 0}
+    assert got == {"messages": [], "last_seq": 0, "map_version": 0, "map_session": None}
 
 
 def test_acknowledgement_rules(live: Live) -> None:

@@ -18,7 +18,9 @@ def test_ctrl_c_ends_long_polls_and_streams_cleanly(tmp_path: Path) -> None:
     code, err, results = interrupt_mid_poll_and_stream(proc, out, port)
     assert code == 0, err
     assert "Traceback" not in err and "ERROR" not in err, (err, results)
-    assert results["poll"] == (200, {"messages": [], "last_seq": 0}), results
+    assert results["poll"] == (200, {"messages": [], "last_seq": 0, "map_version": 0, "map_session": None}), (
+        results
+    )
     assert results["stream"] == 200, results
 
 

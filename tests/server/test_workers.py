@@ -36,7 +36,9 @@ def test_ctrl_c_stops_every_worker_ending_long_polls_and_streams_cleanly(tmp_pat
     assert "2 worker processes" in out, out
     assert code == 0, err
     assert "Traceback" not in err and "ERROR" not in err, (err, results)
-    assert results["poll"] == (200, {"messages": [], "last_seq": 0}), results
+    assert results["poll"] == (200, {"messages": [], "last_seq": 0, "map_version": 0, "map_session": None}), (
+        results
+    )
     assert results["stream"] == 200, results
 
 
