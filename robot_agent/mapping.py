@@ -183,7 +183,9 @@ class MappingLoop:
         # A replayable source (simulator, log) skips what was mapped before a restart; a live sensor
         # cannot be replayed, so its scans are all new and its count goes on from there.
         live = is_live(self.s.source)
-        for index, scan in self._scans(stop):
+        # a replayed source's last scan is known one scan ahead; a live sensor's scans are never held back
+        scans = ((i, sc, False) for i, sc in self._scans(stop)) if live else _marking_last(self._scans(stop))
+        for index, scan, last in scans:
             if live:
                 index += resume
             if stop.is_set() or (self.s.max_steps is not None and self.stats.steps >= self.s.max_steps):
@@ -198,6 +200,11 @@ class MappingLoop:
                 next_at = max(next_at + period, time.monotonic() - period)
             self._between_steps()
             result = self.slot.pipeline.step(scan)
+            if last and isinstance(self.slot.pipeline, OnlineGraphMapper):
+                # the source's last scan: the loop-closure worker's searches still running are waited
+                # for, so the last version carries every closure, keyframe move and the rebuilt walls
+                # (later ones would reach no version: nothing is stepped after it)
+                self.slot.pipeline.flush()
             self.recent.add(scan)
             version += 1
             journal, saved = self.checkpoints.after_step(self.slot, version, scan, self._id_offset)
@@ -279,8 +286,17 @@ class MappingLoop:
     def _with_graph(self, rec: StepRecord, graph: OnlineGraphMapper) -> StepRecord:
         """``rec`` with the pose graph's rows: the keyframes that are new or moved since the last step
         (a loop closure moves many: the correction goes out as these), the new loop closures, the
-        covariance. O(keyframes + closures)."""
-        rows = graph.keyframe_rows()
+        covariance. O(keyframes + closures).
+
+        A keyframe this step made goes out first at the pose this step records: the loop-closure worker
+        may have moved it between the step and this read, and a first row off its own trajectory pose
+        would stay off (a correction moves both by the same transform). The move goes out with the next
+        step, as any keyframe's, and moves the trajectory with it."""
+        stamp, pose = rec.pose[0], rec.pose[1:]
+        rows = [
+            [r[0], r[1], *pose] if r[1] == stamp and int(r[0]) not in self._prev_keyframes else r
+            for r in graph.keyframe_rows()
+        ]
         moved = [r for r in rows if _moved(self._prev_keyframes.get(int(r[0])), r)]
         self._prev_keyframes.update({int(r[0]): r for r in moved})
         pairs = graph.closure_pairs()
@@ -310,3 +326,15 @@ def _moved(old: list[float] | None, new: list[float]) -> bool:
         or abs(new[3] - old[3]) > _KEYFRAME_MOVED_M
         or turn > _KEYFRAME_MOVED_RAD
     )
+
+
+def _marking_last(items: Iterator[tuple[int, Scan]]) -> Iterator[tuple[int, Scan, bool]]:
+    """``items`` with a flag that is True on the last one (one item read ahead: the last is known only
+    when the source ends). O(1) per item."""
+    held: tuple[int, Scan] | None = None
+    for item in items:
+        if held is not None:
+            yield (*held, False)
+        held = item
+    if held is not None:
+        yield (*held, True)
