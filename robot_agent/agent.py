@@ -94,19 +94,7 @@ class Agent:
         self.uploader: Uploader | None = None
         if self.link is not None:
             preparer = MessagePreparer(settings, self.link, self.db, loader, recent.latest)
-            self.poller = Poller(
-                self.link,
-                self.db.applied_seq,
-                preparer.prepare,
-                inbox,
-                self.stats.errors,
-                poll_wait_s=settings.poll_wait_s,
-                retry_base_s=settings.retry_base_s,
-                retry_cap_s=settings.retry_cap_s,
-                delivered_map=self.db.delivered_map,
-                map_lost=lambda reason: self.uploader.resend_map(reason),
-            )
-            self.uploader = Uploader(
+            self.uploader = uploader = Uploader(
                 self.link,
                 self.db,
                 self.status,
@@ -120,6 +108,18 @@ class Agent:
                 retry_base_s=settings.retry_base_s,
                 retry_cap_s=settings.retry_cap_s,
                 stop_grace_s=settings.stop_grace_s,
+            )
+            self.poller = Poller(
+                self.link,
+                self.db.applied_seq,
+                preparer.prepare,
+                inbox,
+                self.stats.errors,
+                poll_wait_s=settings.poll_wait_s,
+                retry_base_s=settings.retry_base_s,
+                retry_cap_s=settings.retry_cap_s,
+                delivered_map=self.db.delivered_map,
+                map_lost=uploader.resend_map,
             )
 
     @property

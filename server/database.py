@@ -58,7 +58,10 @@ class Database:
         kwargs: dict[str, Any] = {}
         if self.is_sqlite:
             kwargs["connect_args"] = {"check_same_thread": False, "timeout": 30}
-            kwargs.update(pool_size=20, max_overflow=40)
+            # as many kept connections as the thread pool has threads (anyio's 40): a connection above
+            # pool_size is closed when returned, and opening one runs the pragmas again (100 waiting
+            # long-polls re-reading every poll_recheck_s opened and closed ~20 a second at pool_size 20)
+            kwargs.update(pool_size=40, max_overflow=20)
         else:
             kwargs.update(pool_size=PG_POOL_SIZE, max_overflow=PG_MAX_OVERFLOW, pool_pre_ping=True)
         try:

@@ -27,6 +27,7 @@ from typing import Any
 from sqlalchemy import Connection, Table, select
 from sqlalchemy.orm import Session
 
+from server import jsontext
 from server.errors import ConflictError, GoneError, NotFoundError, UnavailableError
 from server.mapgraph import GRAPH_COLUMNS, graph_fields
 from server.maplog import KEEP_VERSIONS
@@ -74,7 +75,7 @@ def capture_undo(conn: Connection, robot_id: int, up: MapUpload) -> str:
     }
     if not base_logged:
         record["centroids"] = list((st[3] or {}).get("xy", [])) if st else []
-    return json.dumps(record, separators=(",", ":"))
+    return jsontext.dumps(record)
 
 
 #: the touched walls in one constant statement with the ids as one parameter (SQLAlchemy's expanding IN
@@ -94,7 +95,7 @@ def _touched_walls(conn: Connection, robot_id: int, ids: list[int]) -> list[Any]
         return []
     name = conn.dialect.name
     if name in _TOUCHED_SQL:
-        param: Any = json.dumps(ids) if name == "sqlite" else ids
+        param: Any = jsontext.dumps(ids) if name == "sqlite" else ids
         return list(conn.exec_driver_sql(_TOUCHED_SQL[name], (int(robot_id), param)))
     rows: list[Any] = []
     for start in range(0, len(ids), _CHUNK):

@@ -10,13 +10,13 @@ delete (the rows ``KEEP_VERSIONS`` versions older); a read costs O(rows read) on
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy import Connection, Table, delete, insert, select
 from sqlalchemy.orm import Session
 
+from server import jsontext
 from server.models import MapDeltaRecord
 
 __all__ = ["KEEP_VERSIONS", "LoggedUpload", "append", "chain_from", "clear", "read_after"]
@@ -53,7 +53,7 @@ def append(
     entry (its JSON is what every stream sends, encoded once here). O(event)."""
     version = int(event["version"])
     if event["kind"] == "delta":
-        base, body = event["base_version"], json.dumps(event, separators=(",", ":"))
+        base, body = event["base_version"], jsontext.dumps(event)
     else:
         base, body = None, None
     conn.execute(

@@ -8,8 +8,8 @@ texts, so it re-split that text in Python at every upload; profiled under load, 
 CPU cost of a PostgreSQL upload (``psycopg._queries._split_query``, ~4 of every 5 ms of the process's CPU
 for the upload's rows). A constant text is converted once, and psycopg prepares it on the server after a
 few executions, so the database parses and plans it once per connection too. The rows travel as JSON
-text: ``json.dumps`` of the rows is done in C (~0.2 ms for 200 walls), and Python's ``repr`` of a float,
-read back by PostgreSQL's ``float8`` input, is the same double (round trip exact).
+text (:func:`server.jsontext.dumps`, pydantic-core's serialiser), whose shortest round-trip spelling of a
+float, read back by PostgreSQL's ``float8`` input, is the same double (round trip exact).
 
 And an upload's statements go in two pipelines (:func:`lock_and_read`, :func:`pipelined`): one round trip
 for the lock and the reads that decide, one for all the writes, where one statement after another waited
@@ -21,7 +21,6 @@ SQLite keeps its multi-row ``VALUES`` statements (:mod:`server.mapstore`): its d
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -30,6 +29,8 @@ from typing import Any
 import psycopg
 from sqlalchemy import Connection
 from sqlalchemy.exc import DBAPIError
+
+from server import jsontext
 
 __all__ = [
     "UploadReads",
@@ -63,13 +64,13 @@ def upsert_segments(conn: Connection, rows: Sequence[Sequence[Any]]) -> None:
     """Insert or replace the walls ``rows`` (see :data:`_SEGMENTS_SQL`) in ``conn``'s transaction: one
     statement, one round trip. O(rows)."""
     if rows:
-        conn.exec_driver_sql(_SEGMENTS_SQL, (json.dumps(rows, separators=(",", ":")),))
+        conn.exec_driver_sql(_SEGMENTS_SQL, (jsontext.dumps(rows),))
 
 
 def insert_trajectory(conn: Connection, rows: Sequence[Sequence[Any]]) -> None:
     """Append the poses ``rows`` (see :data:`_TRAJECTORY_SQL`): one statement. O(rows)."""
     if rows:
-        conn.exec_driver_sql(_TRAJECTORY_SQL, (json.dumps(rows, separators=(",", ":")),))
+        conn.exec_driver_sql(_TRAJECTORY_SQL, (jsontext.dumps(rows),))
 
 
 def delete_walls(conn: Connection, robot_id: int, ids: Sequence[int]) -> None:

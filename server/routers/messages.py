@@ -32,7 +32,7 @@ from server.deps import (
     still_valid,
 )
 from server.errors import AuthError, ConflictError, InvalidRequestError, NotFoundError, TooLargeError
-from server.models import Message, utcnow
+from server.models import Message, Robot, utcnow
 from server.msgqueue import queue_message
 from server.routers.robots import get_robot
 from server.schemas import DB_INT_MAX, AckIn, DbIdPath, MessageList, MessageOut
@@ -103,8 +103,15 @@ async def post_message(
 
 
 def _read(state: AppState, robot_id: int, after: int, limit: int) -> dict[str, object]:
+    """One long-poll read: the messages after ``after`` and the robot's numbering and map. The robot's row
+    is read as three columns, not as the ORM object (whose JSON columns, its configuration and kernels,
+    would be decoded at every re-read of every waiting poll). O(messages returned)."""
     with state.db.read() as s:
-        robot = get_robot(s, robot_id)
+        robot = s.execute(
+            select(Robot.last_seq, Robot.map_version, Robot.map_session).where(Robot.id == robot_id)
+        ).first()
+        if robot is None:
+            raise NotFoundError(f"no robot with id {robot_id}")
         rows = s.scalars(
             select(Message)
             .where(Message.robot_id == robot_id, Message.seq > after)

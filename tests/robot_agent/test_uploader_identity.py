@@ -10,7 +10,7 @@ from __future__ import annotations
 import queue
 import shutil
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -191,6 +191,11 @@ def test_a_superseded_agent_is_refused_and_the_new_one_goes_on(live: Live, tmp_p
     assert "agent.takeover" in actions and "agent.refused" in actions
 
 
+def _both(first: Callable[[str], None], second: Callable[[str], None], reason: str) -> None:
+    first(reason)
+    second(reason)
+
+
 def test_an_idle_robot_sends_its_map_again_to_a_server_that_lost_it(live: Live, tmp_path: Path) -> None:
     """A server restored from an older copy holds less than it confirmed; a robot with nothing new to
     send learns it from its next poll's answer and sends a snapshot. Here the "restored" server is a
@@ -218,7 +223,7 @@ def test_an_idle_robot_sends_its_map_again_to_a_server_that_lost_it(live: Live, 
         ErrorReport(60.0),
         poll_wait_s=0.0,
         delivered_map=db.delivered_map,
-        map_lost=lambda reason: (told.append(reason), up.resend_map(reason)),
+        map_lost=lambda reason: _both(told.append, up.resend_map, reason),
     )
     stop = threading.Event()
     thread = threading.Thread(target=poller.run, args=(stop,))
