@@ -186,8 +186,17 @@ class MapTables(RobotDBFile):
             return int(s.scalar(select(func.count()).select_from(OutboxEntry)) or 0)
 
     def pending_upload(self, limit: int = 50) -> PendingUpload | None:
-        """The oldest ``limit`` outbox versions folded into one delta (later changes win), or ``None``."""
-        with self._factory() as s:
+        """The oldest ``limit`` outbox versions folded into one delta (later changes win), or ``None``.
+
+        The poses read are the recorded ones as corrected since (:func:`_correct_poses`), so by every
+        version recorded so far, while the keyframe rows folded are those of the batch's versions only.
+        When later versions are left out (the outbox holds more than ``limit``), a keyframe they moved has
+        already moved the batch's poses it owns; the server would move them again when the later version
+        arrives. So the delta then carries the kept (current) row of every keyframe that owns one of its
+        poses: the server moves what it holds with it once, and the later version's row finds it there.
+        Read under the writers' lock, so the poses, the kept rows and what is left out agree.
+        O(limit + keyframes)."""
+        with self._lock, self._factory() as s, s.begin():
             rows = list(
                 s.execute(
                     select(MapVersion, PoseRecord)
@@ -197,6 +206,11 @@ class MapTables(RobotDBFile):
                     .limit(limit)
                 )
             )
+            owners: list[list[float]] = []
+            if len(rows) == limit and s.scalar(
+                select(func.count()).select_from(OutboxEntry).where(OutboxEntry.version > rows[-1][0].version)
+            ):
+                owners = _owning_keyframes(s, rows[0][1].stamp_s, rows[-1][1].stamp_s)
         if not rows:
             return None
         segments: dict[int, list[float]] = {}
@@ -214,6 +228,9 @@ class MapTables(RobotDBFile):
             for row in mv.change.get("segments", []):
                 segments[int(row[0])] = row
                 removed.discard(int(row[0]))
+        if owners:
+            keyframes = keyframes if keyframes is not None else {}
+            keyframes.update({int(r[0]): r for r in owners})
         last_mv, last_pose = rows[-1]
         traj = [[p.stamp_s, p.x_m, p.y_m, p.theta_rad] for _, p in rows]
         return PendingUpload(
@@ -345,6 +362,16 @@ def _keep_graph(s: Any, rec: StepRecord) -> None:
         closures = list((got.value or {}).get("v") or []) if got is not None else []
         seen = {(int(a), int(b)) for a, b in closures}
         put_meta(s, _CLOSURES_META, [*closures, *(c for c in rec.loop_closures if (c[0], c[1]) not in seen)])
+
+
+def _owning_keyframes(s: Any, first_s: float, last_s: float) -> list[list[float]]:
+    """The kept keyframe rows that own a pose stamped in ``[first_s, last_s]``: the last one at or before
+    ``first_s`` and those stamped within (the owner rule of
+    :func:`shared.protocol.posegraph.correct_trajectory`). O(keyframes)."""
+    kept = s.get(Meta, _KEYFRAMES_META)
+    rows = sorted(((kept.value or {}).get("v") or []) if kept is not None else [], key=lambda r: (r[1], r[0]))
+    before = [r for r in rows if float(r[1]) <= first_s]
+    return [*before[-1:], *(r for r in rows if first_s < float(r[1]) <= last_s)]
 
 
 def _correct_poses(s: Any, kept: dict[int, list[float]], rows: list[list[float]]) -> None:
