@@ -15,7 +15,7 @@ const SLICE_BUDGET_MS = 8;
 // does not show the cost): adapted to the frames measured, between these limits.
 const INK_MIN_PX = 5_000;
 const INK_MAX_PX = 400_000;
-const FRAME_TARGET_MS = 24;
+const FRAME_TARGET_MS = 12; // within one frame of a 60 Hz display (16.7 ms), the work after the script included
 const CHUNK = 128; // walls per stroke() call
 const DIRECT_MAX = 20_000; // walls up to which one frame may draw them all directly, if their ink fits
 const MARGIN_PX = 4;
@@ -92,9 +92,10 @@ export class WallLayer {
     this.flatData = this.data;
   }
 
-  /** A small map (at most DIRECT_MAX walls, whose clipped length fits one frame's INK_MAX_PX): draw it
-   * straight onto ctx in one path, as a frame of its own, and return true; false for a map that needs
-   * the layer and its slices. O(walls). */
+  /** A small map (at most DIRECT_MAX walls, whose clipped length fits the ink one frame strokes on this
+   * machine, inkPx as adapted by feedback(), at most INK_MAX_PX): draw it straight onto ctx in one path,
+   * as a frame of its own, and return true; false for a map that needs the layer and its slices.
+   * O(walls). */
   direct(ctx, segments, view, w, hgt) {
     if (segments.size > DIRECT_MAX) return false;
     this.rebuild(segments);
@@ -109,7 +110,7 @@ export class WallLayer {
         flat[k + 2] * scale + ox, oy - flat[k + 3] * scale, xa, ya, xb, yb);
       if (!c) continue;
       ink += Math.hypot(c[2] - c[0], c[3] - c[1]);
-      if (ink > INK_MAX_PX) return false;
+      if (ink > this.inkPx) return false;
       pieces.push(c);
     }
     ctx.beginPath();

@@ -311,8 +311,14 @@ export class MapView {
     const st = stats();
     pushCapped(st.frame_ms, t1 - t0);
     st.frames = (st.frames || 0) + 1; // frame_ms keeps the last STATS_KEEP only
-    // the whole frame, the raster of the last slice included, for the slice size of the next one
-    if (this.lastFrameAt !== undefined && more) this.walls.feedback(t0 - this.lastFrameAt - 16.7 + (t1 - t0));
+    // what the frame cost, for the ink of the next one: its script (which holds the raster its composite
+    // forced), or with a slice drawn in the frame before, the time beyond one display frame since that
+    // one's script ended, if longer (a raster after the script). Every frame counts: one that draws all
+    // the walls at once is the one to slow down.
+    if (this.layers.walls) {
+      const after = this.lastFrameAt !== undefined ? t1 - this.lastFrameAt - 16.7 : 0;
+      this.walls.feedback(Math.max(t1 - t0, after));
+    }
     this.lastFrameAt = more ? t1 : undefined;
     st.version = this.shown().version;
     st.live_version = this.version;
