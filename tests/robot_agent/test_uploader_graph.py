@@ -5,17 +5,14 @@ already moved the earlier poses it owns in the Robot DB; the server must move th
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from robot_agent.health import ErrorReport
 from robot_agent.link import ServerLink
 from robot_agent.store import RobotDB, StepRecord
-from robot_agent.uploader import Uploader
-from shared.protocol import RobotStatus
+from tests.robot_agent.uploaders import bare_uploader
 from tests.server.live import Live, start_live
 
 
@@ -48,17 +45,7 @@ def test_a_keyframe_moved_after_the_batch_moves_the_servers_poses_once(
     rid, token = live.new_robot()
     db = RobotDB(tmp_path / "robot.db")
     k0, k1 = [0.0, 0.1, 0.1, 0.0, 0.0], [1.0, 3.0, 3.0, 0.0, 0.0]
-    up = Uploader(
-        ServerLink(live.base_url, rid, token),
-        db,
-        lambda: RobotStatus(),
-        lambda _v: None,
-        threading.Event(),
-        threading.Event(),
-        ErrorReport(60.0),
-        robot_id=rid,
-        upload_batch=batch,
-    )
+    up = bare_uploader(ServerLink(live.base_url, rid, token), db, rid, upload_batch=batch)
     db.record_step(_step(1, [k0]))
     assert up.send_maps() and db.outbox_size() == 0  # the first upload: a snapshot of version 1
     for v in range(2, 61):

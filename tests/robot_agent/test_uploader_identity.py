@@ -21,8 +21,9 @@ from robot_agent.link import PollAnswer, ServerLink
 from robot_agent.poller import Poller
 from robot_agent.store import RobotDB
 from robot_agent.uploader import Uploader
-from shared.protocol import MAP_SESSION_RE, RobotStatus
+from shared.protocol import MAP_SESSION_RE
 from tests.robot_agent.records import step_record
+from tests.robot_agent.uploaders import bare_uploader
 from tests.server.live import Live, start_live
 
 
@@ -32,17 +33,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
 
 
 def _uploader(live: Live, rid: int, token: str, db: RobotDB, instance: str | None = None) -> Uploader:
-    link = ServerLink(live.base_url, rid, token, instance_id=instance)
-    return Uploader(
-        link,
-        db,
-        lambda: RobotStatus(),
-        lambda _v: None,
-        threading.Event(),
-        threading.Event(),
-        ErrorReport(60.0),
-        robot_id=rid,
-    )
+    return bare_uploader(ServerLink(live.base_url, rid, token, instance_id=instance), db, rid)
 
 
 def _drain(up: Uploader, rounds: int = 10) -> None:

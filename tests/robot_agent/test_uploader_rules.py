@@ -15,12 +15,11 @@ import httpx
 import pytest
 
 from robot_agent.errors import LinkError, SupersededError
-from robot_agent.health import ErrorReport
 from robot_agent.link import ServerLink
 from robot_agent.store import RobotDB
 from robot_agent.uploader import Uploader
-from shared.protocol import RobotStatus
 from tests.robot_agent.records import step_record
+from tests.robot_agent.uploaders import bare_uploader
 
 Answer = Callable[[dict[str, Any]], httpx.Response]
 
@@ -37,17 +36,7 @@ def _setup(tmp_path: Path, answer: Answer) -> tuple[Uploader, RobotDB, list[dict
     for v in range(1, 6):
         db.record_step(step_record(v))
     link = ServerLink("http://robot.test", 1, "lmr_x", transport=httpx.MockTransport(handle))
-    up = Uploader(
-        link,
-        db,
-        lambda: RobotStatus(),
-        lambda _v: None,
-        threading.Event(),
-        threading.Event(),
-        ErrorReport(60.0),
-        robot_id=1,
-    )
-    return up, db, sent
+    return bare_uploader(link, db, 1), db, sent
 
 
 def _conflict(error: str, version: int, session: str | None) -> httpx.Response:
