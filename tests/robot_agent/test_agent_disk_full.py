@@ -16,7 +16,7 @@ import pytest
 from tests.robot_agent.agentproc import AgentProcess, robot_db_meta, wait_for
 from tests.server.live import Live, start_live
 
-STEPS = 300
+STEPS = 400
 
 
 @pytest.fixture
@@ -69,12 +69,16 @@ def test_a_full_disk_pauses_recording_reports_it_and_recovers_when_space_returns
     )
     try:
         with server.operator() as op:
+            # gated on the robot's own progress, not the server's: a server slow to take the first
+            # uploads (a loaded machine) must not let the agent record every step before the disk fills
             wait_for(
-                "the first versions delivered",
-                lambda: op.get(f"/robots/{rid}").json()["map_version"] >= 20,
+                "the first versions recorded",
+                lambda: (robot_db_meta(db, "map_version") or 0) >= 20,
                 600,
             )
             filler = _fill(small_disk)
+            before_fill = int(robot_db_meta(db, "map_version"))
+            assert before_fill < STEPS, f"the agent recorded all {STEPS} steps before the disk was filled"
             robot = wait_for(
                 "the robot to report its full disk",
                 lambda: (
