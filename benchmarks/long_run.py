@@ -20,7 +20,9 @@ The Robot DB goes to ``--robot-dir`` (default: /dev/shm when there is one, so th
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import re
 import socket
 import statistics
@@ -29,6 +31,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -59,8 +62,11 @@ def _port() -> int:
 
 
 def _server(db: Path, port: int, log: Path) -> tuple[subprocess.Popen[str], str]:
+    # fast-forwarded time uploads far faster than a robot's 10 Hz: the per-robot upload quota is lifted
+    fast = {"LINEMAP_UPLOAD_REQUESTS_PER_S": "1e6", "LINEMAP_UPLOAD_BYTES_PER_S": "1e12"}
     proc = subprocess.Popen(
         [LINEMAP, "server", "--db", str(db), "--port", str(port)],
+        env={**os.environ, **fast},
         stdout=subprocess.PIPE,
         stderr=log.open("a"),
         text=True,
@@ -129,6 +135,72 @@ class World:
         return scan_to_bytes(Scan(t, -2.09, 0.00614, 0.02, 5.6, self.beams, None, Pose2D(0.0, 0.0, 0.0)))
 
 
+class _Sender:
+    """The uploader's rounds on their own thread, as in the agent: each round sends the oldest
+    ``STEPS_PER_UPLOAD`` versions, so the server gets the uploads a robot at 10 Hz makes (one per 0.5 s of
+    simulated time) while the next steps are recorded. The recording waits when the outbox holds more
+    than ``MAX_BEHIND`` versions (the server sets the pace then, as it would for a robot catching up)."""
+
+    MAX_BEHIND = 100
+
+    def __init__(self, uploader: Uploader, db: RobotDB) -> None:
+        self.uploader, self.db = uploader, db
+        self._lock = threading.Lock()
+        self._cond = threading.Condition()
+        self._recorded = self._sent_upto = 0
+        self._closed = False
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="long-run-sender", daemon=True)
+        self._thread.start()
+
+    def due(self, version: int) -> None:
+        """``version`` is recorded; wait while the outbox is more than ``MAX_BEHIND`` behind."""
+        with self._cond:
+            self._recorded = version
+            self._cond.notify_all()
+            self._cond.wait_for(
+                lambda: self.error is not None or version - self._sent_upto <= self.MAX_BEHIND
+            )
+        if self.error is not None:
+            raise RuntimeError(f"the upload thread failed: {self.error}") from self.error
+
+    def _run(self) -> None:
+        try:
+            while True:
+                with self._cond:
+                    self._cond.wait_for(
+                        lambda: self._closed or self._recorded - self._sent_upto >= STEPS_PER_UPLOAD
+                    )
+                    if self._closed:
+                        return
+                with self._lock:
+                    self.uploader.send_maps()
+                    confirmed = int(self.db.get("uploaded_version", 0) or 0)
+                with self._cond:
+                    self._sent_upto = max(self._sent_upto, confirmed)
+                    self._cond.notify_all()
+        except BaseException as exc:  # reported to the recording thread
+            with self._cond:
+                self.error = exc
+                self._cond.notify_all()
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        """No round of this thread runs inside (the caller sends its own)."""
+        with self._lock:
+            yield
+            confirmed = int(self.db.get("uploaded_version", 0) or 0)
+        with self._cond:
+            self._sent_upto = max(self._sent_upto, confirmed)
+            self._cond.notify_all()
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join(60)
+
+
 def _latest(client: httpx.Client, rid: int) -> tuple[float, int, int]:
     times, size, poses = [], 0, 0
     for _ in range(3):
@@ -186,20 +258,32 @@ def main() -> int:
             ErrorReport(),
             robot_id=rid,
         )
+        uploader.upload_batch = STEPS_PER_UPLOAD  # what a robot at 10 Hz sends each 0.5 s
         world, state = World(args.walls), b"\x00" * 256 * 1024
         rows: list[dict[str, Any]] = []
+        sender = _Sender(uploader, db)
         t_start = time.perf_counter()
         print(f"fast-forwarding {marks[-1]:,} steps at {RATE_HZ:g} Hz of simulated time ...", flush=True)
+        progress = max(marks[-1] // 20, 1)
         try:
             for version in range(1, marks[-1] + 1):
                 saved = SavedState(version, "bench", 1, 0, state) if version % STATE_EVERY == 0 else None
                 db.record_step(world.step(version), world.scan(version), saved)
-                if version in marks:  # this round sends the whole map: the largest upload there is
-                    uploader.need_snapshot = True
-                if version % STEPS_PER_UPLOAD == 0 or version in marks:
-                    while uploader.send_maps() and db.outbox_size():
-                        pass
+                if version % STEPS_PER_UPLOAD == 0:
+                    sender.due(version)
+                if version % progress == 0:
+                    rate = version / (time.perf_counter() - t_start)
+                    print(
+                        f"  {version:,} steps ({version / RATE_HZ / 3600:.2f} h), {rate:.0f} steps/s",
+                        flush=True,
+                    )
                 if version in marks:
+                    # the outbox drained, then one round that sends the whole map: the largest upload
+                    with sender.paused():
+                        while uploader.send_maps() and db.outbox_size():
+                            pass
+                        uploader.need_snapshot = True
+                        uploader.send_maps()
                     latest_s, latest_b, server_poses = _latest(op, rid)
                     export_s, export_b = _export(op, rid)
                     rows.append(
@@ -221,6 +305,7 @@ def main() -> int:
                     )
                     print(json.dumps({k: round(v, 3) for k, v in rows[-1].items()}), flush=True)
         finally:
+            sender.close()
             db.close()
             link.close()
             op.close()

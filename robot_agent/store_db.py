@@ -14,18 +14,19 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from alembic import command
 from alembic.config import Config
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Engine, Table, create_engine, event
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from robot_agent.errors import AgentError
 from robot_agent.models import Meta
 
-__all__ = ["MIGRATIONS_DIR", "RobotDBFile", "put_meta"]
+__all__ = ["MIGRATIONS_DIR", "RobotDBFile", "put_meta", "put_metas", "table_of"]
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +93,24 @@ def put_meta(s: Session, key: str, value: Any) -> None:
         s.add(Meta(key=key, value={"v": value}))
     else:
         row.value = {"v": value}
+
+
+def table_of(model: type[Any]) -> Table:
+    """The Core table of an ORM ``model`` (for statements built once and run with parameters)."""
+    return cast(Table, model.__table__)
+
+
+def put_metas(s: Session, values: dict[str, Any]) -> None:
+    """Set each ``meta[key]`` of ``values`` (JSON) within the transaction ``s``, in one upsert statement
+    (the step's path: no ORM load of the rows). A ``Meta`` row this session had loaded is not refreshed:
+    use it on keys the transaction does not read through the ORM."""
+    s.execute(_UPSERT_META, [{"key": k, "value": {"v": v}} for k, v in values.items()])
+
+
+_meta_upsert = sqlite_insert(table_of(Meta))
+_UPSERT_META = _meta_upsert.on_conflict_do_update(
+    index_elements=["key"], set_={"value": _meta_upsert.excluded.value}
+)
 
 
 def _pragmas(dbapi_connection: Any, _record: Any) -> None:

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sqlalchemy import delete, select
+from sqlalchemy import delete, insert, select
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.orm import Session
 
-from robot_agent.models import JournalScan, MappingState
-from robot_agent.store_db import RobotDBFile
+from robot_agent.models import JournalScan, MappingState, utcnow
+from robot_agent.store_db import RobotDBFile, table_of
 
 __all__ = ["ResumeTables", "SavedState", "write_resume"]
 
@@ -34,15 +35,22 @@ def write_resume(s: Session, version: int, scan: bytes | None, saved: SavedState
     """Within the step's transaction ``s``: journal step ``version``'s ``scan``; with ``saved`` (the state
     after this step or an earlier one), replace the saved state and drop the journal up to it."""
     if saved is not None:
-        row = s.get(MappingState, 1)
-        if row is None:
-            row = MappingState(id=1)
-            s.add(row)
-        row.version, row.kind, row.format = saved.version, saved.kind, saved.format
-        row.id_offset, row.state = saved.id_offset, saved.state
+        values = {
+            "version": saved.version,
+            "kind": saved.kind,
+            "format": saved.format,
+            "id_offset": saved.id_offset,
+            "state": saved.state,
+            "saved_at": utcnow(),
+        }
+        stmt = sqlite_insert(table_of(MappingState)).values(id=1, **values)
+        s.execute(stmt.on_conflict_do_update(index_elements=["id"], set_=values))
         s.execute(delete(JournalScan).where(JournalScan.version <= saved.version))
     if scan is not None and (saved is None or version > saved.version):
-        s.add(JournalScan(version=version, scan=scan))
+        s.execute(_INSERT_SCAN, {"version": version, "scan": scan})
+
+
+_INSERT_SCAN = insert(table_of(JournalScan))  # the step's statement, built once
 
 
 class ResumeTables(RobotDBFile):
