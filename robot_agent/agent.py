@@ -17,6 +17,7 @@ import logging
 import queue
 import threading
 
+from robot_agent.continuemap import continue_server_map
 from robot_agent.control import Prepared, kernels_in_use
 from robot_agent.dblock import RobotDBLock
 from robot_agent.errors import SupersededError
@@ -73,6 +74,16 @@ class Agent:
         wake_uploader = threading.Event()
         self._wake_uploader = wake_uploader
         self._mapping_over = threading.Event()  # set once the mapping thread recorded its last step
+        #: what --continue-map did (the CLI says it), None without the flag
+        self.continued: str | None = None
+        if settings.continue_map:
+            try:
+                self.continued = continue_server_map(self.link, self.db)
+                log.info("%s", self.continued)
+            except BaseException:
+                self.db.close()
+                self._db_lock.release()
+                raise
         offset = settings.laser_offset if settings.laser_offset is not None else laser_offset(settings.source)
         self.slot = PipelineSlot(offset)
         loader = KernelLoader(settings, self.trusted)

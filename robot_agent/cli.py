@@ -55,11 +55,19 @@ def _file_settings(path: Path | None) -> dict[str, Any]:
         "max_retry_after",
         "error_clear",
         "loop_closure",
+        "continue_map",
     }
     unknown = sorted(set(data) - allowed)
     if unknown:
         raise LinemapError(f"agent file {path}: unknown keys {unknown}; expected some of {sorted(allowed)}")
     return data
+
+
+def _flag(value: Any, path: Path | None, key: str) -> bool:
+    """A true / false setting from the agent file's ``key``."""
+    if not isinstance(value, bool):
+        raise LinemapError(f"agent file {path}: {key} = {value!r}: expected true or false")
+    return value
 
 
 def _retry_base(value: Any, path: Path | None) -> float:
@@ -179,6 +187,15 @@ def agent_cmd(
             help="Close loops with a keyframe pose graph; the map is drawn again from its poses [off].",
         ),
     ] = None,
+    continue_map: Annotated[
+        bool,
+        typer.Option(
+            "--continue-map",
+            help="A new Robot DB continues the map the server holds for this robot (same map, next "
+            "version, from its last pose) instead of starting a new one; a Robot DB with a map of its own "
+            "goes on with that.",
+        ),
+    ] = False,
 ) -> None:
     """Map from SOURCE and follow the server: apply control messages between steps, hot-swap verified
     kernels, upload every map version (kept in the Robot DB until the server has it)."""
@@ -223,6 +240,7 @@ def agent_cmd(
         if error_clear is not None
         else _seconds(f.get("error_clear", 60.0), file, "error_clear", 0, 86400),
         loop_closure=_loop_settings(loop_closure, f.get("loop_closure", False), file),
+        continue_map=continue_map or _flag(f.get("continue_map", False), file, "continue_map"),
     )
     if settings.retry_cap_s < settings.retry_base_s:
         raise LinemapError(
@@ -236,6 +254,8 @@ def agent_cmd(
     stop_on_signals(stop)
     where = f"server {', '.join(urls)} as robot {rid}" if urls else "no server"
     typer.echo(f"linemap agent: source {src}, Robot DB {settings.db_path}, {where}", err=True)
+    if agent.continued:
+        typer.echo(f"linemap agent: {agent.continued}", err=True)
     agent.run(stop)
     closed = (
         f", {agent.pipeline.closures} loop closures, map redrawn {agent.pipeline.rebuilds} times"

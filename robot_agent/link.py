@@ -314,6 +314,10 @@ class ServerLink:
                 f"JSON like {model.__name__.lstrip('_')} ({at}: {first['msg']})",
             ) from None
 
+    def read(self, path: str, model: type[_M], **params: Any) -> _M:
+        """GET ``path`` (under ``/api/v1``) and the JSON answer validated against ``model``."""
+        return self._json(self._call("GET", path, params=params or None, answers=()), model)
+
     def poll(self, after: int, wait_s: float) -> list[dict[str, Any]]:
         """Messages with seq above ``after``, waiting up to ``wait_s`` for one (long-poll); each
         ``{"seq": int, "xml": str}``."""

@@ -24,6 +24,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
+
 from robot_agent.health import AgentStats
 from robot_agent.resume import Checkpoints
 from robot_agent.settings import AgentSettings
@@ -85,6 +87,24 @@ class PipelineSlot:
             log.info("loop closure switched on at step %d", graph.version)
             return
         pipeline.reconfigure(config)
+
+    def continue_map(
+        self, walls: dict[int, tuple[float, ...]], pose: Pose2D, odometry: Pose2D | None
+    ) -> None:
+        """Start from a map taken over from the server (before the first step): its ``walls`` by id, the
+        robot at ``pose`` where odometry read ``odometry`` (:meth:`shared.pipeline.Pipeline.continue_map`).
+        With loop closure the pose graph starts there, over those walls (as when it is switched on)."""
+        config = self.config
+        assert config is not None, "PipelineSlot.start was not called"
+        ids = np.array(sorted(walls), dtype=np.int64)
+        segments = np.array([walls[i] for i in ids], dtype=np.float64).reshape(-1, 4)
+        front = self._make_pipeline(config)
+        front.continue_map(ids, segments, pose, odometry)
+        if isinstance(self._pipeline, OnlineGraphMapper):
+            self.close()
+            self._pipeline = OnlineGraphMapper(self._make_pipeline, config, front=front)
+        else:
+            self._pipeline = front
 
     def restore(self, state: MapperState) -> None:
         """Go on from a saved ``state`` (before the first step). A front end's state under a configuration
@@ -155,6 +175,9 @@ class MappingLoop:
         resumed = self.checkpoints.resume(slot, recent)
         self._prev_walls: dict[int, tuple[float, ...]] = resumed.walls
         self._id_offset = resumed.id_offset
+        self._continued = resumed.continued  # the server's map to start from, until the first step
+        # a continued map's pose-graph keyframe ids follow the server's (robot_agent.store_adopt)
+        self._keyframe_offset = int((db.continued_map() or {}).get("keyframe_offset", 0))
         # the pose graph's rows as last recorded (keyframe id -> row, closures count): a step records the
         # keyframes that are new or moved and the new closures; after a restart all are recorded once more
         self._prev_keyframes: dict[int, list[float]] = {}
@@ -180,6 +203,7 @@ class MappingLoop:
         own_pace = self.s.rate_hz is None  # the scans' own time stamps (logs) or 10 Hz (simulator)
         period = 0.1 if own_pace else (1.0 / self.s.rate_hz if self.s.rate_hz else None)
         next_at, last_stamp = time.monotonic(), None
+        skipped_odometry: Pose2D | None = None
         # A replayable source (simulator, log) skips what was mapped before a restart; a live sensor
         # cannot be replayed, so its scans are all new and its count goes on from there.
         live = is_live(self.s.source)
@@ -192,6 +216,11 @@ class MappingLoop:
                 return
             if index < resume:
                 continue
+            if self._continued is not None:
+                if not live and scan.stamp_s <= self._continued.stamp_s:
+                    skipped_odometry = scan.odometry  # a replayed source: mapped before, by the server's map
+                    continue
+                self._start_continued(skipped_odometry if not live else None)
             if own_pace and last_stamp is not None:
                 period = min(max(scan.stamp_s - last_stamp, 0.0), 5.0)  # a gap in a log: wait at most 5 s
             last_stamp = scan.stamp_s
@@ -216,6 +245,20 @@ class MappingLoop:
             self.stats.steps += 1
             self._after_step()
             self._wake.set()
+
+    def _start_continued(self, odometry: Pose2D | None) -> None:
+        """The first step of a map taken over from the server: the pipeline starts from its walls and pose;
+        ``odometry`` is where odometry read at that pose (a replayed source's scan at the server's last
+        stamp), None for a live sensor (the robot is taken to be where the server's map left it)."""
+        assert self._continued is not None
+        self.slot.continue_map(self._prev_walls, self._continued.pose, odometry)
+        log.info(
+            "continuing the server's map: %d walls, from pose %s (odometry there %s)",
+            len(self._prev_walls),
+            self._continued.pose,
+            "known" if odometry is not None else "not known",
+        )
+        self._continued = None
 
     def _record_durably(self, rec: StepRecord, journal: bytes, saved: Any, stop: threading.Event) -> bool:
         """Record the step; while the disk is full, report it and try again every ``DISK_RETRY_S``
@@ -293,13 +336,16 @@ class MappingLoop:
         would stay off (a correction moves both by the same transform). The move goes out with the next
         step, as any keyframe's, and moves the trajectory with it."""
         stamp, pose = rec.pose[0], rec.pose[1:]
+        off = self._keyframe_offset
         rows = [
-            [r[0], r[1], *pose] if r[1] == stamp and int(r[0]) not in self._prev_keyframes else r
+            [r[0] + off, r[1], *pose]
+            if r[1] == stamp and int(r[0]) + off not in self._prev_keyframes
+            else [r[0] + off, *r[1:]]
             for r in graph.keyframe_rows()
         ]
         moved = [r for r in rows if _moved(self._prev_keyframes.get(int(r[0])), r)]
         self._prev_keyframes.update({int(r[0]): r for r in moved})
-        pairs = graph.closure_pairs()
+        pairs = [[a + off, b + off] for a, b in graph.closure_pairs()] if off else graph.closure_pairs()
         new_pairs, self._prev_closures = pairs[self._prev_closures :], len(pairs)
         cov = graph.pose_covariance()
         return replace(

@@ -30,26 +30,36 @@ from robot_agent.journal import scan_from_bytes, scan_to_bytes
 from robot_agent.store import RobotDB, SavedState
 from shared.errors import LinemapError, StateError
 from shared.pipeline import MapperState
-from shared.types import Scan
+from shared.types import Pose2D, Scan
 
 if TYPE_CHECKING:
     from robot_agent.mapping import PipelineSlot, RecentScans
 
-__all__ = ["Checkpoints", "Resumed"]
+__all__ = ["Checkpoints", "Continuation", "Resumed"]
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True)
+class Continuation:
+    """A map taken over from the server (:mod:`robot_agent.continuemap`) that the pipeline has not
+    started from yet: its last scan's stamp (s) and pose (world frame)."""
+
+    stamp_s: float
+    pose: Pose2D
+
+
+@dataclass(frozen=True, slots=True)
 class Resumed:
     """Where mapping goes on: the wall id offset, the walls recorded so far by id (``(x0, y0, x1, y1)``,
-    what the next step's change is taken against), the scans re-stepped, and the problem when a new map
-    had to start (None: resumed, or a new Robot DB)."""
+    what the next step's change is taken against), the scans re-stepped, the problem when a new map had to
+    start (None: resumed, or a new Robot DB), and a map taken over from the server to start from."""
 
     id_offset: int
     walls: dict[int, tuple[float, ...]]
     replayed: int
     problem: str | None
+    continued: Continuation | None = None
 
 
 class Checkpoints:
@@ -81,6 +91,11 @@ class Checkpoints:
         saved = self.db.saved_state()
         if saved is None and version == 0:
             return Resumed(0, {}, 0, None)
+        continued = self.db.continued_map()
+        if saved is None and continued is not None and int(continued["version"]) == version:
+            # taken over from the server and not stepped since: the pipeline starts from its walls
+            x, y, th = (float(v) for v in continued["pose"])
+            return Resumed(0, walls, 0, None, Continuation(float(continued["stamp_s"]), Pose2D(x, y, th)))
         if saved is None:
             problem = (
                 f"the Robot DB holds map version {version} but no mapping state (written before states "

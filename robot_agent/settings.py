@@ -53,6 +53,8 @@ class AgentSettings:
     laser_offset: Pose2D | None = None  # scanner pose in the robot frame; None: the source's own (sources.py)
     # loop closure under a keyframe pose graph (shared.slam.online); None: the front end alone
     loop_closure: LoopClosureSettings | None = None
+    # a new Robot DB continues the map the server holds for this robot (robot_agent.continuemap)
+    continue_map: bool = False
     # the mapping state is saved with a step every this many steps or seconds (robot_agent.resume)
     checkpoint_steps: int = 50
     checkpoint_s: float = 5.0

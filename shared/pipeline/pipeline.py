@@ -390,6 +390,27 @@ class Pipeline:
         self._trajectory = list(state.trajectory)
         self._next_group = state.next_group
 
+    def continue_map(
+        self, ids: IntArray, segments: FloatArray, pose: Pose2D, odometry: Pose2D | None = None
+    ) -> None:
+        """Go on with a map made elsewhere (the server's copy of this robot's map, on a new Robot DB): its
+        walls (``ids``, ``(W, 4)`` ``segments``, m) become this pipeline's shown map, with their ids (new
+        walls get larger ones), and the robot is at ``pose`` (world frame), where odometry read
+        ``odometry`` (None: not known; the first scan is then taken where ``pose`` is). The first step
+        predicts from there by odometry's increment and refines against those walls (the tracker's
+        local maps start from them, and it has no keyframe yet), so a robot a little off the pose given
+        is put back on the map. What the walls' evidence was is not known: each starts as a wall just
+        confirmed (:meth:`WallMap.seed`). Only before the first step (:class:`LinemapError` otherwise,
+        or for walls :meth:`WallMap.seed` refuses). O(W)."""
+        if self._version or self._trajectory:
+            raise LinemapError("a pipeline can continue a map only before its first step")
+        try:
+            self._map.seed(ids, segments)
+            self._tracker.seed_local(np.asarray(segments, dtype=np.float64).reshape(-1, 4))
+        except ValueError as exc:
+            raise LinemapError(f"the map to continue cannot be taken: {exc}") from exc
+        self._tracker.hold(pose, odometry)
+
     def state(self) -> MapperState:
         """The learned state as data, to restore a pipeline from (:mod:`shared.pipeline.pipestate`)."""
         from shared.pipeline.pipestate import pipeline_state

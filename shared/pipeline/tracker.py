@@ -67,6 +67,13 @@ class PoseTracker:
         the local maps are left alone."""
         self.pose, self._prev_odom = pose, odom
 
+    def seed_local(self, segments: FloatArray) -> None:
+        """Start both local wall maps from ``segments`` (``(W, 4)``, world frame, m: a continued map's
+        walls), so that the first steps refine the pose against the map being continued (an empty
+        tracker only: before the first step). O(W)."""
+        for local in self._loc_maps:
+            local.seed(np.arange(len(segments)), segments)
+
     def add_lines(self, world: FloatArray, groups: IntArray) -> None:
         """Add a step's returns (world frame, with their segment ids) to the local wall maps, as lines."""
         if self.gate.refine_to_map and len(world):

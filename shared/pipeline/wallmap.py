@@ -302,6 +302,49 @@ class WallMap:
         )
         self.removed.extend(removed[:n_removed].tolist())
 
+    def seed(self, ids: ArrayLike, segments: ArrayLike, observations: int | None = None) -> None:
+        """Start an empty map from walls made elsewhere (a map continued from the server's copy): each
+        segment ``[x0, y0, x1, y1]`` (its direction from the first end to the second, as :meth:`segments`
+        gives a wall: facing the scanner that saw it) becomes one wall with the id given, none merged with
+        another; later ids follow the largest given. ``observations`` (default ``min_observations``:
+        shown) is the evidence each wall starts with; the points' scatter and the direction's information
+        are not known (0), as for a segment given without them. Segments that are not finite or are
+        shorter than ``min_length_m`` are left out, as :meth:`add_segments` leaves them. :class:`ValueError`
+        for a map that is not empty or ids that repeat or are negative. O(walls)."""
+        wid = np.asarray(ids, dtype=np.int64).reshape(-1)
+        segs = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+        if self._n:
+            raise ValueError(f"a wall map can be seeded only while empty: it holds {self._n} walls")
+        if len(wid) != len(segs):
+            raise ValueError(f"{len(wid)} ids for {len(segs)} segments")
+        if len(wid) == 0:
+            return
+        if (wid < 0).any() or len(np.unique(wid)) != len(wid):
+            raise ValueError("wall ids must be distinct and not negative")
+        next_id = int(wid.max()) + 1
+        with np.errstate(invalid="ignore"):
+            length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
+            keep = np.isfinite(segs).all(axis=1) & (length >= self.tol.min_length_m)
+        wid, segs, length = wid[keep], segs[keep], length[keep]
+        a, b = segs[:, :2], segs[:, 2:]
+        while len(wid) > len(self._w):
+            self._grow()
+        n = len(wid)
+        mid, d = 0.5 * (a + b), (b - a) / length[:, None]
+        var = length * length / 12.0  # a uniform mass along the wall; no scatter across it
+        self._ids[:n] = wid
+        self._obs[:n] = self.tol.min_observations if observations is None else max(int(observations), 1)
+        self._w[:n] = length
+        self._s1[:n] = length[:, None] * mid
+        self._s2[:n, 0] = length * (var * d[:, 0] ** 2 + mid[:, 0] ** 2)
+        self._s2[:n, 1] = length * (var * d[:, 0] * d[:, 1] + mid[:, 0] * mid[:, 1])
+        self._s2[:n, 2] = length * (var * d[:, 1] ** 2 + mid[:, 1] ** 2)
+        self._c[:n], self._d[:n] = mid, d
+        self._lo[:n], self._hi[:n] = -0.5 * length, 0.5 * length
+        self._info[:n] = 0.0
+        self._n, self._next_id = n, next_id
+        self._changes += 1
+
     def _grow(self) -> None:
         cap = 2 * len(self._w)
         for name in _STATE:

@@ -93,7 +93,7 @@ class OnlineGraphMapper:
         self._config = config
         settings = settings or config.loop_closure_settings()
         self._base: MapState | None = None
-        if front is not None and front.version:
+        if front is not None and (front.version or len(front.walls()[0])):  # mapped, or continues a map
             front.flush()
             self._base = front.map_state()
         self._mapper = GraphMapper(
