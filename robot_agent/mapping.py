@@ -34,6 +34,7 @@ from robot_agent.store import RobotDB, StepRecord
 from shared.diskfull import disk_full_reason
 from shared.pipeline import MapperState, Pipeline, PipelineConfig
 from shared.pipeline.pipestate import PIPELINE_KIND
+from shared.protocol import MAX_TRAJECTORY_POSES
 from shared.slam import OnlineGraphMapper
 from shared.slam.onlinestate import GRAPH_KIND
 from shared.types import Pose2D, Scan
@@ -60,7 +61,7 @@ class PipelineSlot:
         if config.loop_closure is not None:
             self._pipeline = OnlineGraphMapper(self._make_pipeline, config)
         else:
-            self._pipeline = Pipeline(config, laser_offset=self.laser_offset)
+            self._pipeline = self._make_pipeline(config)
 
     @property
     def pipeline(self) -> Pipeline | OnlineGraphMapper:
@@ -73,7 +74,8 @@ class PipelineSlot:
         return self._pipeline.config if self._pipeline is not None else None
 
     def _make_pipeline(self, config: PipelineConfig) -> Pipeline:
-        return Pipeline(config, laser_offset=self.laser_offset)
+        # a bounded history: the robot maps for days (docs/reliability/bounded.md)
+        return Pipeline(config, laser_offset=self.laser_offset, history=MAX_TRAJECTORY_POSES)
 
     def reconfigure(self, config: PipelineConfig) -> None:
         """Swap ``config`` in between two steps. Loop closure switched on over the front end alone starts

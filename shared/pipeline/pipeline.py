@@ -49,11 +49,17 @@ from shared.pipeline.stages import (
 from shared.pipeline.state import MapperState
 from shared.pipeline.tracker import PoseTracker
 from shared.pipeline.wallmap import MergeTolerances, WallMap
+from shared.protocol.trajectory import thin_positions
 from shared.types import FloatArray, IntArray, Pose2D, Scan, wrap_angle
 
-__all__ = ["IcpGate", "MapState", "Pipeline", "StepResult"]
+__all__ = ["KEPT_CENTROID_BATCHES", "IcpGate", "MapState", "Pipeline", "StepResult"]
 
 log = logging.getLogger(__name__)
+
+
+#: the newest batches of centroids a pipeline with a bounded ``history`` keeps at least (one a step online,
+#: some 17 centroids each on the simulated world; :meth:`Pipeline.recent_centroids` is asked for 200)
+KEPT_CENTROID_BATCHES = 256
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,7 +91,13 @@ class MapState:
 
 
 class Pipeline:
-    """Maps scans one step at a time. ``snapshot()`` gives the temporary map after any step."""
+    """Maps scans one step at a time. ``snapshot()`` gives the temporary map after any step.
+
+    ``history``: the poses the trajectory keeps (None: every one, as mapping a log offline wants). A robot
+    mapping for days sets it (the agent: :data:`shared.protocol.MAX_TRAJECTORY_POSES`): the trajectory is
+    thinned by the rule the Robot DB and the server apply, and the centroids keep the newest
+    :data:`KEPT_CENTROID_BATCHES` batches, so the pipeline's memory and saved state do not grow with the
+    run."""
 
     def __init__(
         self,
@@ -97,8 +109,14 @@ class Pipeline:
         range_noise: RangeNoise | None = None,
         timing_window: int = 1000,
         track_only: bool = False,
+        history: int | None = None,
     ) -> None:
+        if history is not None and history < 2:
+            raise LinemapError(f"history = {history}: expected at least 2 poses, or None to keep all")
         self._config = config or PipelineConfig()
+        # what the trajectory and centroids keep (None: all, e.g. mapping a log offline; a robot mapping
+        # for days keeps a bounded history so that its memory and saved state do not grow with the run)
+        self._history = history
         # poses only: no shown map (a pose graph draws it later from its corrected poses, shared.slam)
         self.track_only = track_only
         # typed Any: each stage's kernels are driven through that stage's own apply signature
@@ -185,6 +203,8 @@ class Pipeline:
             self._freespace.observe(self._map, laser, scan)
         self._stamp = scan.stamp_s
         self._trajectory.append((scan.stamp_s, now.x_m, now.y_m, now.theta_rad))
+        if self._history is not None and len(self._trajectory) > self._history:
+            self._forget_history(self._history)
         ran: tuple[Stage, ...] = ()
         if not self.track_only:
             ran = self._feed(Chunk.of(world, groups, (laser.x_m, laser.y_m), spacing), final=False)
@@ -192,6 +212,13 @@ class Pipeline:
         elapsed = (time.perf_counter() - t0) * 1e3
         self._step_ms.append(elapsed)
         return StepResult(self._version, now, icp_used, ran, elapsed)
+
+    def _forget_history(self, keep: int) -> None:
+        """Thin the trajectory to ``keep`` poses by the rule the Robot DB and the server apply (every recent
+        pose, ever sparser older ones: :func:`shared.protocol.trajectory.thin_positions`). O(keep), once
+        per about ``keep // 4`` steps."""
+        drop = set(thin_positions(len(self._trajectory), keep))
+        self._trajectory = [p for i, p in enumerate(self._trajectory) if i not in drop]
 
     def flush(self) -> tuple[Stage, ...]:
         """Run every pending batch now (end of a log, or before a mode change)."""
@@ -255,6 +282,8 @@ class Pipeline:
                 out = cluster(kernels[0], batch, self._clusterer_with_k, min_per_wall=2 if needs_two else 0)
                 if len(out.centroids):
                     self._centroids.append(out.centroids)
+                    if self._history is not None and len(self._centroids) > 2 * KEPT_CENTROID_BATCHES:
+                        del self._centroids[:-KEPT_CENTROID_BATCHES]
                 return out
             segments, seg_groups = extract_lines_grouped(kernels[0], batch)
             sigmas, direction_sds = line_uncertainty(segments, seg_groups, batch)

@@ -59,7 +59,7 @@ register_state_class(
 #: what a pipeline has of its own and is not saved: the configuration and the kernels built from it, a
 #: cache of those kernels, and step timings
 PIPELINE_SKIP: dict[type, frozenset[str]] = {
-    pipeline.Pipeline: frozenset({"_config", "_kernels", "_by_k", "_step_ms"})
+    pipeline.Pipeline: frozenset({"_config", "_kernels", "_by_k", "_step_ms", "_history"})
 }
 
 

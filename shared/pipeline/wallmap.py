@@ -74,6 +74,9 @@ class MergeTolerances:
     cross_margin_m: float = 0.2
 
 
+#: removed wall ids a map keeps at least (:attr:`WallMap.removed`)
+REMOVED_KEPT = 1024
+
 _STATE = ("_ids", "_obs", "_w", "_s1", "_s2", "_c", "_d", "_lo", "_hi", "_info")
 
 
@@ -96,6 +99,8 @@ class WallMap:
         self._hi = np.zeros(cap)
         self._info = np.zeros(cap)  # direction information (rad^-2) of the merged segments
         self._next_id = 0
+        #: ids of walls removed lately (fused into another, or cut away), oldest first: the newest
+        #: :data:`REMOVED_KEPT` at most (a map kept for days fuses pieces at every step)
         self.removed: list[int] = []
         self._changes = 0  # counts the changes, for the shown walls' cache
         self._shown_cache: tuple[int, IntArray] | None = None
@@ -192,7 +197,7 @@ class WallMap:
                 arr = getattr(self, name)
                 arr[i : self._n - 1] = arr[i + 1 : self._n]
             self._n -= 1
-            self.removed.append(int(wall_id))
+            self._note_removed([int(wall_id)])
             return []
         a = self._c[i] + self._d[i] * self._lo[i]
         d = self._d[i].copy()
@@ -300,7 +305,12 @@ class WallMap:
             min_info,
             create,
         )
-        self.removed.extend(removed[:n_removed].tolist())
+        self._note_removed(removed[:n_removed].tolist())
+
+    def _note_removed(self, ids: list[int]) -> None:
+        self.removed.extend(ids)
+        if len(self.removed) > 2 * REMOVED_KEPT:
+            del self.removed[:-REMOVED_KEPT]
 
     def seed(self, ids: ArrayLike, segments: ArrayLike, observations: int | None = None) -> None:
         """Start an empty map from walls made elsewhere (a map continued from the server's copy): each
