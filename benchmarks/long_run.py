@@ -25,6 +25,7 @@ import json
 import os
 import re
 import socket
+import sqlite3
 import statistics
 import subprocess
 import sys
@@ -87,6 +88,14 @@ def _server(db: Path, port: int, log: Path) -> tuple[subprocess.Popen[str], str]
         except httpx.TransportError:
             time.sleep(0.1)
     raise SystemExit(f"the server did not come up; see {log}")
+
+
+def _table_rows(db: Path) -> dict[str, int]:
+    """Rows per table of the server's SQLite database, the largest first (what grows, if anything)."""
+    with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as conn:
+        names = [r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
+        rows = {n: int(conn.execute(f'SELECT count(*) FROM "{n}"').fetchone()[0]) for n in names}
+    return dict(sorted(((n, c) for n, c in rows.items() if c), key=lambda kv: -kv[1]))
 
 
 def _file_bytes(path: Path) -> int:
@@ -298,12 +307,14 @@ def main() -> int:
                             "export_s": export_s,
                             "export_mib": export_b / 2**20,
                             "server_db_mb": _file_bytes(server_db) / 1e6,
+                            "server_wal_mb": _file_bytes(Path(f"{server_db}-wal")) / 1e6,
                             "server_poses": server_poses,
                             "walls": len(world.walls),
                             "elapsed_s": time.perf_counter() - t_start,
                         }
                     )
                     print(json.dumps({k: round(v, 3) for k, v in rows[-1].items()}), flush=True)
+                    print(f"  server rows: {_table_rows(server_db)}", flush=True)
         finally:
             sender.close()
             db.close()
@@ -314,7 +325,7 @@ def main() -> int:
     print()
     print(
         "| simulated | poses | Robot DB | max upload | snapshot | /maps/latest | export (GeoJSON) "
-        "| server DB | poses kept |"
+        "| server DB (of it WAL) | poses kept |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
@@ -322,7 +333,8 @@ def main() -> int:
             f"| {r['hours']:g} h | {r['poses']:,} | {r['robot_db_mb']:.1f} MB "
             f"| {r['max_upload_kib']:.0f} KiB "
             f"| {r['snapshot_kib']:.0f} KiB | {r['latest_s'] * 1000:.0f} ms, {r['latest_mib']:.2f} MiB "
-            f"| {r['export_s'] * 1000:.0f} ms, {r['export_mib']:.2f} MiB | {r['server_db_mb']:.1f} MB "
+            f"| {r['export_s'] * 1000:.0f} ms, {r['export_mib']:.2f} MiB "
+            f"| {r['server_db_mb']:.1f} MB ({r['server_wal_mb']:.1f}) "
             f"| {r['server_poses']:,} |"
         )
     print(f"\n{marks[-1]:,} steps in {rows[-1]['elapsed_s']:.0f} s ({args.walls} walls)")
