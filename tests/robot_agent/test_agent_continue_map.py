@@ -13,6 +13,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -31,10 +32,10 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
     yield from start_live("sqlite", tmp_path_factory.mktemp("continue-live"))
 
 
-def _map(op: httpx.Client, rid: int) -> dict[str, object]:
+def _map(op: httpx.Client, rid: int) -> dict[str, Any]:
     r = op.get(f"/robots/{rid}/maps/latest")
     assert r.status_code == 200, r.text
-    out: dict[str, object] = r.json()
+    out: dict[str, Any] = r.json()
     return out
 
 
@@ -70,10 +71,10 @@ def test_a_new_robot_db_continues_the_servers_map(live: Live, tmp_path: Path) ->
     assert after["map_session"] == before["map_session"], "the same map, not a new one"
     listed = op.get(f"/robots/{rid}/maps").json()
     assert [m["map_session"] for m in listed] == [before["map_session"]]
-    stamps = [row[0] for row in after["trajectory"]]  # type: ignore[index, union-attr]
+    stamps = [row[0] for row in after["trajectory"]]
     assert len(stamps) == 2 * STEPS and stamps == sorted(set(stamps)), "each pose once, in order"
-    old_ids = {int(s[0]) for s in before["segments"]}  # type: ignore[union-attr]
-    new_ids = {int(s[0]) for s in after["segments"]}  # type: ignore[union-attr]
+    old_ids = {int(s[0]) for s in before["segments"]}
+    new_ids = {int(s[0]) for s in after["segments"]}
     assert len(old_ids - new_ids) <= 1, "the server's walls go on with their ids"
     assert all(i > max(old_ids) for i in new_ids - old_ids)
 
@@ -89,10 +90,10 @@ def test_a_new_robot_db_continues_the_servers_map(live: Live, tmp_path: Path) ->
     wait_for("the uninterrupted map", lambda: _map(op, rid2)["version"] == 2 * STEPS, 300)
     assert through.stop() == 0
     ref = _map(op, rid2)
-    assert abs(len(after["segments"]) - len(ref["segments"])) <= 1, "a wall drawn twice"  # type: ignore[arg-type]
+    assert abs(len(after["segments"]) - len(ref["segments"])) <= 1, "a wall drawn twice"
     offs = [
         math.hypot(a[1] - b[1], a[2] - b[2])
-        for a, b in zip(after["trajectory"], ref["trajectory"], strict=True)  # type: ignore[call-overload]
+        for a, b in zip(after["trajectory"], ref["trajectory"], strict=True)
     ]
     assert max(offs) < 0.05, f"the continued poses left the uninterrupted run's by {max(offs):.3f} m"
 
@@ -138,16 +139,16 @@ def test_with_loop_closure_the_continued_graph_keyframes_follow_the_servers(
     op = live.operator()
     _mapped(live, rid, token, tmp_path / "lost.db", STEPS, "--loop-closure")
     before = _map(op, rid)
-    old = {int(k[0]) for k in before["keyframes"] or []}  # type: ignore[union-attr]
+    old = {int(k[0]) for k in before["keyframes"] or []}
     assert old, "the first robot's pose graph made keyframes"
     again = _mapped(live, rid, token, tmp_path / "new.db", 2 * STEPS, "--loop-closure", "--continue-map")
     assert "Traceback" not in again.output()
     after = _map(op, rid)
     assert after["map_session"] == before["map_session"]
-    ids = [int(k[0]) for k in after["keyframes"] or []]  # type: ignore[union-attr]
+    ids = [int(k[0]) for k in after["keyframes"] or []]
     assert len(ids) == len(set(ids)), "keyframe ids repeat"
     assert old <= set(ids), "the server's keyframes are kept"
-    kept = {int(k[0]): k for k in after["keyframes"] if int(k[0]) in old}  # type: ignore[union-attr]
-    assert kept == {int(k[0]): k for k in before["keyframes"]}, "the server's keyframes were moved"  # type: ignore[union-attr]
-    assert after["trajectory"][:STEPS] == before["trajectory"], "the poses mapped before were moved"  # type: ignore[index]
+    kept = {int(k[0]): k for k in after["keyframes"] if int(k[0]) in old}
+    assert kept == {int(k[0]): k for k in before["keyframes"]}, "the server's keyframes were moved"
+    assert after["trajectory"][:STEPS] == before["trajectory"], "the poses mapped before were moved"
     assert min(set(ids) - old) > max(old), "the continued graph's keyframes follow the server's"
