@@ -39,15 +39,15 @@ def _map(op: httpx.Client, rid: int) -> dict[str, Any]:
     return out
 
 
+def _start(live: Live, rid: int, token: str, db: Path, steps: int, *extra: str) -> AgentProcess:
+    """An agent mapping ``steps`` scans of the simulated world flat out."""
+    args = ["--rate", "0", "--max-steps", str(steps), *extra]
+    return AgentProcess(db, server=live.base_url, robot_id=rid, token=token, extra=args)
+
+
 def _mapped(live: Live, rid: int, token: str, db: Path, steps: int, *extra: str) -> AgentProcess:
     """An agent mapping the simulated world flat out until the server holds version ``steps``, stopped."""
-    agent = AgentProcess(
-        db,
-        server=live.base_url,
-        robot_id=rid,
-        token=token,
-        extra=["--rate", "0", "--max-steps", str(STEPS), *extra],
-    )
+    agent = _start(live, rid, token, db, STEPS, *extra)
     try:
         with live.operator() as op:
             wait_for(f"version {steps} on the server", lambda: _map(op, rid)["version"] == steps, 300)
@@ -80,13 +80,7 @@ def test_a_new_robot_db_continues_the_servers_map(live: Live, tmp_path: Path) ->
 
     # a robot that mapped the same way without a break
     rid2, token2 = live.new_robot()
-    through = AgentProcess(
-        tmp_path / "through.db",
-        server=live.base_url,
-        robot_id=rid2,
-        token=token2,
-        extra=["--rate", "0", "--max-steps", str(2 * STEPS)],
-    )
+    through = _start(live, rid2, token2, tmp_path / "through.db", 2 * STEPS)
     wait_for("the uninterrupted map", lambda: _map(op, rid2)["version"] == 2 * STEPS, 300)
     assert through.stop() == 0
     ref = _map(op, rid2)
@@ -98,13 +92,7 @@ def test_a_new_robot_db_continues_the_servers_map(live: Live, tmp_path: Path) ->
     assert max(offs) < 0.05, f"the continued poses left the uninterrupted run's by {max(offs):.3f} m"
 
     # the flag kept on a later start: this Robot DB has its own map now, and goes on with it
-    later = AgentProcess(
-        tmp_path / "new.db",
-        server=live.base_url,
-        robot_id=rid,
-        token=token,
-        extra=["--rate", "0", "--max-steps", "5", "--continue-map"],
-    )
+    later = _start(live, rid, token, tmp_path / "new.db", 5, "--continue-map")
     # (the simulator's drive is 507 scans)
     wait_for("five more versions", lambda: _map(op, rid)["version"] == 2 * STEPS + 5, 300)
     assert later.stop() == 0
