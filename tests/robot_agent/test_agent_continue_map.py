@@ -45,12 +45,15 @@ def _start(live: Live, rid: int, token: str, db: Path, steps: int, *extra: str) 
     return AgentProcess(db, server=live.base_url, robot_id=rid, token=token, extra=args)
 
 
-def _mapped(live: Live, rid: int, token: str, db: Path, steps: int, *extra: str) -> AgentProcess:
-    """An agent mapping the simulated world flat out until the server holds version ``steps``, stopped."""
-    agent = _start(live, rid, token, db, STEPS, *extra)
+def _mapped(
+    live: Live, rid: int, token: str, db: Path, until: int, *extra: str, steps: int = STEPS
+) -> AgentProcess:
+    """An agent mapping ``steps`` scans of the simulated world flat out until the server holds version
+    ``until``, then stopped (killed, whatever happened, if it is still running)."""
+    agent = _start(live, rid, token, db, steps, *extra)
     try:
         with live.operator() as op:
-            wait_for(f"version {steps} on the server", lambda: _map(op, rid)["version"] == steps, 300)
+            wait_for(f"version {until} on the server", lambda: _map(op, rid)["version"] == until, 300)
         assert agent.stop() == 0, agent.output()
     finally:
         if agent.proc.poll() is None:
@@ -80,9 +83,7 @@ def test_a_new_robot_db_continues_the_servers_map(live: Live, tmp_path: Path) ->
 
     # a robot that mapped the same way without a break
     rid2, token2 = live.new_robot()
-    through = _start(live, rid2, token2, tmp_path / "through.db", 2 * STEPS)
-    wait_for("the uninterrupted map", lambda: _map(op, rid2)["version"] == 2 * STEPS, 300)
-    assert through.stop() == 0
+    _mapped(live, rid2, token2, tmp_path / "through.db", 2 * STEPS, steps=2 * STEPS)
     ref = _map(op, rid2)
     assert abs(len(after["segments"]) - len(ref["segments"])) <= 1, "a wall drawn twice"
     offs = [
@@ -92,10 +93,8 @@ def test_a_new_robot_db_continues_the_servers_map(live: Live, tmp_path: Path) ->
     assert max(offs) < 0.05, f"the continued poses left the uninterrupted run's by {max(offs):.3f} m"
 
     # the flag kept on a later start: this Robot DB has its own map now, and goes on with it
-    later = _start(live, rid, token, tmp_path / "new.db", 5, "--continue-map")
     # (the simulator's drive is 507 scans)
-    wait_for("five more versions", lambda: _map(op, rid)["version"] == 2 * STEPS + 5, 300)
-    assert later.stop() == 0
+    later = _mapped(live, rid, token, tmp_path / "new.db", 2 * STEPS + 5, "--continue-map", steps=5)
     assert "holds a map of its own" in later.output()
     assert robot_db_meta(tmp_path / "new.db", "map_session") == before["map_session"]
 
