@@ -16,6 +16,7 @@ Cost: iSAM2's update is O(affected nodes) per keyframe; a loop closure re-solves
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -25,7 +26,13 @@ import numpy as np
 from shared.slam.errors import OptimisationError
 from shared.types import FloatArray, Pose2D
 
-__all__ = ["Edge", "PoseGraph"]
+__all__ = ["RESOLVE_EVERY_UPDATES", "Edge", "PoseGraph"]
+
+log = logging.getLogger(__name__)
+
+#: the solver is built from scratch at the estimate after this many updates (a keyframe or a batch of
+#: closures each): a restored graph replays at most these to be the very solver it was saved from
+RESOLVE_EVERY_UPDATES = 100
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,48 +74,114 @@ class PoseGraph:
     """Keyframe poses ``0..n-1`` (world frame) under sequential and loop-closure edges."""
 
     def __init__(self, *, robust_sigmas: float = 3.0, extra_iterations: int = 2) -> None:
+        self._robust_sigmas = robust_sigmas
+        self._extra = extra_iterations
+        self._estimate: list[Pose2D] = []
+        self._array: FloatArray | None = None  # the estimate as (n, 3) rows, once asked for
+        self._first: Pose2D | None = None
+        self._edges: list[Edge] = []
+        self._loop_pending = False
+        # the solver's history since it was last built from scratch (RESOLVE_EVERY_UPDATES): the graph
+        # then (node and edge counts, the estimate), then each update's node count, edge count and
+        # whether a loop edge came, and the first guess of each node added since; enough to rebuild the
+        # very same iSAM2 after a restore
+        self._base: tuple[int, int, FloatArray] = (0, 0, np.zeros((0, 3)))
+        self._log: list[tuple[int, int, bool]] = []
+        self._guesses: list[Pose2D] = []
+        self._fresh_solver()
+
+    def _fresh_solver(self) -> None:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(0.01)
         params.relinearizeSkip = 1
         self._params = params
         self._isam = gtsam.ISAM2(params)
-        self._robust_sigmas = robust_sigmas
-        self._extra = extra_iterations
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
-        self._estimate: list[Pose2D] = []
-        self._first: Pose2D | None = None
-        self._edges: list[Edge] = []
-        self._loop_pending = False
 
-    def reattach(self) -> None:
-        """Rebuild the solver of a graph restored from a saved state (:mod:`shared.slam.onlinestate`),
-        which holds the nodes, the edges and the estimate but no gtsam objects: a new iSAM2 takes every
-        node at its estimate and every edge in one update; the estimate stays as saved. O(graph)."""
-        self._params = gtsam.ISAM2Params()
-        self._params.setRelinearizeThreshold(0.01)
-        self._params.relinearizeSkip = 1
-        self._isam = gtsam.ISAM2(self._params)
-        self._new_factors = gtsam.NonlinearFactorGraph()
-        self._new_values = gtsam.Values()
-        if not self._estimate:
-            return
+    def _prior(self) -> None:
         assert self._first is not None
         anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
         self._new_factors.add(gtsam.PriorFactorPose2(0, _pose2(self._first), anchor))
-        for k, p in enumerate(self._estimate):
-            self._new_values.insert(k, _pose2(p))
-        for e in self._edges:
+
+    def _queue_edges(self, edges: list[Edge]) -> None:
+        for e in edges:
             noise = self._noise(_local(e.information, e.measurement), e.loop)
             self._new_factors.add(gtsam.BetweenFactorPose2(e.i, e.j, _pose2(e.measurement), noise))
+
+    def _solve(self, loops: bool) -> gtsam.Values:
+        """The queued nodes and edges into iSAM2 (a few relinearisations more after a loop edge)."""
         try:
             self._isam.update(self._new_factors, self._new_values)
+            for _ in range(self._extra if loops else 0):
+                self._isam.update()
+            return self._isam.calculateEstimate()
         except RuntimeError as exc:
-            raise OptimisationError(f"iSAM2 refused the restored graph: {exc}") from exc
+            raise OptimisationError(f"iSAM2 refused the update: {exc}") from exc
         finally:
             self._new_factors = gtsam.NonlinearFactorGraph()
             self._new_values = gtsam.Values()
-        self._loop_pending = False
+
+    def _resolve(self) -> None:
+        """Build the solver from scratch: every node at its estimate, every edge, one update (the estimate
+        stays); the history starts again here. O(graph)."""
+        self._fresh_solver()
+        self._array = None
+        self._base = (len(self._estimate), len(self._edges), self.pose_array())
+        self._log, self._guesses = [], []
+        if not self._estimate:
+            return
+        self._prior()
+        for k, p in enumerate(self._estimate):
+            self._new_values.insert(k, _pose2(p))
+        self._queue_edges(self._edges)
+        try:
+            self._isam.update(self._new_factors, self._new_values)
+        except RuntimeError as exc:
+            raise OptimisationError(f"iSAM2 refused the graph: {exc}") from exc
+        finally:
+            self._new_factors = gtsam.NonlinearFactorGraph()
+            self._new_values = gtsam.Values()
+
+    def reattach(self) -> None:
+        """Rebuild the solver of a graph restored from a saved state (:mod:`shared.slam.onlinestate`),
+        which holds the nodes, the edges, the estimate and the solver's history but no gtsam objects:
+        the solver as it was last built from scratch, then every update since, replayed, so it is the
+        very solver that was saved and later updates give what they would have given. If the replay
+        does not arrive at the saved estimate (a state from another gtsam), the solver is built from
+        the saved estimate instead (within its relinearisation of it). O(graph + updates since)."""
+        saved, history, guesses = list(self._estimate), list(self._log), list(self._guesses)
+        nodes, edges, base = self._base
+        self._fresh_solver()
+        self._array = None
+        try:
+            if nodes:
+                self._estimate = [Pose2D(x, y, th) for x, y, th in np.asarray(base).tolist()]
+                self._prior()
+                for k, p in enumerate(self._estimate):
+                    self._new_values.insert(k, _pose2(p))
+                self._queue_edges(self._edges[:edges])
+                self._solve(False)
+            self._estimate = self._estimate[:nodes]
+            for n_after, e_after, loops in history:
+                for k in range(len(self._estimate), n_after):
+                    guess = guesses[k - nodes]
+                    self._new_values.insert(k, _pose2(guess))
+                    if k == 0:
+                        self._prior()
+                    self._estimate.append(guess)
+                self._queue_edges(self._edges[edges:e_after])
+                edges = e_after
+                self._estimate = _poses_of(self._solve(loops), len(self._estimate))
+        except (OptimisationError, IndexError) as exc:
+            log.warning("the pose graph's solver did not replay (%s); rebuilt from the saved estimate", exc)
+        exact = self._estimate == saved
+        self._estimate = saved
+        self._array = None
+        if not exact:
+            self._resolve()
+        else:
+            self._log, self._guesses = history, guesses
 
     # ------------------------------------------------------------------ building
     def __len__(self) -> int:
@@ -125,9 +198,10 @@ class PoseGraph:
         self._new_values.insert(index, _pose2(guess))
         if index == 0:
             self._first = guess
-            anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
-            self._new_factors.add(gtsam.PriorFactorPose2(0, _pose2(guess), anchor))
+            self._prior()
         self._estimate.append(guess)
+        self._guesses.append(guess)
+        self._array = None
         return index
 
     def add_edge(self, i: int, j: int, measurement: Pose2D, information: FloatArray, *, loop: bool) -> None:
@@ -153,21 +227,16 @@ class PoseGraph:
     # ------------------------------------------------------------------ solving
     def update(self) -> None:
         """Take the new nodes and edges into the incremental solution (iSAM2), a few relinearisations
-        more when a loop edge arrived."""
+        more when a loop edge arrived; every ``RESOLVE_EVERY_UPDATES`` updates the solver is built from
+        scratch at the estimate (O(graph)), which bounds the history a restore replays."""
         if self._new_factors.size() == 0 and self._new_values.size() == 0:
             return
         loops, self._loop_pending = self._loop_pending, False
-        try:
-            self._isam.update(self._new_factors, self._new_values)
-            for _ in range(self._extra if loops else 0):
-                self._isam.update()
-            result = self._isam.calculateEstimate()
-        except RuntimeError as exc:
-            raise OptimisationError(f"iSAM2 refused the update: {exc}") from exc
-        finally:
-            self._new_factors = gtsam.NonlinearFactorGraph()
-            self._new_values = gtsam.Values()
-        self._estimate = _poses_of(result, len(self._estimate))
+        self._log.append((len(self._estimate), len(self._edges), loops))
+        self._estimate = _poses_of(self._solve(loops), len(self._estimate))
+        self._array = None
+        if len(self._log) >= RESOLVE_EVERY_UPDATES:
+            self._resolve()
 
     def optimise_batch(self, max_iterations: int = 100) -> None:
         """Re-solve the whole graph with Levenberg-Marquardt from the current estimate (offline)."""
@@ -196,6 +265,7 @@ class PoseGraph:
         poses = _poses_of(result, len(self._estimate))
         if all(math.isfinite(p.x_m) for p in poses):
             self._estimate = poses
+            self._resolve()
 
     # ------------------------------------------------------------------ reading
     def pose(self, index: int) -> Pose2D:
@@ -205,6 +275,17 @@ class PoseGraph:
     def poses(self) -> list[Pose2D]:
         """Every node's current estimate, in order."""
         return list(self._estimate)
+
+    def pose_array(self) -> FloatArray:
+        """Every node's current estimate as read-only rows ``(n, 3)`` ``[x_m, y_m, theta_rad]``; the same
+        array until the estimate changes (a copy-free snapshot for work off the step). O(n) when it
+        changed, else O(1)."""
+        arr = self._array
+        if arr is None:
+            arr = np.array([p.as_tuple() for p in self._estimate], dtype=np.float64).reshape(-1, 3)
+            arr.setflags(write=False)
+            self._array = arr
+        return arr
 
     def covariance(self, index: int) -> FloatArray:
         """The marginal covariance of node ``index`` ``(3, 3)`` over world-frame ``(x_m, y_m, theta_rad)``

@@ -179,10 +179,13 @@ class GraphMapper:
         else:
             self._update()
 
-    def find_closures(self, k: int) -> list[LoopMatch]:
-        """The verified loop closures of keyframe ``k`` (the slow part: correlative searches); changes
-        nothing, so it may run beside the step (:mod:`shared.slam.online`)."""
-        return self._loop_matches(k)
+    def find_closures(self, k: int, poses: FloatArray | None = None) -> list[LoopMatch]:
+        """The verified loop closures of keyframe ``k`` (the slow part: correlative searches) with the
+        graph's estimate ``poses`` (``(K, 3)`` rows of :meth:`PoseGraph.pose_array`, K > k; default: the
+        current one). Changes nothing and reads only keyframes up to ``K - 1``, so with ``poses`` taken
+        when ``k`` was added it may run beside the step (:mod:`shared.slam.online`) and finds the same
+        closures whenever it runs."""
+        return self._loop_matches(k, self.graph.pose_array() if poses is None else poses)
 
     def add_closures(self, k: int, matches: list[LoopMatch]) -> int:
         """Turn verified ``matches`` of keyframe ``k`` into loop edges (refined, held where blind, checked
@@ -298,14 +301,12 @@ class GraphMapper:
             info = info + model * np.outer(d, d)
         return with_floor(info, motion)
 
-    def _loop_matches(self, k: int) -> list[LoopMatch]:
-        """Verified loop closures of keyframe ``k`` against its candidates."""
-        poses = self.graph.poses()
-        positions = np.array([[p.x_m, p.y_m] for p in poses])
-        travelled = np.array([kf.travelled_m for kf in self.keyframes])
+    def _loop_matches(self, k: int, estimate: FloatArray) -> list[LoopMatch]:
+        """Verified loop closures of keyframe ``k`` against its candidates, under ``estimate`` ``(K, 3)``."""
+        poses = [Pose2D(x, y, th) for x, y, th in estimate.tolist()]
+        travelled = np.array([kf.travelled_m for kf in self.keyframes[: len(poses)]])
         found: list[LoopMatch] = []
-        headings = np.array([p.theta_rad for p in poses])
-        for c in candidates(positions, travelled, k, self.settings, headings):
+        for c in candidates(estimate[:, :2], travelled, k, self.settings, estimate[:, 2]):
             self.candidates_tried += 1
             lo = max(c - self.settings.submap_keyframes, 0)
             hi = min(c + self.settings.submap_keyframes, k - 1)
@@ -341,6 +342,13 @@ class GraphMapper:
     def _corrected(self, frontend: Pose2D, key: int) -> Pose2D:
         kf = self.keyframes[key]
         return self.graph.pose(key) @ kf.frontend.between(frontend)
+
+    def corrected(self, step: int, estimate: FloatArray) -> Pose2D:
+        """The pose of step ``step`` under the graph's estimate ``estimate`` (``(K, 3)`` rows, as
+        :meth:`PoseGraph.pose_array` gave them; the step's keyframe must be among them). O(1)."""
+        _stamp, frontend, key = self._steps[step]
+        x, y, th = estimate[key]
+        return Pose2D(float(x), float(y), float(th)) @ self.keyframes[key].frontend.between(frontend)
 
     def keyframe_rows(self) -> list[list[float]]:
         """The keyframes as the wire has them (:mod:`shared.protocol.posegraph`): ``[keyframe_id,

@@ -6,25 +6,33 @@ uses (``step``, ``walls``, ``recent_centroids``, ``snapshot``, ``config``, ``rec
 at a keyframe, adds the node with its sequential and skip edges (:class:`~shared.slam.mapper.GraphMapper`,
 about a millisecond). Off the step's path, on one worker thread:
 
-- the **loop search** of each new keyframe (correlative searches, tens of milliseconds), whose closures
-  join the graph between two steps' graph updates, under the mapper's lock;
+- the **loop search** of each new keyframe (correlative searches, tens of milliseconds) under the graph's
+  estimate when the keyframe was added; its closures join the graph at the step
+  :data:`SEARCH_LAG_STEPS` later (waited for if the worker is late, which at 10 Hz it is not);
 - after closures, a **rebuild of the shown map**: the scans kept so far (one each 10 cm or 5 degrees of
-  motion, :data:`REDRAW_SPACING`) mapped again at their corrected poses by a fresh pipeline (as
-  :meth:`GraphMapper.finish` does offline with every scan). It is swapped in between two steps, the scans
-  kept meanwhile are caught up at their corrected poses, and from then on each step feeds it at the
-  corrected pose. Walls drawn twice before the loop was closed come out once; the agent's next map version
-  carries the changed and removed walls.
+  motion, :data:`REDRAW_SPACING`) mapped again at their corrected poses, under the graph as it was when
+  the rebuild began, by a fresh pipeline (as :meth:`GraphMapper.finish` does offline with every scan).
+  It is swapped in between two steps once it has also taken what the shown map took meanwhile (each
+  scan at the corrected pose of its step), and from then on each step feeds it at the corrected pose.
+  Walls drawn twice before the loop was closed come out once; the agent's next map version carries the
+  changed and removed walls.
+
+**The same map whatever the timing.** Every job's input is taken in a step and its result enters at a
+fixed step (a search's) or gives the same map whenever it enters (a rebuild's), so the worker's speed
+changes when a map version shows a rebuild, never the graph or the map it converges to: a replay maps the
+same every time, in the step (``worker=False``) or on the worker, and a restored mapper (pending jobs are
+kept as their inputs) goes on as an uninterrupted one would, to within the rebuilt solver's
+relinearisation.
 
 Until the first closure the shown map is the front end's own. A rebuild costs as much as mapping the kept
 scans again (about 2 ms a scan on the simulated world, one kept in four at 0.4 m/s): after an hour of
-driving about 15 s of the worker's time, and closures arriving meanwhile are taken by the next rebuild;
-memory grows with the distance driven (a robot standing still keeps nothing), not with time.
+driving about 15 s of the worker's time; a rebuild begun while one is under way supersedes it. Memory
+grows with the distance driven (a robot standing still keeps nothing), not with time.
 Keyframe-anchored wall observations, re-placed without mapping the scans again, are the way to bound it
 further (docs/loopclosure.md, "Not yet").
 
-Thread safety: the step, the worker and the readers (``walls``, ``snapshot``) share the mapper under one
-lock; the worker holds it only to read the graph's poses and to add edges, never while it searches or
-rebuilds.
+Thread safety: the step and the readers (``walls``, ``snapshot``) share the mapper under one lock; the
+worker never takes it: it reads only its job's input and the append-only keyframes, steps and kept scans.
 """
 
 from __future__ import annotations
@@ -35,7 +43,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -43,6 +51,7 @@ from shared.errors import LinemapError, StateError
 from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
 from shared.pipeline.pipeline import MapState, StepResult
 from shared.pipeline.state import MapperState
+from shared.slam.closure import LoopMatch
 from shared.slam.mapper import GraphMapper
 from shared.slam.onlinestate import graph_state, restore_graph
 from shared.slam.settings import LoopClosureSettings
@@ -52,10 +61,10 @@ __all__ = ["OnlineGraphMapper"]
 
 log = logging.getLogger(__name__)
 
-_REBUILD = -1  # the worker's job id for a rebuild (keyframe jobs are their index)
-_STOP = -2
-#: a rebuild hands over when at most this many scans are left to catch up (in the step, ~2 ms each)
-_CATCH_UP_IN_STEP = 3
+#: a keyframe's loop closures join the graph at the step this many steps after the one that made the
+#: keyframe (1 s at 10 Hz; a search takes tens of milliseconds), waited for if the worker is late: the
+#: graph then takes every closure at the same step whatever the worker's timing (module docstring)
+SEARCH_LAG_STEPS = 10
 #: keyframes (0.5 m each by default) between the starts of two rebuilds of the shown map
 REBUILD_EVERY_KEYFRAMES = 20
 #: a redraw maps a scan each time the robot moved 10 cm or turned 5 degrees since the last one it kept (m,
@@ -65,13 +74,39 @@ REBUILD_EVERY_KEYFRAMES = 20
 REDRAW_SPACING = (0.10, math.radians(5.0))
 
 
+@dataclass(slots=True)
+class _Search:
+    """The loop search of keyframe ``k``: the graph's estimate when ``k`` was added (its whole input), the
+    version at whose step its closures join the graph, and its result once searched."""
+
+    k: int
+    due: int
+    estimate: FloatArray
+    matches: list[LoopMatch] | None = None
+
+
+@dataclass(slots=True)
+class _Redraw:
+    """A rebuild of the shown map begun after the step of version ``at``: the kept scans up to then
+    (``kept``) at the graph's ``estimate`` then; ``since`` holds what the shown map took after ``at`` (scan,
+    odometry, corrected pose), which the rebuilt map takes too before it is shown."""
+
+    at: int
+    estimate: FloatArray
+    kept: int
+    since: list[tuple[Scan, Pose2D | None, Pose2D]] = field(default_factory=list)
+    result: Pipeline | None = None
+    done: bool = False
+    started: bool = False
+    dropped: bool = False  # a later rebuild superseded it before it started
+
+
 class OnlineGraphMapper:
     """The front end, the pose graph and the shown map, for a robot (module docstring).
 
     ``make_pipeline(config)`` builds a pipeline with the robot's laser offset; ``config`` is the first
     configuration; ``settings`` the loop closure's (default: ``config``'s, else the defaults).
-    ``worker=False`` runs the search and the rebuild in the step (tests, replays that must be
-    deterministic).
+    ``worker=False`` runs the search and the rebuild in the step (tests; the results are the same).
 
     ``redraw_spacing``: the scans kept for redraws (:data:`REDRAW_SPACING`; None: every one).
 
@@ -102,50 +137,56 @@ class OnlineGraphMapper:
         self._mapper.search_inline = False
         self._lock = threading.RLock()
         self._shown: Pipeline | None = None  # the rebuilt map, once a loop was closed
-        self._pending: tuple[Pipeline, int] | None = None  # a rebuilt map and the scans it covers
+        self._searches: list[_Search] = []  # submitted, not joined yet, in keyframe order
+        self._redraws: list[_Redraw] = []  # submitted, not shown yet, oldest first
         self._closed_since_rebuild = False
         self._rebuilt_at = -REBUILD_EVERY_KEYFRAMES  # keyframe count when the last rebuild began
         self._version = front.version if front is not None else 0
         self.rebuilds = 0
-        self.redraw_ms: list[float] = []  # each redraw of the shown map, its catch-up included
+        self.redraw_ms: list[float] = []  # each redraw of the shown map on the worker
         self.failure: str | None = None  # the worker's last error (the robot keeps mapping)
         self._cov: FloatArray | None = None  # pose_covariance's cache, valid for the graph at _cov_key
         self._cov_key: tuple[int, int, int] | None = None
-        self._jobs: queue.Queue[int] = queue.Queue()
+        self._jobs: queue.Queue[_Search | _Redraw | None] = queue.Queue()
         self._idle = threading.Condition()
         self._outstanding = 0  # jobs submitted and not finished
-        self._searches: set[int] = set()  # keyframes whose loop search is submitted and not finished
-        self._rebuilding = False  # a rebuild is under way on the worker
         self._thread: threading.Thread | None = None
+        self._closing = False
         if worker:
             self._thread = threading.Thread(target=self._work, name="loop-closure", daemon=True)
             self._thread.start()
 
     # ------------------------------------------------------------------ the step
     def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
-        """One scan: the front end, the graph's keyframes, the shown map; the pose is the corrected one."""
+        """One scan: the closures due join the graph, then the front end, the graph's keyframes and the
+        shown map; the pose is the corrected one."""
         with self._lock:
+            self._join_searches(self._version + 1)
             self._swap_in()
             keyframes = len(self._mapper.keyframes)
             result = self._mapper.step(scan, odometry)
             if self._shown is not None:
                 self._shown.step(scan, odometry, pose=result.pose)
-            new_key = len(self._mapper.keyframes) > keyframes
-        self._version += 1
-        if new_key and self._mapper.settings.enabled:
-            self._submit(len(self._mapper.keyframes) - 1)
+            for redraw in self._redraws:
+                redraw.since.append((scan, odometry, result.pose))
+            self._version += 1
+            if len(self._mapper.keyframes) > keyframes and self._mapper.settings.enabled:
+                k = len(self._mapper.keyframes) - 1
+                self._search(_Search(k, self._version + SEARCH_LAG_STEPS, self._mapper.graph.pose_array()))
+            if self._rebuild_due():
+                self._begin_redraw()
+            if self._thread is None:
+                self._swap_in()
         return StepResult(self._version, result.pose, result.icp_used, result.ran, result.step_ms)
 
     def flush(self) -> None:
-        """Take in the closures not yet drawn (a rebuild now, in the step or on the worker, waited for)
-        and run every pending batch of the shown map's stages."""
-        if self._closed_since_rebuild:
-            if self._thread is None:
-                self._run(_REBUILD)
-            else:
-                self._enqueue(_REBUILD)
-        self.wait_idle()
+        """Join every pending search's closures now (waited for), draw the map again if they closed a
+        loop (waited for), and run every pending batch of the shown map's stages."""
         with self._lock:
+            self._join_searches(None)
+            if self._closed_since_rebuild:
+                self._begin_redraw()
+            self._wait_redraws()
             self._swap_in()
             self._shown_or_front().flush()
 
@@ -157,101 +198,109 @@ class OnlineGraphMapper:
             and len(self._mapper.keyframes) - self._rebuilt_at >= REBUILD_EVERY_KEYFRAMES
         )
 
-    def _submit(self, job: int) -> None:
+    def _search(self, job: _Search) -> None:
+        self._searches.append(job)
+        self._submit(job)
+
+    def _join_searches(self, version: int | None) -> None:
+        """Join the closures of the searches due by ``version`` (None: all), in keyframe order, waiting for
+        those the worker has not finished. Under the lock (the worker never takes it)."""
+        while self._searches and (version is None or self._searches[0].due <= version):
+            job = self._searches.pop(0)
+            if job.matches is None:
+                with self._idle:
+                    self._idle.wait_for(lambda job=job: job.matches is not None)  # type: ignore[misc]
+            if job.matches and self._mapper.add_closures(job.k, job.matches):
+                self._closed_since_rebuild = True
+
+    def _begin_redraw(self) -> None:
+        """Start a rebuild of the shown map from the graph as it is now; earlier ones that have not
+        started are superseded (one under way finishes and is shown, so a slow worker still shows some)."""
+        self._closed_since_rebuild = False
+        self._rebuilt_at = len(self._mapper.keyframes)
+        for older in self._redraws:
+            older.dropped = older.dropped or not older.started
+        job = _Redraw(self._version, self._mapper.graph.pose_array(), len(self._mapper.stepped()))
+        self._redraws.append(job)
+        self._submit(job)
+
+    def _wait_redraws(self) -> None:
+        with self._idle:
+            self._idle.wait_for(lambda: all(r.done for r in self._redraws))
+
+    def _submit(self, job: _Search | _Redraw) -> None:
         if self._thread is None:
             self._run(job)
-            if self._rebuild_due():
-                self._run(_REBUILD)
-            self._swap_in()
             return
-        self._enqueue(job)
-
-    def _enqueue(self, job: int) -> None:
         with self._idle:
             self._outstanding += 1
-            if job >= 0:
-                self._searches.add(job)
         self._jobs.put(job)
 
     def _swap_in(self) -> None:
-        """Take a finished rebuild: catch it up on the scans stepped since its poses were read."""
-        pending, self._pending = self._pending, None
-        if pending is None:
+        """Show the latest finished rebuild, once it took what the shown map took since it began: the
+        same map whenever it is swapped in."""
+        done = [i for i, r in enumerate(self._redraws) if r.done]
+        if not done:
             return
-        rebuilt, covered = pending
-        trajectory = self._mapper.trajectory()
-        _replay(rebuilt, self._mapper.stepped()[covered:], trajectory)
-        self._shown = rebuilt
+        job = self._redraws[done[-1]]
+        del self._redraws[: done[-1] + 1]
+        if job.result is None:  # failed (the worker said why) or superseded
+            return
+        for scan, odometry, pose in job.since:
+            job.result.step(scan, odometry, pose=pose)
+        self._shown = job.result
         self.rebuilds += 1
-        log.info("loop closure: map rebuilt from %d corrected poses", len(trajectory))
+        log.info("loop closure: map rebuilt from the graph of version %d", job.at)
 
     # ------------------------------------------------------------------ the worker
     def _work(self) -> None:
         while True:
             job = self._jobs.get()
-            if job == _STOP:
+            if job is None:
                 return
             self._run(job)
-            if job >= 0 and self._jobs.empty() and self._rebuild_due():
-                self._run(_REBUILD)
             with self._idle:
                 self._outstanding -= 1
-                self._searches.discard(job)
                 self._idle.notify_all()
 
-    def _run(self, job: int) -> None:
+    def _run(self, job: _Search | _Redraw) -> None:
         try:
-            if job == _REBUILD:
-                self._rebuild()
+            if isinstance(job, _Redraw):
+                self._redraw(job)
             else:
-                self._search(job)
+                job.matches = self._mapper.find_closures(job.k, job.estimate)
         except LinemapError as exc:
             self.failure = f"loop closure: {exc}"
             log.warning("%s; mapping goes on without it", self.failure)
         except Exception as exc:  # the worker must not die with the robot still mapping
             self.failure = f"loop closure failed: {type(exc).__name__}: {exc}"
             log.exception("loop closure failed; mapping goes on without it")
-
-    def _search(self, k: int) -> None:
-        matches = self._mapper.find_closures(k)
-        if not matches:
-            return
-        with self._lock:
-            if self._mapper.add_closures(k, matches):
-                self._closed_since_rebuild = True
-
-    def _rebuild(self) -> None:
-        t0 = time.perf_counter()
-        self._rebuilding = True
-        try:
-            self._redraw()
         finally:
-            self._rebuilding = False
-            self.redraw_ms.append((time.perf_counter() - t0) * 1e3)
+            if isinstance(job, _Redraw):
+                job.done = True
+            elif job.matches is None:
+                job.matches = []
 
-    def _redraw(self) -> None:
-        with self._lock:
-            self._closed_since_rebuild = False
-            self._rebuilt_at = len(self._mapper.keyframes)
-            trajectory = self._mapper.trajectory()
-            scans = list(self._mapper.stepped())
+    def _redraw(self, job: _Redraw) -> None:
+        """Map the kept scans again at their poses under ``job.estimate`` (nothing the step changes is
+        read but the append-only scans, steps and keyframes, up to ``job.kept``)."""
+        if job.dropped:
+            return
+        job.started = True
+        t0 = time.perf_counter()
         rebuilt = self._make(self._config)
         if self._base is not None:
             rebuilt.seed_map(self._base)
-        covered = 0
-        while True:  # catch up here, not in the step: the robot went on while this ran
-            _replay(rebuilt, scans[covered:], trajectory)
-            covered = len(scans)
-            with self._lock:
-                if len(self._mapper.stepped()) - covered <= _CATCH_UP_IN_STEP:
-                    self._pending = (rebuilt, covered)
-                    return
-                trajectory = self._mapper.trajectory()
-                scans = list(self._mapper.stepped())
+        for step, scan, odometry in self._mapper.stepped()[: job.kept]:
+            if self._closing:
+                return
+            rebuilt.step(scan, odometry, pose=self._mapper.corrected(step, job.estimate))
+        job.result = rebuilt
+        self.redraw_ms.append((time.perf_counter() - t0) * 1e3)
 
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Block until the worker has no job left (tests, the end of a replay), then take a finished
-        rebuild in; whether it got there within ``timeout_s``."""
+        rebuild in; whether it got there within ``timeout_s``. Closures join at their step or ``flush``."""
         with self._idle:
             done = self._idle.wait_for(lambda: self._outstanding == 0, timeout_s)
         if done:
@@ -262,34 +311,36 @@ class OnlineGraphMapper:
     def close(self) -> None:
         """Stop the worker (what it was doing is dropped)."""
         if self._thread is not None:
-            self._jobs.put(_STOP)
+            self._closing = True
+            self._jobs.put(None)
             self._thread.join(timeout=5.0)
             self._thread = None
 
     # ------------------------------------------------------------------ saved state
     def state(self) -> MapperState:
         """The learned state as data (:mod:`shared.slam.onlinestate`); a finished rebuild is taken in
-        first. Holds the lock while it copies (O(graph + kept scans + map))."""
+        first, the pending searches and the latest rebuild not shown yet are kept as their inputs (and
+        results, where done). Holds the lock while it copies (O(graph + kept scans + map))."""
         with self._lock:
             self._swap_in()
-            with self._idle:
-                searches = sorted(self._searches)
+            redraw = self._redraws[-1] if self._redraws else None
             parts = {
                 "mapper": self._mapper,
                 "shown": self._shown,
                 "base": self._base,
                 "version": self._version,
-                "closed": self._closed_since_rebuild or self._rebuilding,
-                # a rebuild under way is lost with the process: the restored mapper starts it again now
-                "rebuilt_at": -REBUILD_EVERY_KEYFRAMES if self._rebuilding else self._rebuilt_at,
+                "closed": self._closed_since_rebuild,
+                "rebuilt_at": self._rebuilt_at,
                 "rebuilds": self.rebuilds,
-                "searches": searches,
+                "searches": [(j.k, j.due, j.estimate, j.matches) for j in self._searches],
+                "redraw": None if redraw is None else (redraw.at, redraw.estimate, redraw.kept, redraw.since),
             }
             return graph_state(self, parts)
 
     def restore(self, state: MapperState) -> None:
-        """Go on from ``state`` (:meth:`state`), before the first step only (:class:`StateError`); loop
-        searches that were pending are submitted again."""
+        """Go on from ``state`` (:meth:`state`), before the first step only (:class:`StateError`); the
+        searches and the rebuild that were pending are submitted again with their saved inputs, so they
+        give what they would have given."""
         if self._version or self._mapper.keyframes:
             raise StateError("a graph mapper's state can be restored only before its first step")
         parts = restore_graph(self, state)
@@ -297,10 +348,16 @@ class OnlineGraphMapper:
             self._mapper, self._shown, self._base = parts["mapper"], parts["shown"], parts["base"]
             self._version, self._rebuilt_at = int(parts["version"]), int(parts["rebuilt_at"])
             self._closed_since_rebuild, self.rebuilds = bool(parts["closed"]), int(parts["rebuilds"])
-        for k in parts["searches"]:
-            self._submit(int(k))
-        if self._thread is not None and self._rebuild_due():
-            self._enqueue(_REBUILD)
+            for k, due, estimate, matches in parts["searches"]:
+                job = _Search(int(k), int(due), estimate, matches)
+                self._searches.append(job)
+                if matches is None:
+                    self._submit(job)
+            if parts["redraw"] is not None:
+                at, estimate, kept, since = parts["redraw"]
+                redraw = _Redraw(int(at), estimate, int(kept), list(since))
+                self._redraws.append(redraw)
+                self._submit(redraw)
 
     # ------------------------------------------------------------------ the pipeline's interface
     def _shown_or_front(self) -> Pipeline:
@@ -312,12 +369,14 @@ class OnlineGraphMapper:
         return self._config
 
     def reconfigure(self, config: PipelineConfig) -> None:
-        """Swap in a new configuration between steps (front end and shown map; a rebuild under way uses
-        the old one for the scans it had); on any error the old one stays in force and the error
-        propagates. The loop closure's settings come from ``config`` (``loop_closure`` None: the search
-        stops, the graph and the map drawn so far stay); the robust kernel's width is the graph's from
-        its start."""
+        """Swap in a new configuration between steps (front end and shown map; a rebuild under way is
+        finished and shown first, so each is drawn under one configuration); on any error the old one
+        stays in force and the error propagates. The loop closure's settings come from ``config``
+        (``loop_closure`` None: the search stops, the graph and the map drawn so far stay); the robust
+        kernel's width is the graph's from its start."""
         with self._lock:
+            self._wait_redraws()  # a rebuild is drawn under one configuration, begun and shown
+            self._swap_in()
             self._mapper.settings = config.loop_closure_settings() or replace(
                 self._mapper.settings, enabled=False
             )
@@ -421,10 +480,3 @@ class OnlineGraphMapper:
         if self._base is None or not self._base.trajectory:
             return corrected
         return np.vstack([np.asarray(self._base.trajectory, dtype=np.float64), corrected])
-
-
-def _replay(pipeline: Pipeline, scans: list[tuple[int, Scan, Pose2D | None]], trajectory: FloatArray) -> None:
-    """Map ``scans`` (step index, scan, odometry) at their corrected poses (``trajectory`` rows)."""
-    for step, scan, odometry in scans:
-        row = trajectory[step]
-        pipeline.step(scan, odometry, pose=Pose2D(row[1], row[2], row[3]))

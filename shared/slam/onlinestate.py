@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from shared.errors import StateError
 from shared.pipeline import pipeline
 from shared.pipeline.pipestate import PIPELINE_SKIP, adopt_pipeline
@@ -41,13 +43,15 @@ register_state_class(
 _SKIP: dict[type, frozenset[str]] = {
     **PIPELINE_SKIP,
     mapper.GraphMapper: frozenset({"_make"}),
-    graph.PoseGraph: frozenset({"_params", "_isam", "_new_factors", "_new_values"}),
+    graph.PoseGraph: frozenset({"_params", "_isam", "_new_factors", "_new_values", "_array"}),
 }
 
 
 def graph_state(online: OnlineGraphMapper, parts: dict[str, Any]) -> MapperState:
     """The state of ``online`` from ``parts`` (read under its lock: ``mapper``, ``shown``, ``base``,
-    ``version``, ``closed``, ``rebuilt_at``, ``rebuilds``, ``searches``)."""
+    ``version``, ``closed``, ``rebuilt_at``, ``rebuilds``, ``searches`` (keyframe, due version, estimate,
+    matches or None) and ``redraw`` (version, estimate, kept scans, what the shown map took since) or
+    None)."""
     tree, arrays = encode_tree(parts, _SKIP)
     return MapperState(GRAPH_KIND, tree, arrays)
 
@@ -59,11 +63,13 @@ def restore_graph(online: OnlineGraphMapper, state: MapperState) -> dict[str, An
     if state.kind != GRAPH_KIND:
         raise StateError(f"the mapping state is a {state.kind!r} state: expected a {GRAPH_KIND!r} state")
     parts = decode_tree(state)
-    expected = {"mapper", "shown", "base", "version", "closed", "rebuilt_at", "rebuilds", "searches"}
+    expected = {"mapper", "shown", "base", "version", "closed", "rebuilt_at", "rebuilds"}
+    expected |= {"searches", "redraw"}
     if not isinstance(parts, dict) or set(parts) != expected:
         raise StateError(
             f"the graph mapper's state holds {sorted(parts) if isinstance(parts, dict) else parts!r}"
         )
+    _check_jobs(parts["searches"], parts["redraw"])
     gm = parts["mapper"]
     if not isinstance(gm, mapper.GraphMapper) or not isinstance(gm.graph, graph.PoseGraph):
         raise StateError("the graph mapper's state holds no graph mapper")
@@ -78,3 +84,30 @@ def restore_graph(online: OnlineGraphMapper, state: MapperState) -> dict[str, An
             raise StateError("the graph mapper's shown map is not a pipeline")
         parts["shown"] = adopt_pipeline(online._make(online.config), shown)
     return parts
+
+
+def _estimate(value: Any) -> bool:
+    return isinstance(value, np.ndarray) and value.ndim == 2 and value.shape[1] == 3
+
+
+def _check_jobs(searches: Any, redraw: Any) -> None:
+    """:class:`StateError` unless the pending jobs have the shapes :func:`graph_state` gives them."""
+    for job in searches if isinstance(searches, list) else [None]:
+        if not (
+            isinstance(job, tuple)
+            and len(job) == 4
+            and isinstance(job[0], int)
+            and isinstance(job[1], int)
+            and _estimate(job[2])
+            and (job[3] is None or isinstance(job[3], list))
+        ):
+            raise StateError(f"the graph mapper's pending loop search {job!r:.80} is not one")
+    if redraw is not None and not (
+        isinstance(redraw, tuple)
+        and len(redraw) == 4
+        and isinstance(redraw[0], int)
+        and _estimate(redraw[1])
+        and isinstance(redraw[2], int)
+        and isinstance(redraw[3], list)
+    ):
+        raise StateError(f"the graph mapper's pending rebuild {redraw!r:.80} is not one")

@@ -1,6 +1,7 @@
 """Loop closure on the robot (OnlineGraphMapper): the same corrected map whether the search and the
-rebuild run in the step or on the worker; the step's pose is the corrected one; a bad configuration is
-refused with the old one kept; a failing worker leaves the robot mapping on the front end."""
+rebuild run in the step or on the worker, however late the worker is (bit for bit); the step's pose is
+the corrected one; a bad configuration is refused with the old one kept; a failing worker leaves the
+robot mapping on the front end."""
 
 from __future__ import annotations
 
@@ -70,6 +71,30 @@ def test_on_the_worker_the_map_is_corrected_too(loop_block) -> None:  # type: ig
         online.close()
 
 
+def test_however_late_the_worker_the_graph_and_the_map_are_the_same(loop_block, in_step, late_worker) -> None:  # type: ignore[no-untyped-def]
+    """The worker held back to the last moment (each search until the step before its closures are due,
+    each rebuild 9 steps): every keyframe, closure and wall equals the in-step run's exactly."""
+    _front, reference, _poses = in_step
+    online = _mapper(loop_block.run, worker=True)
+    late = late_worker(online)
+    try:
+        for scan in loop_block.run.scans:
+            late.step(scan)
+        late.release()
+        online.flush()
+        assert online.failure is None
+        assert online.closures == reference.closures >= 3
+        assert online.closure_pairs() == reference.closure_pairs()
+        np.testing.assert_array_equal(online.keyframe_rows(), reference.keyframe_rows())
+        ids, walls = online.walls()
+        ref_ids, ref_walls = reference.walls()
+        np.testing.assert_array_equal(ids, ref_ids)
+        np.testing.assert_array_equal(walls, ref_walls)
+        np.testing.assert_array_equal(online.trajectory(), reference.trajectory())
+    finally:
+        online.close()
+
+
 def test_a_new_configuration_reaches_the_front_end_and_the_shown_map(loop_block, in_step) -> None:  # type: ignore[no-untyped-def]
     run = loop_block.run
     _front, online, _poses = in_step
@@ -86,7 +111,7 @@ def test_a_failing_search_leaves_the_robot_mapping(loop_block, monkeypatch) -> N
     run = loop_block.run
     online = _mapper(run, worker=True)
 
-    def broken(k: int) -> list[object]:
+    def broken(k: int, estimate: object = None) -> list[object]:
         raise RuntimeError("search exploded")
 
     monkeypatch.setattr(online._mapper, "find_closures", broken)

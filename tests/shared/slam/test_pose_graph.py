@@ -97,3 +97,62 @@ def test_an_edge_without_positive_information_is_refused() -> None:
         graph.add_edge(0, 1, Pose2D(1.0, 0.0, 0.0), np.zeros((3, 3)), loop=False)
     with pytest.raises(OptimisationError, match="positive definite"):
         graph.add_edge(0, 1, Pose2D(1.0, 0.0, 0.0), np.full((3, 3), np.nan), loop=True)
+
+
+def _saved_and_restored(graph: PoseGraph) -> PoseGraph:
+    """``graph`` through a mapping state's bytes (as the robot's Robot DB keeps it), solver rebuilt."""
+    from shared.pipeline.state import MapperState, decode_tree, encode_tree
+    from shared.slam.onlinestate import _SKIP
+
+    tree, arrays = encode_tree(graph, _SKIP)
+    restored = decode_tree(MapperState.from_bytes(MapperState("graph", tree, arrays).to_bytes()))
+    assert isinstance(restored, PoseGraph)
+    restored.reattach()
+    return restored
+
+
+def _grow(graphs: list[PoseGraph], truth: list[Pose2D], start: int, rng: np.random.Generator) -> None:
+    """Nodes ``start..`` on every graph alike: a chain with noisy motions, a loop edge now and then."""
+    for k in range(start, len(truth)):
+        motion = truth[k - 1].between(truth[k])
+        noisy = Pose2D(motion.x_m + rng.normal(0, 0.01), motion.y_m, motion.theta_rad + rng.normal(0, 0.005))
+        loop = k >= 41 and k % 3 == 0
+        for g in graphs:
+            g.add_node(g.pose(k - 1) @ noisy)
+            g.add_edge(k - 1, k, noisy, SEQ_INFO, loop=False)
+            if loop:
+                g.add_edge(k - 40, k, truth[k - 40].between(truth[k]), LOOP_INFO, loop=True)
+            g.update()
+
+
+@pytest.mark.parametrize("split", [1, 30, 99, 100, 101, 130])
+def test_a_restored_graph_goes_on_exactly_as_the_saved_one(split: int) -> None:
+    """Saved after ``split`` updates (before, at and after the solver is built from scratch at update
+    100), restored and grown on alike: the very same estimate, bit for bit, at every update after."""
+    truth = square_lap(sides=20)  # 201 nodes: two rebuilds from scratch on the way
+    rng = np.random.default_rng(split)
+    graph = PoseGraph()
+    graph.add_node(truth[0])
+    graph.update()
+    _grow([graph], truth[: split + 1], 1, rng)
+    restored = _saved_and_restored(graph)
+    assert restored.poses() == graph.poses()
+    _grow([graph, restored], truth, split + 1, rng)
+    assert restored.poses() == graph.poses()
+    assert len(restored) == len(truth)
+
+
+def test_a_history_that_does_not_replay_falls_back_to_the_saved_estimate(caplog) -> None:  # type: ignore[no-untyped-def]
+    truth = square_lap(sides=6)
+    graph = PoseGraph()
+    graph.add_node(truth[0])
+    graph.update()
+    _grow([graph], truth, 1, np.random.default_rng(0))
+    graph._guesses = graph._guesses[:-5]  # a damaged history: the last nodes' guesses are missing
+    restored = _saved_and_restored(graph)
+    assert restored.poses() == graph.poses()
+    assert "did not replay" in caplog.text
+    restored.add_node(restored.pose(len(restored) - 1))
+    restored.add_edge(len(restored) - 2, len(restored) - 1, Pose2D(), SEQ_INFO, loop=False)
+    restored.update()
+    assert math.dist(restored.pose(len(restored) - 1).as_tuple()[:2], graph.poses()[-1].as_tuple()[:2]) < 1e-3
