@@ -1,16 +1,19 @@
-"""Soak of the agent's resume (robot_agent.resume): a real ``linemap agent`` process maps the simulator
-(``--laps``, as fast as it can, no server) and is killed with SIGKILL ``--kills`` times at random versions,
-each time restarted on the same Robot DB, then runs to the end. The Robot DB's trajectory and walls are
-compared with one pipeline stepped through the same scans in this process. Prints the kills, the largest
-pose difference (m, degrees), versions lost or repeated, walls missing or extra, the journal's rows and the
-Robot DB's size.
+"""Soak of the agent's resume (robot_agent.resume): a real ``linemap agent`` process maps ``--source`` (the
+simulator, ``--laps`` times, or a log file) as fast as it can, with no server, and is killed with SIGKILL
+``--kills`` times at random versions, each time restarted on the same Robot DB, then runs to the end. An
+uninterrupted agent maps the same source into a Robot DB of its own, and the two are compared: every
+version's pose, the walls (ids and end points) and, with ``--loop-closure``, the pose graph's keyframes
+and closures. Prints the kills, the largest differences (cm, degrees), versions lost or repeated, walls
+missing or extra, the journal's rows and the Robot DB's size.
 
     .venv/bin/python benchmarks/resume_soak.py [--kills 200] [--laps 3] [--seed 0]
+    .venv/bin/python benchmarks/resume_soak.py --loop-closure --source LOG  # e.g. mit-csail.clf.gz
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import random
 import signal
@@ -20,85 +23,120 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-
-from robot_agent.sources import laser_offset, open_scans
-from shared.pipeline import Pipeline, PipelineConfig
 
 __all__ = ["main"]
 
 LINEMAP = str(Path(sys.executable).parent / "linemap")
 
 
-def _version(db: Path) -> int:
+def _meta(db: Path, key: str) -> Any:
     try:
         with sqlite3.connect(db) as conn:
-            row = conn.execute("SELECT value FROM meta WHERE key = 'map_version'").fetchone()
+            row = conn.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
     except sqlite3.Error:
-        return 0
-    return 0 if row is None else int(row[0].split(":")[1].strip(" }"))
+        return None
+    return None if row is None else json.loads(row[0])["v"]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--kills", type=int, default=200)
-    parser.add_argument("--laps", type=int, default=3)
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
-    rng = random.Random(args.seed)
-    reference = Pipeline(PipelineConfig(), laser_offset=laser_offset("sim"))
-    for scan in open_scans("sim", seed=0, laps=args.laps):
-        reference.step(scan)
-    n = reference.version
-    db = Path(tempfile.mkdtemp()) / "robot.db"
-    cmd = [LINEMAP, "agent", "--db", str(db), "--rate", "0", "--laps", str(args.laps)]
+def _version(db: Path) -> int:
+    return int(_meta(db, "map_version") or 0)
+
+
+def _read(db: Path) -> dict[str, Any]:
+    """What the comparison needs from a Robot DB: poses by version, walls by id, keyframes, closures."""
+    with sqlite3.connect(db) as conn:
+        poses = np.array(
+            conn.execute("SELECT version, x_m, y_m, theta_rad FROM poses ORDER BY version").fetchall()
+        ).reshape(-1, 4)
+        walls = {int(r[0]): np.asarray(r[1:5], dtype=float) for r in conn.execute("SELECT * FROM walls")}
+        journal = conn.execute("SELECT count(*) FROM scan_journal").fetchone()[0]
+    keyframes = {int(r[0]): np.asarray(r[2:5], dtype=float) for r in _meta(db, "graph_keyframes") or []}
+    closures = sorted(tuple(c) for c in _meta(db, "graph_loop_closures") or [])
+    return {"poses": poses, "walls": walls, "journal": journal, "keyframes": keyframes, "closures": closures}
+
+
+def _turn_deg(a: np.ndarray, b: np.ndarray) -> float:
+    d = np.remainder(np.asarray(a) - np.asarray(b) + math.pi, 2 * math.pi) - math.pi
+    return math.degrees(float(np.abs(d).max(initial=0.0)))
+
+
+def _soak(cmd: list[str], db: Path, n: int, kills_wanted: int, rng: random.Random) -> int:
     log = db.with_suffix(".log").open("ab")
-    t0 = time.monotonic()
     kills = 0
-    while kills < args.kills:
+    while kills < kills_wanted:
         start = _version(db)
         if start >= n - 5:
             break
-        target = min(n - 2, start + rng.randint(1, max(2, (n - start) // max(1, args.kills - kills))))
+        target = min(n - 2, start + rng.randint(1, max(2, (n - start) // max(1, kills_wanted - kills))))
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         while _version(db) < target and proc.poll() is None:
             time.sleep(0.01)
         proc.send_signal(signal.SIGKILL)
         proc.wait()
         kills += 1
-    proc = subprocess.Popen([*cmd, "--exit-at-end"], stdout=log, stderr=subprocess.STDOUT)
-    proc.wait()
+        if kills % 20 == 0:
+            print(f"  {kills} kills, version {_version(db)} of {n}", flush=True)
+    subprocess.run([*cmd, "--exit-at-end"], stdout=log, stderr=subprocess.STDOUT, check=True)
     log.close()
-    with sqlite3.connect(db) as conn:
-        poses = np.array(
-            conn.execute("SELECT version, x_m, y_m, theta_rad FROM poses ORDER BY version").fetchall()
-        )
-        walls = {int(r[0]): r[1:] for r in conn.execute("SELECT * FROM walls")}
-        journal = conn.execute("SELECT count(*) FROM scan_journal").fetchone()[0]
-    ref = reference.snapshot()
-    versions = poses[:, 0].astype(int)
+    return kills
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--kills", type=int, default=200)
+    parser.add_argument("--source", default="sim")
+    parser.add_argument("--laps", type=int, default=3, help="the simulator's laps")
+    parser.add_argument("--loop-closure", action="store_true")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    rng = random.Random(args.seed)
+    tmp = Path(tempfile.mkdtemp())
+    base = [LINEMAP, "agent", "--rate", "0", "--source", args.source]
+    base += ["--laps", str(args.laps)] if args.source.startswith("sim") else []
+    base += ["--loop-closure"] if args.loop_closure else []
+    t0 = time.monotonic()
+    ref_db, db = tmp / "uninterrupted.db", tmp / "killed.db"
+    with ref_db.with_suffix(".log").open("ab") as out:
+        subprocess.run([*base, "--db", str(ref_db), "--exit-at-end"], stdout=out, stderr=out, check=True)
+    n = _version(ref_db)
+    print(f"uninterrupted: {n} versions in {time.monotonic() - t0:.0f} s", flush=True)
+    t1 = time.monotonic()
+    kills = _soak([*base, "--db", str(db)], db, n, args.kills, rng)
+    ref, got = _read(ref_db), _read(db)
+    versions = got["poses"][:, 0].astype(int)
     lost = sorted(set(range(1, n + 1)) - set(versions.tolist()))
     repeated = len(versions) - len(set(versions.tolist()))
-    d_xy = float(np.abs(poses[:, 1:3] - ref.trajectory[versions - 1, 1:3]).max())
-    d_th = np.remainder(poses[:, 3] - ref.trajectory[versions - 1, 3] + math.pi, 2 * math.pi) - math.pi
-    ref_walls = {int(i): s for i, s in zip(ref.segment_ids, ref.segments, strict=True)}
-    missing = sorted(set(ref_walls) - set(walls))
-    extra = sorted(set(walls) - set(ref_walls))
-    far = max(
-        (float(np.abs(np.asarray(walls[i]) - ref_walls[i]).max()) for i in set(walls) & set(ref_walls)),
-        default=0.0,
-    )
+    ref_pose = {int(r[0]): r[1:] for r in ref["poses"]}
+    common = [v for v in versions.tolist() if v in ref_pose]
+    a = np.array([ref_pose[v] for v in common]).reshape(-1, 3)
+    b = np.array([got["poses"][versions == v][0, 1:] for v in common]).reshape(-1, 3)
+    print(f"{kills} kills over {n} versions in {time.monotonic() - t1:.0f} s (logs in {tmp})")
     print(
-        f"{kills} kills over {n} versions in {time.monotonic() - t0:.0f} s",
-        f"(agent log {db.with_suffix('.log')})",
+        f"poses: largest difference {float(np.abs(a[:, :2] - b[:, :2]).max(initial=0.0)) * 100:.4f} cm, "
+        f"{_turn_deg(a[:, 2], b[:, 2]):.5f} deg; versions lost {len(lost)}, repeated {repeated}"
     )
-    print(f"largest pose difference: {d_xy * 100:.3f} cm, {math.degrees(float(np.abs(d_th).max())):.4f} deg")
+    missing = sorted(set(ref["walls"]) - set(got["walls"]))
+    extra = sorted(set(got["walls"]) - set(ref["walls"]))
+    both = set(ref["walls"]) & set(got["walls"])
+    far = max((float(np.abs(ref["walls"][i] - got["walls"][i]).max()) for i in both), default=0.0)
     print(
-        f"versions lost: {len(lost)}, repeated: {repeated}; walls {len(walls)} (reference {len(ref_walls)}), "
-        f"missing {len(missing)}, extra {len(extra)}, largest wall difference {far * 100:.3f} cm"
+        f"walls {len(got['walls'])} (uninterrupted {len(ref['walls'])}): missing {len(missing)}, "
+        f"extra {len(extra)}, largest end-point difference {far * 100:.4f} cm"
     )
-    print(f"scan journal rows at the end: {journal}; Robot DB {db.stat().st_size / 1e6:.1f} MB")
+    if args.loop_closure:
+        keys = sorted(set(ref["keyframes"]) & set(got["keyframes"]))
+        ka = np.array([ref["keyframes"][k] for k in keys]).reshape(-1, 3)
+        kb = np.array([got["keyframes"][k] for k in keys]).reshape(-1, 3)
+        print(
+            f"keyframes {len(got['keyframes'])} (uninterrupted {len(ref['keyframes'])}): largest difference "
+            f"{float(np.hypot(*(ka[:, :2] - kb[:, :2]).T).max(initial=0.0)) * 100:.4f} cm, "
+            f"{_turn_deg(ka[:, 2], kb[:, 2]):.5f} deg; loop closures {len(got['closures'])} "
+            f"(uninterrupted {len(ref['closures'])}, the same: {got['closures'] == ref['closures']})"
+        )
+    print(f"scan journal rows at the end: {got['journal']}; Robot DB {db.stat().st_size / 1e6:.1f} MB")
 
 
 if __name__ == "__main__":
