@@ -59,7 +59,7 @@ class PipelineSlot:
     def start(self, config: PipelineConfig) -> None:
         """Build the pipeline for ``config`` (with the pose graph if it has loop closure on)."""
         if config.loop_closure is not None:
-            self._pipeline = OnlineGraphMapper(self._make_pipeline, config)
+            self._pipeline = self._graph(config)
         else:
             self._pipeline = self._make_pipeline(config)
 
@@ -77,6 +77,9 @@ class PipelineSlot:
         # a bounded history: the robot maps for days (docs/reliability/bounded.md)
         return Pipeline(config, laser_offset=self.laser_offset, history=MAX_TRAJECTORY_POSES)
 
+    def _graph(self, config: PipelineConfig, front: Pipeline | None = None) -> OnlineGraphMapper:
+        return OnlineGraphMapper(self._make_pipeline, config, front=front, history=MAX_TRAJECTORY_POSES)
+
     def reconfigure(self, config: PipelineConfig) -> None:
         """Swap ``config`` in between two steps. Loop closure switched on over the front end alone starts
         the pose graph here, at the pose the robot has, over the map drawn so far (which stays as drawn);
@@ -84,7 +87,7 @@ class PipelineSlot:
         pipeline = self.pipeline
         if isinstance(pipeline, Pipeline) and config.loop_closure is not None:
             pipeline.reconfigure(config)  # raises with the old configuration kept
-            graph = OnlineGraphMapper(self._make_pipeline, config, front=pipeline)
+            graph = self._graph(config, pipeline)
             self._pipeline = graph
             log.info("loop closure switched on at step %d", graph.version)
             return
@@ -104,7 +107,7 @@ class PipelineSlot:
         front.continue_map(ids, segments, pose, odometry)
         if isinstance(self._pipeline, OnlineGraphMapper):
             self.close()
-            self._pipeline = OnlineGraphMapper(self._make_pipeline, config, front=front)
+            self._pipeline = self._graph(config, front)
         else:
             self._pipeline = front
 
@@ -118,10 +121,10 @@ class PipelineSlot:
             self.close()
             front = self._make_pipeline(config)
             front.restore(state)
-            self._pipeline = OnlineGraphMapper(self._make_pipeline, config, front=front)
+            self._pipeline = self._graph(config, front)
         elif state.kind == GRAPH_KIND and isinstance(self._pipeline, Pipeline):
             lc = config.model_copy(update={"loop_closure": {}})
-            graph = OnlineGraphMapper(self._make_pipeline, lc)
+            graph = self._graph(lc)
             self._pipeline = graph
             graph.restore(state)
             graph.reconfigure(config)

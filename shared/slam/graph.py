@@ -179,6 +179,7 @@ class PoseGraph:
         self._estimate = saved
         self._array = None
         if not exact:
+            log.warning("the pose graph's solver replayed to another estimate; rebuilt from the saved one")
             self._resolve()
         else:
             self._log, self._guesses = history, guesses

@@ -43,11 +43,13 @@ from shared.kernels import REGISTRY, Stage
 from shared.pipeline import MapSnapshot, Pipeline
 from shared.pipeline.fusion_solve import mahalanobis2, odometry_information
 from shared.pipeline.pipeline import StepResult
+from shared.protocol.trajectory import thin_positions
 from shared.slam.closure import LoopMatch, candidates, chain_covariance, stacked, verify
 from shared.slam.edges import AGREEMENT_CHI2, consistent, hold_unseen, with_floor
 from shared.slam.errors import OptimisationError
 from shared.slam.graph import PoseGraph
 from shared.slam.information import scan_edge
+from shared.slam.rows import Rows
 from shared.slam.settings import LoopClosureSettings
 from shared.types import FloatArray, Pose2D, Scan
 
@@ -63,7 +65,8 @@ SKIP_MAX_M = 10.0
 @dataclass(frozen=True, slots=True)
 class Keyframe:
     """A keyframe: its step, the front end's robot pose then, odometry then, the returns (robot frame and
-    scanner frame in beam order, m) and the distance travelled up to it (m, by the front end's poses)."""
+    scanner frame in beam order, m), the distance travelled up to it (m, by the front end's poses) and
+    its scan's time stamp (s)."""
 
     step: int
     frontend: Pose2D
@@ -71,6 +74,7 @@ class Keyframe:
     points: FloatArray
     scan: FloatArray
     travelled_m: float
+    stamp_s: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,6 +98,7 @@ class GraphMapper:
         *,
         front: Pipeline | None = None,
         redraw_spacing: tuple[float, float] | None = None,
+        history: int | None = None,
     ) -> None:
         self._make = make_pipeline
         self.settings = settings or LoopClosureSettings()
@@ -107,12 +112,17 @@ class GraphMapper:
         self.closures: list[LoopClosure] = []
         self.candidates_tried = 0
         self.optimise_ms: list[float] = []
-        self._steps: list[tuple[float, Pose2D, int]] = []  # stamp, front-end pose, keyframe index
+        # per step: stamp, the front end's pose (x, y, theta), its keyframe; ``history`` poses at most
+        # (thinned as the pipeline's trajectory is, shared.protocol.trajectory.thin_positions)
+        self._track = Rows(5)
+        self._history = history
+        self._n_steps = 0
         self._travelled = 0.0
         self._last: Pose2D | None = None
         # the scans a redraw maps again: every one, or (``redraw_spacing`` = (m, rad)) one each time the
         # robot moved or turned that much since the last one kept, with its step index
         self._scans: list[tuple[int, Scan, Pose2D | None]] = []
+        self._kept = Rows(4)  # per kept scan: the front end's pose (x, y, theta) and its keyframe
         self._spacing = redraw_spacing
         self._kept_at: Pose2D | None = None
         self._seq_cov: list[FloatArray] = []  # covariance of the sequential edge k -> k + 1
@@ -125,14 +135,20 @@ class GraphMapper:
         result = self.front.step(scan, odometry)
         odom = odometry if odometry is not None else scan.odometry
         pose = result.pose
-        if self._keep(pose):
-            self._scans.append((len(self._steps), scan, odometry))
+        step = self._n_steps
         if self._last is not None:
             self._travelled += math.hypot(*self._last.between(pose).as_tuple()[:2])
         self._last = pose
         if self._is_keyframe(pose):
-            self._add_keyframe(len(self._steps), pose, odom)
-        self._steps.append((scan.stamp_s, pose, len(self.keyframes) - 1))
+            self._add_keyframe(step, pose, odom, scan.stamp_s)
+        key = len(self.keyframes) - 1
+        if self._keep(pose):
+            self._scans.append((step, scan, odometry))
+            self._kept.append((pose.x_m, pose.y_m, pose.theta_rad, key))
+        self._track.append((scan.stamp_s, pose.x_m, pose.y_m, pose.theta_rad, key))
+        self._n_steps += 1
+        if self._history is not None and len(self._track) > self._history:
+            self._track.drop(thin_positions(len(self._track), self._history))
         return replace(result, pose=self.pose)
 
     def _keep(self, pose: Pose2D) -> bool:
@@ -154,11 +170,11 @@ class GraphMapper:
         s = self.settings
         return math.hypot(moved.x_m, moved.y_m) >= s.keyframe_m or abs(moved.theta_rad) >= s.keyframe_rad
 
-    def _add_keyframe(self, step: int, pose: Pose2D, odom: Pose2D | None) -> None:
+    def _add_keyframe(self, step: int, pose: Pose2D, odom: Pose2D | None, stamp_s: float) -> None:
         offset = self.front.laser_offset
         scan = self.front.scan_points
         points = offset.transform_points(scan) if len(scan) else np.zeros((0, 2))
-        key = Keyframe(step, pose, odom, points, scan, self._travelled)
+        key = Keyframe(step, pose, odom, points, scan, self._travelled, stamp_s)
         if not self.keyframes:
             self.keyframes.append(key)
             self.graph.add_node(pose)
@@ -335,30 +351,31 @@ class GraphMapper:
     @property
     def pose(self) -> Pose2D:
         """The corrected robot pose now (world frame)."""
-        if not self._steps:
+        if self._last is None or not self.keyframes:
             return Pose2D()
-        return self._corrected(self._steps[-1][1], self._steps[-1][2])
+        return self._corrected(self._last, len(self.keyframes) - 1)
 
     def _corrected(self, frontend: Pose2D, key: int) -> Pose2D:
         kf = self.keyframes[key]
         return self.graph.pose(key) @ kf.frontend.between(frontend)
 
-    def corrected(self, step: int, estimate: FloatArray) -> Pose2D:
-        """The pose of step ``step`` under the graph's estimate ``estimate`` (``(K, 3)`` rows, as
-        :meth:`PoseGraph.pose_array` gave them; the step's keyframe must be among them). O(1)."""
-        _stamp, frontend, key = self._steps[step]
-        x, y, th = estimate[key]
-        return Pose2D(float(x), float(y), float(th)) @ self.keyframes[key].frontend.between(frontend)
+    def kept_pose(self, i: int, estimate: FloatArray) -> Pose2D:
+        """The pose of the ``i``-th scan kept for redraws (:meth:`stepped`) under the graph's estimate
+        ``estimate`` (``(K, 3)`` rows, as :meth:`PoseGraph.pose_array` gave them; the scan's keyframe
+        must be among them). O(1)."""
+        fx, fy, fth, key = self._kept.row(i).tolist()
+        x, y, th = estimate[int(key)].tolist()
+        return Pose2D(x, y, th) @ self.keyframes[int(key)].frontend.between(Pose2D(fx, fy, fth))
 
     def keyframe_rows(self) -> list[list[float]]:
         """The keyframes as the wire has them (:mod:`shared.protocol.posegraph`): ``[keyframe_id,
         stamp_s, x_m, y_m, theta_rad]`` at the graph's current estimate. O(keyframes)."""
         out: list[list[float]] = []
         for k, kf in enumerate(self.keyframes):
-            if k >= len(self.graph) or kf.step >= len(self._steps):
+            if k >= len(self.graph) or kf.step >= self._n_steps:
                 break
             p = self.graph.pose(k)
-            out.append([float(k), self._steps[kf.step][0], p.x_m, p.y_m, p.theta_rad])
+            out.append([float(k), kf.stamp_s, p.x_m, p.y_m, p.theta_rad])
         return out
 
     def closure_pairs(self) -> list[list[int]]:
@@ -366,9 +383,17 @@ class GraphMapper:
         return [[c.candidate, c.current] for c in self.closures]
 
     def trajectory(self) -> FloatArray:
-        """The corrected trajectory ``(N, 4)``: stamp (s), x, y (m), heading (rad) per step. O(N)."""
-        rows = [(t, *self._corrected(p, k).as_tuple()) for t, p, k in self._steps]
-        return np.asarray(rows, dtype=np.float64).reshape(-1, 4)
+        """The corrected trajectory ``(N, 4)``: stamp (s), x, y (m), heading (rad) per step (with a
+        ``history``, the steps kept: every recent one, ever sparser older ones). O(N), vectorised."""
+        track = self._track.view()
+        if not len(track):
+            return np.zeros((0, 4))
+        keys = track[:, 4].astype(np.intp)
+        fronts = np.array([kf.frontend.as_tuple() for kf in self.keyframes]).reshape(-1, 3)
+        out = np.empty((len(track), 4))
+        out[:, 0] = track[:, 0]
+        out[:, 1:] = _compose(self.graph.pose_array()[keys], _between(fronts[keys], track[:, 1:4]))
+        return out
 
     def finish(self) -> MapSnapshot:
         """Optimise the whole graph once more (``final_batch``) and map every scan again at its corrected
@@ -384,10 +409,9 @@ class GraphMapper:
         if not self.front.track_only and (not self.settings.enabled or not self.closures):
             return self.front.snapshot()
         rebuilt = self._make()
-        corrected = self.trajectory()
-        for step, scan, odometry in self._scans:
-            row = corrected[step]
-            rebuilt.step(scan, odometry, pose=Pose2D(row[1], row[2], row[3]))
+        estimate = self.graph.pose_array()
+        for i, (_step, scan, odometry) in enumerate(self._scans):
+            rebuilt.step(scan, odometry, pose=self.kept_pose(i, estimate))
         rebuilt.flush()
         return rebuilt.snapshot()
 
@@ -395,3 +419,22 @@ class GraphMapper:
         """The scans kept for a redraw, in order, each with its step index and the odometry it was given:
         every scan stepped, or those ``redraw_spacing`` apart."""
         return self._scans
+
+
+def _wrap(theta: FloatArray) -> FloatArray:
+    return np.asarray(np.remainder(theta + math.pi, 2 * math.pi) - math.pi)
+
+
+def _between(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Rows ``a^-1 @ b`` of pose rows ``(N, 3)`` (:meth:`Pose2D.between`, vectorised). O(N)."""
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, _wrap(b[:, 2] - a[:, 2])])
+
+
+def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Rows ``a @ b`` of pose rows ``(N, 3)`` (:meth:`Pose2D.__matmul__`, vectorised). O(N)."""
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    return np.column_stack(
+        [a[:, 0] + c * b[:, 0] - s * b[:, 1], a[:, 1] + s * b[:, 0] + c * b[:, 1], _wrap(a[:, 2] + b[:, 2])]
+    )

@@ -109,6 +109,7 @@ class OnlineGraphMapper:
     ``worker=False`` runs the search and the rebuild in the step (tests; the results are the same).
 
     ``redraw_spacing``: the scans kept for redraws (:data:`REDRAW_SPACING`; None: every one).
+    ``history``: the trajectory's poses kept at most (the agent's bound; None: every one).
 
     ``front``: a pipeline that has mapped already (loop closure switched on while the robot runs). It goes
     on as the front end, the graph starts at its pose, and its map so far is the base every rebuild
@@ -123,6 +124,7 @@ class OnlineGraphMapper:
         worker: bool = True,
         front: Pipeline | None = None,
         redraw_spacing: tuple[float, float] | None = REDRAW_SPACING,
+        history: int | None = None,
     ) -> None:
         self._make = make_pipeline
         self._config = config
@@ -132,7 +134,11 @@ class OnlineGraphMapper:
             front.flush()
             self._base = front.map_state()
         self._mapper = GraphMapper(
-            lambda: make_pipeline(self._config), settings, front=front, redraw_spacing=redraw_spacing
+            lambda: make_pipeline(self._config),
+            settings,
+            front=front,
+            redraw_spacing=redraw_spacing,
+            history=history,
         )
         self._mapper.search_inline = False
         self._lock = threading.RLock()
@@ -291,10 +297,10 @@ class OnlineGraphMapper:
         rebuilt = self._make(self._config)
         if self._base is not None:
             rebuilt.seed_map(self._base)
-        for step, scan, odometry in self._mapper.stepped()[: job.kept]:
+        for i, (_step, scan, odometry) in enumerate(self._mapper.stepped()[: job.kept]):
             if self._closing:
                 return
-            rebuilt.step(scan, odometry, pose=self._mapper.corrected(step, job.estimate))
+            rebuilt.step(scan, odometry, pose=self._mapper.kept_pose(i, job.estimate))
         job.result = rebuilt
         self.redraw_ms.append((time.perf_counter() - t0) * 1e3)
 

@@ -21,7 +21,7 @@ from shared.errors import StateError
 from shared.pipeline import pipeline
 from shared.pipeline.pipestate import PIPELINE_SKIP, adopt_pipeline
 from shared.pipeline.state import MapperState, decode_tree, encode_tree, register_state_class
-from shared.slam import closure, graph, mapper, settings
+from shared.slam import closure, graph, mapper, rows, settings
 
 if TYPE_CHECKING:
     from shared.slam.online import OnlineGraphMapper
@@ -38,6 +38,7 @@ register_state_class(
     graph.Edge,
     closure.LoopMatch,
     settings.LoopClosureSettings,
+    rows.Rows,
 )
 
 _SKIP: dict[type, frozenset[str]] = {

@@ -217,3 +217,31 @@ def test_redraws_keep_a_scan_per_10_cm_and_none_standing_still(loop_block) -> No
     for i in range(50):  # standing still
         online.step(replace(last, stamp_s=last.stamp_s + 0.1 * (i + 1)))
     assert len(online._mapper.stepped()) <= len(kept) + 1
+
+
+def test_standing_still_the_state_does_not_grow(loop_block) -> None:  # type: ignore[no-untyped-def]
+    """With a bounded history (the agent's), a robot standing still adds nothing to the mapper's state:
+    no kept scan, no keyframe, and the trajectory thinned to the bound."""
+    from dataclasses import replace
+
+    run = loop_block.run
+    offset = run.drive.laser_offset
+    online = OnlineGraphMapper(
+        lambda c: Pipeline(c, laser_offset=offset, history=200), PipelineConfig(), worker=False, history=200
+    )
+    for scan in run.scans[:300]:
+        online.step(scan)
+    last = run.scans[299]
+
+    def stand(n: int, start: int) -> int:
+        for i in range(start, start + n):
+            online.step(replace(last, stamp_s=last.stamp_s + 0.1 * (i + 1)))
+        online.flush()
+        return len(online.state().to_bytes())
+
+    after_300 = stand(300, 0)
+    keyframes, kept = len(online._mapper.keyframes), len(online._mapper.stepped())
+    after_1800 = stand(1500, 300)
+    assert len(online._mapper.keyframes) == keyframes and len(online._mapper.stepped()) == kept
+    assert len(online.trajectory()) <= 200
+    assert after_1800 <= 1.01 * after_300, (after_300, after_1800)
