@@ -31,8 +31,11 @@ from shared.kernels.base import Kernel
 
 __all__ = ["STATE_FORMAT", "MapperState", "decode_tree", "encode_tree", "register_state_class"]
 
-#: the bytes form's version; a reader refuses any other
-STATE_FORMAT = 1
+#: the bytes form's version; a reader refuses any other. It names the layout too (the classes kept and
+#: their attributes): a change to what a state holds comes with a new format, so an older agent's state
+#: is refused with an error that says so, never half read (tests/shared/slam/test_onlinestate.py pins it).
+#: 2: the graph mapper's pending jobs, its solver's history and its per-step rows (2026-12-06)
+STATE_FORMAT = 2
 #: the bytes form starts with this, then the zlib-compressed archive
 _MAGIC = b"LMSTATE\x00"
 

@@ -122,6 +122,13 @@ class PoseGraph:
             self._new_factors = gtsam.NonlinearFactorGraph()
             self._new_values = gtsam.Values()
 
+    def _queue_graph(self, estimate: list[Pose2D], edges: list[Edge]) -> None:
+        """The anchor, every node at ``estimate`` and ``edges``, queued for one update."""
+        self._prior()
+        for k, p in enumerate(estimate):
+            self._new_values.insert(k, _pose2(p))
+        self._queue_edges(edges)
+
     def _resolve(self) -> None:
         """Build the solver from scratch: every node at its estimate, every edge, one update (the estimate
         stays); the history starts again here. O(graph)."""
@@ -129,19 +136,9 @@ class PoseGraph:
         self._array = None
         self._base = (len(self._estimate), len(self._edges), self.pose_array())
         self._log, self._guesses = [], []
-        if not self._estimate:
-            return
-        self._prior()
-        for k, p in enumerate(self._estimate):
-            self._new_values.insert(k, _pose2(p))
-        self._queue_edges(self._edges)
-        try:
-            self._isam.update(self._new_factors, self._new_values)
-        except RuntimeError as exc:
-            raise OptimisationError(f"iSAM2 refused the graph: {exc}") from exc
-        finally:
-            self._new_factors = gtsam.NonlinearFactorGraph()
-            self._new_values = gtsam.Values()
+        if self._estimate:
+            self._queue_graph(self._estimate, self._edges)
+            self._solve(False)
 
     def reattach(self) -> None:
         """Rebuild the solver of a graph restored from a saved state (:mod:`shared.slam.onlinestate`),
@@ -157,10 +154,7 @@ class PoseGraph:
         try:
             if nodes:
                 self._estimate = [Pose2D(x, y, th) for x, y, th in np.asarray(base).tolist()]
-                self._prior()
-                for k, p in enumerate(self._estimate):
-                    self._new_values.insert(k, _pose2(p))
-                self._queue_edges(self._edges[:edges])
+                self._queue_graph(self._estimate, self._edges[:edges])
                 self._solve(False)
             self._estimate = self._estimate[:nodes]
             for n_after, e_after, loops in history:

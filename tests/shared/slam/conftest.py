@@ -1,49 +1,9 @@
-"""Fixtures of the loop-closure tests: a worker held back until the step says so."""
+"""Fixtures of the loop-closure tests."""
 
 from __future__ import annotations
 
-import threading
-
 import pytest
-
-from shared.slam import OnlineGraphMapper
-from shared.slam.online import SEARCH_LAG_STEPS, _Redraw, _Search
-
-
-class LateWorker:
-    """Holds an :class:`OnlineGraphMapper`'s worker back: a loop search runs only once the step before
-    the one its closures are due at is over (as late as it can be without the step waiting long), a
-    rebuild only ``SEARCH_LAG_STEPS - 1`` steps after the one it began at (the latest that holds back no
-    search queued behind it), or at :meth:`release`. The test steps through :meth:`step`, which tells the
-    worker how far the robot is. No sleeping: the order is forced."""
-
-    def __init__(self, online: OnlineGraphMapper) -> None:
-        self.online = online
-        self._now = online.version
-        self._released = False
-        self._cond = threading.Condition()
-        run = online._run
-
-        def late(job: _Search | _Redraw) -> None:
-            at = job.due - 1 if isinstance(job, _Search) else job.at + SEARCH_LAG_STEPS - 1
-            with self._cond:
-                self._cond.wait_for(lambda: self._released or self._now >= at)
-            run(job)
-
-        online._run = late  # type: ignore[method-assign]
-
-    def step(self, scan, odometry=None):  # type: ignore[no-untyped-def]
-        result = self.online.step(scan, odometry)
-        with self._cond:
-            self._now = result.version
-            self._cond.notify_all()
-        return result
-
-    def release(self) -> None:
-        """Let every job run (before ``flush``, which waits for them all)."""
-        with self._cond:
-            self._released = True
-            self._cond.notify_all()
+from slamcheck import LateWorker
 
 
 @pytest.fixture
