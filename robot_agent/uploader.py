@@ -92,7 +92,7 @@ class Uploader:
                     if "disk is full" not in (self._errors.message or ""):  # the mapping's pause says more
                         self._errors.report(f"the Robot DB's disk is full ({full}): uploads retried")
                     with contextlib.suppress(LinkError):  # a repeated upload's status is not applied
-                        self.send_status()
+                        self.send_status(unsure=True)
                 else:
                     log.exception("upload round failed")
                     self._errors.report(f"upload failed: {type(exc).__name__}: {exc}")
@@ -135,11 +135,13 @@ class Uploader:
         self.need_snapshot = True
         self._wake.set()
 
-    def send_status(self) -> bool:
+    def send_status(self, *, unsure: bool = False) -> bool:
         """Send the status alone if its ``last_error`` differs from what the server heard last (a round
-        with nothing else to send); True when it was sent."""
+        with nothing else to send), or whatever it is when ``unsure`` (the server may not have applied
+        what was sent: a repeated upload is answered from its first answer, its status not applied);
+        True when it was sent."""
         status = self._status()
-        if status.last_error == self._told_error:
+        if status.last_error == self._told_error and not unsure:
             return False
         self.link.report_status(status.model_dump(mode="json"))
         self._told_error = status.last_error

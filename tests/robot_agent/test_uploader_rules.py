@@ -157,3 +157,75 @@ def test_a_server_ahead_with_this_robots_own_version_is_a_lost_answer(
         assert db.map_session() == session and db.get("uploaded_version") == 2 and up.need_snapshot
     else:
         assert db.map_session() != session and db.get("uploaded_version") is None
+
+
+def test_a_full_disk_reaches_the_server_although_the_repeated_upload_carried_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The Robot DB's disk fills once the server took an upload: noting the delivery fails and the round
+    is retried with the same upload (same key), which the server answers from its first answer without
+    applying the status it carries now ("recording paused"). That error must still reach the server, sent
+    alone. Before, the uploader took the repeated upload's status as heard and the server never learnt
+    that recording had paused (CI's test_agent_disk_full timed out on it)."""
+    import sqlite3
+
+    from robot_agent.health import ErrorReport
+    from shared.protocol import RobotStatus
+    from tests.robot_agent.agentproc import wait_for
+
+    heard: list[str | None] = []  # the last_error values the server applied, in order
+    keys: set[str] = set()
+
+    def handle(request: httpx.Request) -> httpx.Response:
+        body = json.loads(request.content)
+        if request.method == "PUT":
+            heard.append(body.get("last_error"))
+            return httpx.Response(204)
+        key = request.headers["Idempotency-Key"]
+        if key not in keys:  # a repeated key is answered as first, its status not applied
+            keys.add(key)
+            heard.append((body.get("status") or {}).get("last_error"))
+        return httpx.Response(200, json={"version": body["version"], "map_session": body["map_session"]})
+
+    db = RobotDB(tmp_path / "robot.db")
+    for v in range(1, 6):
+        db.record_step(step_record(v))
+    error: dict[str, str | None] = {"now": None}
+    rounds = {"n": 0}
+    pending = db.pending_upload
+
+    def pending_upload(limit: int) -> Any:
+        rounds["n"] += 1
+        if rounds["n"] == 2:  # recording paused after the first round: the retried upload carries it
+            error["now"] = "the Robot DB's disk is full: recording paused at map version 5"
+        return pending(limit)
+
+    def full(_version: int) -> None:
+        raise sqlite3.OperationalError("database or disk is full")
+
+    monkeypatch.setattr(db, "pending_upload", pending_upload)
+    monkeypatch.setattr(db, "mark_uploaded", full)
+    link = ServerLink("http://robot.test", 1, "lmr_x", transport=httpx.MockTransport(handle))
+    stop = threading.Event()
+    up = Uploader(
+        link,
+        db,
+        lambda: RobotStatus(last_error=error["now"]),
+        lambda _v: None,
+        threading.Event(),
+        threading.Event(),
+        ErrorReport(60.0),
+        robot_id=1,
+        retry_base_s=0.001,
+        retry_cap_s=0.01,
+    )
+    worker = threading.Thread(target=up.run, args=(stop,), daemon=True)
+    worker.start()
+    try:
+        wait_for(
+            "the server to hear that recording paused", lambda: any("paused" in (e or "") for e in heard), 30
+        )
+    finally:
+        stop.set()
+        worker.join(10)
+    assert rounds["n"] >= 2 and len(keys) == 1
