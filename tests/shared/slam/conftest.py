@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from slamcheck import LateWorker
+
+from tests.shared.slam.slamcheck import LateWorker
 
 
 @pytest.fixture

@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from slamcheck import assert_same_map
 
 from shared.bench.worlds import measure_map
 from shared.pipeline import Pipeline, PipelineConfig
 from shared.sim.worlds import simulate_case
 from shared.slam import LoopClosureSettings, OnlineGraphMapper
+from tests.shared.slam.slamcheck import assert_same_map
 
 
 def _mapper(case_run, worker: bool) -> OnlineGraphMapper:  # type: ignore[no-untyped-def]

@@ -8,12 +8,12 @@ from __future__ import annotations
 from functools import cache
 
 import pytest
-from slamcheck import assert_same_map
 
 from shared.errors import StateError
 from shared.pipeline import MapperState, Pipeline, PipelineConfig
 from shared.sim.worlds import simulate_case
 from shared.slam import OnlineGraphMapper
+from tests.shared.slam.slamcheck import assert_same_map
 
 
 @cache
