@@ -4,7 +4,8 @@
 uses (``step``, ``walls``, ``recent_centroids``, ``snapshot``, ``config``, ``reconfigure``, ``timing_ms``,
 ``pose``, ``version``), so the agent runs it in the pipeline's place. In the step it runs the front end and,
 at a keyframe, adds the node with its sequential and skip edges (:class:`~shared.slam.mapper.GraphMapper`,
-about a millisecond). Off the step's path, on one worker thread:
+about a millisecond). Off the step's path, on two worker threads (one for searches, one for rebuilds, so a
+search due at a step never waits behind a rebuild):
 
 - the **loop search** of each new keyframe (correlative searches, tens of milliseconds) under the graph's
   estimate when the keyframe was added; its closures join the graph at the step
@@ -65,6 +66,9 @@ log = logging.getLogger(__name__)
 #: keyframe (1 s at 10 Hz; a search takes tens of milliseconds), waited for if the worker is late: the
 #: graph then takes every closure at the same step whatever the worker's timing (module docstring)
 SEARCH_LAG_STEPS = 10
+#: a finished rebuild is handed to the step once at most this many of the scans stepped meanwhile are
+#: left for the step to map into it (~2 ms each); the worker maps the rest
+_CATCH_UP_IN_STEP = 3
 #: keyframes (0.5 m each by default) between the starts of two rebuilds of the shown map
 REBUILD_EVERY_KEYFRAMES = 20
 #: a redraw maps a scan each time the robot moved 10 cm or turned 5 degrees since the last one it kept (m,
@@ -96,6 +100,7 @@ class _Redraw:
     kept: int
     since: list[tuple[Scan, Pose2D | None, Pose2D]] = field(default_factory=list)
     result: Pipeline | None = None
+    caught_up: int = 0  # how many of ``since`` the worker has stepped into ``result``
     done: bool = False
     started: bool = False
     dropped: bool = False  # a later rebuild superseded it before it started
@@ -153,14 +158,24 @@ class OnlineGraphMapper:
         self.failure: str | None = None  # the worker's last error (the robot keeps mapping)
         self._cov: FloatArray | None = None  # pose_covariance's cache, valid for the graph at _cov_key
         self._cov_key: tuple[int, int, int] | None = None
-        self._jobs: queue.Queue[_Search | _Redraw | None] = queue.Queue()
+        # searches and rebuilds on a thread each: a search due at a step never waits behind a rebuild,
+        # which maps every kept scan again (seconds after an hour of driving)
+        self._searches_q: queue.Queue[_Search | _Redraw | None] = queue.Queue()
+        self._redraws_q: queue.Queue[_Search | _Redraw | None] = queue.Queue()
         self._idle = threading.Condition()
         self._outstanding = 0  # jobs submitted and not finished
-        self._thread: threading.Thread | None = None
+        self._thread: threading.Thread | None = None  # the search thread (None: in the step)
+        self._redraw_thread: threading.Thread | None = None
         self._closing = False
         if worker:
-            self._thread = threading.Thread(target=self._work, name="loop-closure", daemon=True)
+            self._thread = threading.Thread(
+                target=self._work, args=(self._searches_q,), name="loop-search", daemon=True
+            )
+            self._redraw_thread = threading.Thread(
+                target=self._work, args=(self._redraws_q,), name="loop-redraw", daemon=True
+            )
             self._thread.start()
+            self._redraw_thread.start()
 
     # ------------------------------------------------------------------ the step
     def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
@@ -240,7 +255,7 @@ class OnlineGraphMapper:
             return
         with self._idle:
             self._outstanding += 1
-        self._jobs.put(job)
+        (self._redraws_q if isinstance(job, _Redraw) else self._searches_q).put(job)
 
     def _swap_in(self) -> None:
         """Show the latest finished rebuild, once it took what the shown map took since it began: the
@@ -252,16 +267,16 @@ class OnlineGraphMapper:
         del self._redraws[: done[-1] + 1]
         if job.result is None:  # failed (the worker said why) or superseded
             return
-        for scan, odometry, pose in job.since:
+        for scan, odometry, pose in job.since[job.caught_up :]:
             job.result.step(scan, odometry, pose=pose)
         self._shown = job.result
         self.rebuilds += 1
         log.info("loop closure: map rebuilt from the graph of version %d", job.at)
 
     # ------------------------------------------------------------------ the worker
-    def _work(self) -> None:
+    def _work(self, jobs: queue.Queue[_Search | _Redraw | None]) -> None:
         while True:
-            job = self._jobs.get()
+            job = jobs.get()
             if job is None:
                 return
             self._run(job)
@@ -301,6 +316,13 @@ class OnlineGraphMapper:
             if self._closing:
                 return
             rebuilt.step(scan, odometry, pose=self._mapper.kept_pose(i, job.estimate))
+        while not self._closing:  # catch up here, not in the step, until a few scans are left
+            upto = len(job.since)
+            if upto - job.caught_up <= _CATCH_UP_IN_STEP:
+                break
+            for scan, odometry, pose in job.since[job.caught_up : upto]:
+                rebuilt.step(scan, odometry, pose=pose)
+            job.caught_up = upto
         job.result = rebuilt
         self.redraw_ms.append((time.perf_counter() - t0) * 1e3)
 
@@ -316,11 +338,13 @@ class OnlineGraphMapper:
 
     def close(self) -> None:
         """Stop the worker (what it was doing is dropped)."""
-        if self._thread is not None:
+        if self._thread is not None and self._redraw_thread is not None:
             self._closing = True
-            self._jobs.put(None)
+            self._searches_q.put(None)
+            self._redraws_q.put(None)
             self._thread.join(timeout=5.0)
-            self._thread = None
+            self._redraw_thread.join(timeout=5.0)
+            self._thread = self._redraw_thread = None
 
     # ------------------------------------------------------------------ saved state
     def state(self) -> MapperState:
