@@ -85,14 +85,17 @@ def candidates(
     current: int,
     settings: LoopClosureSettings,
     headings_rad: FloatArray | None = None,
+    usable: BoolArray | None = None,
 ) -> list[int]:
     """Keyframes ``0..current-1`` that may close a loop with keyframe ``current`` (module docstring):
     ``positions`` ``(K, 2)`` are the estimated keyframe positions (m), ``travelled_m`` ``(K,)`` the
     distance travelled up to each, ``headings_rad`` ``(K,)`` their headings (then a keyframe whose heading
-    differs by more than ``max_view_change_rad`` is none). O(K)."""
+    differs by more than ``max_view_change_rad`` is none), ``usable`` ``(K,)`` which may be one at all (the
+    held ones, :mod:`shared.slam.places`). O(K)."""
     if current <= 0:
         return []
-    old = np.flatnonzero(travelled_m[:current] <= travelled_m[current] - settings.recent_m)
+    recent = travelled_m[:current] <= travelled_m[current] - settings.recent_m
+    old = np.flatnonzero(recent if usable is None else recent & usable[:current])
     if headings_rad is not None and len(old):
         turn = np.abs(np.remainder(headings_rad[old] - headings_rad[current] + np.pi, 2 * np.pi) - np.pi)
         old = old[turn <= settings.max_view_change_rad]

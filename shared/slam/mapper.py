@@ -49,6 +49,7 @@ from shared.slam.edges import AGREEMENT_CHI2, consistent, hold_unseen, with_floo
 from shared.slam.errors import OptimisationError
 from shared.slam.graph import PoseGraph
 from shared.slam.information import scan_edge
+from shared.slam.places import SCAN_PLACE, TIED_KEYFRAMES, Places, near
 from shared.slam.rows import Rows
 from shared.slam.settings import LoopClosureSettings
 from shared.types import FloatArray, Pose2D, Scan
@@ -99,6 +100,7 @@ class GraphMapper:
         front: Pipeline | None = None,
         redraw_spacing: tuple[float, float] | None = None,
         history: int | None = None,
+        places: bool = False,
     ) -> None:
         self._make = make_pipeline
         self.settings = settings or LoopClosureSettings()
@@ -121,8 +123,11 @@ class GraphMapper:
         self._last: Pose2D | None = None
         # the scans a redraw maps again: every one, or (``redraw_spacing`` = (m, rad)) one each time the
         # robot moved or turned that much since the last one kept, with its step index
-        self._scans: list[tuple[int, Scan, Pose2D | None]] = []
+        self._scans: list[tuple[int, Scan | None, Pose2D | None]] = []
         self._kept = Rows(4)  # per kept scan: the front end's pose (x, y, theta) and its keyframe
+        self._fronts = Rows(4)  # per keyframe: the front end's pose (x, y, theta), the travel up to it (m)
+        #: which keyframes and kept scans a building driven again holds (shared.slam.places; the robot's)
+        self.places = Places(places)
         self._spacing = redraw_spacing
         self._kept_at: Pose2D | None = None
         self._seq_cov: list[FloatArray] = []  # covariance of the sequential edge k -> k + 1
@@ -145,6 +150,7 @@ class GraphMapper:
         if self._keep(pose):
             self._scans.append((step, scan, odometry))
             self._kept.append((pose.x_m, pose.y_m, pose.theta_rad, key))
+            self.places.add_scan()
         self._track.append((scan.stamp_s, pose.x_m, pose.y_m, pose.theta_rad, key))
         self._n_steps += 1
         if self._history is not None and len(self._track) > self._history:
@@ -175,6 +181,8 @@ class GraphMapper:
         scan = self.front.scan_points
         points = offset.transform_points(scan) if len(scan) else np.zeros((0, 2))
         key = Keyframe(step, pose, odom, points, scan, self._travelled, stamp_s)
+        self._fronts.append((pose.x_m, pose.y_m, pose.theta_rad, self._travelled))
+        self.places.add_keyframe()
         if not self.keyframes:
             self.keyframes.append(key)
             self.graph.add_node(pose)
@@ -195,13 +203,16 @@ class GraphMapper:
         else:
             self._update()
 
-    def find_closures(self, k: int, poses: FloatArray | None = None) -> list[LoopMatch]:
+    def find_closures(
+        self, k: int, poses: FloatArray | None = None, held_upto: int | None = None
+    ) -> list[LoopMatch]:
         """The verified loop closures of keyframe ``k`` (the slow part: correlative searches) with the
         graph's estimate ``poses`` (``(K, 3)`` rows of :meth:`PoseGraph.pose_array`, K > k; default: the
-        current one). Changes nothing and reads only keyframes up to ``K - 1``, so with ``poses`` taken
-        when ``k`` was added it may run beside the step (:mod:`shared.slam.online`) and finds the same
-        closures whenever it runs."""
-        return self._loop_matches(k, self.graph.pose_array() if poses is None else poses)
+        current one) against the keyframes held when ``held_upto`` keyframes had been retired
+        (:mod:`shared.slam.places`; default: now). Changes nothing and reads only keyframes up to
+        ``K - 1``, so with ``poses`` and ``held_upto`` taken when ``k`` was added it may run beside the step
+        (:mod:`shared.slam.online`) and finds the same closures whenever it runs."""
+        return self._loop_matches(k, self.graph.pose_array() if poses is None else poses, held_upto)
 
     def add_closures(self, k: int, matches: list[LoopMatch]) -> int:
         """Turn verified ``matches`` of keyframe ``k`` into loop edges (refined, held where blind, checked
@@ -317,12 +328,14 @@ class GraphMapper:
             info = info + model * np.outer(d, d)
         return with_floor(info, motion)
 
-    def _loop_matches(self, k: int, estimate: FloatArray) -> list[LoopMatch]:
-        """Verified loop closures of keyframe ``k`` against its candidates, under ``estimate`` ``(K, 3)``."""
+    def _loop_matches(self, k: int, estimate: FloatArray, held_upto: int | None) -> list[LoopMatch]:
+        """Verified loop closures of keyframe ``k`` against its candidates among the keyframes held as of
+        ``held_upto`` retirements, under ``estimate`` ``(K, 3)``."""
         poses = [Pose2D(x, y, th) for x, y, th in estimate.tolist()]
-        travelled = np.array([kf.travelled_m for kf in self.keyframes[: len(poses)]])
+        travelled = np.array(self._fronts.view()[: len(poses), 3])
+        held = self.places.keyframes_held(held_upto)[: len(poses)]
         found: list[LoopMatch] = []
-        for c in candidates(estimate[:, :2], travelled, k, self.settings, estimate[:, 2]):
+        for c in candidates(estimate[:, :2], travelled, k, self.settings, estimate[:, 2], held):
             self.candidates_tried += 1
             lo = max(c - self.settings.submap_keyframes, 0)
             hi = min(c + self.settings.submap_keyframes, k - 1)
@@ -330,7 +343,8 @@ class GraphMapper:
             parts = [
                 origin.between(poses[m]).transform_points(self.keyframes[m].points)
                 for m in range(lo, hi + 1)
-                if len(self.keyframes[m].points)
+                if held[m]
+                and len(self.keyframes[m].points)
                 and self.keyframes[m].travelled_m <= travelled[k] - self.settings.recent_m
             ]
             guess = origin.between(poses[k])
@@ -389,7 +403,7 @@ class GraphMapper:
         if not len(track):
             return np.zeros((0, 4))
         keys = track[:, 4].astype(np.intp)
-        fronts = np.array([kf.frontend.as_tuple() for kf in self.keyframes]).reshape(-1, 3)
+        fronts = self._fronts.view()[:, :3]
         out = np.empty((len(track), 4))
         out[:, 0] = track[:, 0]
         out[:, 1:] = _compose(self.graph.pose_array()[keys], _between(fronts[keys], track[:, 1:4]))
@@ -410,15 +424,65 @@ class GraphMapper:
             return self.front.snapshot()
         rebuilt = self._make()
         estimate = self.graph.pose_array()
+        held = self.places.scans_held()
         for i, (_step, scan, odometry) in enumerate(self._scans):
-            rebuilt.step(scan, odometry, pose=self.kept_pose(i, estimate))
+            if scan is not None and held[i]:
+                rebuilt.step(scan, odometry, pose=self.kept_pose(i, estimate))
         rebuilt.flush()
         return rebuilt.snapshot()
 
-    def stepped(self) -> list[tuple[int, Scan, Pose2D | None]]:
+    def stepped(self) -> list[tuple[int, Scan | None, Pose2D | None]]:
         """The scans kept for a redraw, in order, each with its step index and the odometry it was given:
-        every scan stepped, or those ``redraw_spacing`` apart."""
+        every scan stepped, or those ``redraw_spacing`` apart; a retired one whose data was freed holds
+        None (:mod:`shared.slam.places`)."""
         return self._scans
+
+    # ------------------------------------------------------------------ places
+    def retire_places(self, k: int) -> None:
+        """With places on and the robot's stretch tied to an earlier visit (a closure accepted at most
+        :data:`~shared.slam.places.TIED_KEYFRAMES` keyframes before ``k``): retire the held keyframes at
+        keyframe ``k``'s place and the held kept scans at the places of keyframe ``k - 1``'s kept scans,
+        under the graph's estimate now, among those travelled well before (never one a sequential, skip or
+        loop edge still reads). In the step, at the join of ``k``'s loop search (:mod:`shared.slam.places`).
+        O(held keyframes + held kept scans), vectorised."""
+        p = self.places
+        if not p.enabled or not self.closures or self.closures[-1].current < k - TIED_KEYFRAMES:
+            return
+        s = self.settings
+        estimate = self.graph.pose_array()
+        fronts = self._fronts.view()
+        travelled = fronts[:, 3]
+        limit = travelled[k] - max(s.recent_m, SKIP_MAX_M) - s.keyframe_m
+        n = len(estimate)
+        old = np.flatnonzero(p.keyframes_held()[:n] & (travelled[:n] < limit))
+        p.retire_keyframes(near(estimate, old, estimate[k], s.keyframe_m / 2, s.keyframe_rad))
+        kept = self._kept.view()
+        keys = kept[:, 3].astype(np.intp)
+        new = np.flatnonzero(keys == k - 1)
+        old_s = np.flatnonzero(p.scans_held() & (travelled[keys] < limit))
+        if not len(new) or not len(old_s):
+            return
+        at_old = _compose(estimate[keys[old_s]], _between(fronts[keys[old_s], :3], kept[old_s, :3]))
+        at_new = _compose(estimate[keys[new]], _between(fronts[keys[new], :3], kept[new, :3]))
+        radius, turn = SCAN_PLACE
+        dist = np.hypot(at_old[:, None, 0] - at_new[None, :, 0], at_old[:, None, 1] - at_new[None, :, 1])
+        dtheta = np.abs(_wrap(at_old[:, None, 2] - at_new[None, :, 2]))
+        p.retire_scans(old_s[np.any((dist <= radius) & (dtheta <= turn), axis=1)])
+
+    def free_retired(self, keyframes_upto: int, scans_upto: int) -> None:
+        """Drop the data (returns) of the keyframes and kept scans retired before the ``keyframes_upto``-th
+        and ``scans_upto``-th retirement: no job that may still read them (one begun before) is pending.
+        O(freed)."""
+        keys, scans = self.places.free_upto(keyframes_upto, scans_upto)
+        for j in keys:
+            self.keyframes[j] = replace(self.keyframes[j], points=_NO_POINTS, scan=_NO_POINTS)
+        for i in scans:
+            step, _scan, odometry = self._scans[i]
+            self._scans[i] = (step, None, odometry)
+
+
+_NO_POINTS = np.zeros((0, 2))
+_NO_POINTS.setflags(write=False)
 
 
 def _wrap(theta: FloatArray) -> FloatArray:

@@ -80,24 +80,28 @@ REDRAW_SPACING = (0.10, math.radians(5.0))
 
 @dataclass(slots=True)
 class _Search:
-    """The loop search of keyframe ``k``: the graph's estimate when ``k`` was added (its whole input), the
-    version at whose step its closures join the graph, and its result once searched."""
+    """The loop search of keyframe ``k``: the graph's estimate and the keyframes retired when ``k`` was
+    added (its whole input), the version at whose step its closures join the graph, and its result once
+    searched."""
 
     k: int
     due: int
     estimate: FloatArray
+    held: int  # keyframes retired when it began (shared.slam.places): it reads only those held then
     matches: list[LoopMatch] | None = None
 
 
 @dataclass(slots=True)
 class _Redraw:
     """A rebuild of the shown map begun after the step of version ``at``: the kept scans up to then
-    (``kept``) at the graph's ``estimate`` then; ``since`` holds what the shown map took after ``at`` (scan,
-    odometry, corrected pose), which the rebuilt map takes too before it is shown."""
+    (``kept``) held then (``held``: kept scans retired then) at the graph's ``estimate`` then; ``since`` holds
+    what the shown map took after ``at`` (scan, odometry, corrected pose), which the rebuilt map takes too
+    before it is shown."""
 
     at: int
     estimate: FloatArray
     kept: int
+    held: int
     since: list[tuple[Scan, Pose2D | None, Pose2D]] = field(default_factory=list)
     result: Pipeline | None = None
     caught_up: int = 0  # how many of ``since`` the worker has stepped into ``result``
@@ -115,6 +119,8 @@ class OnlineGraphMapper:
 
     ``redraw_spacing``: the scans kept for redraws (:data:`REDRAW_SPACING`; None: every one).
     ``history``: the trajectory's poses kept at most (the agent's bound; None: every one).
+    ``places``: a building driven again holds one keyframe scan and one kept scan per place
+    (:mod:`shared.slam.places`; False: every one, growing with the distance driven).
 
     ``front``: a pipeline that has mapped already (loop closure switched on while the robot runs). It goes
     on as the front end, the graph starts at its pose, and its map so far is the base every rebuild
@@ -130,6 +136,7 @@ class OnlineGraphMapper:
         front: Pipeline | None = None,
         redraw_spacing: tuple[float, float] | None = REDRAW_SPACING,
         history: int | None = None,
+        places: bool = True,
     ) -> None:
         self._make = make_pipeline
         self._config = config
@@ -144,6 +151,7 @@ class OnlineGraphMapper:
             front=front,
             redraw_spacing=redraw_spacing,
             history=history,
+            places=places,
         )
         self._mapper.search_inline = False
         self._lock = threading.RLock()
@@ -193,11 +201,14 @@ class OnlineGraphMapper:
             self._version += 1
             if len(self._mapper.keyframes) > keyframes and self._mapper.settings.enabled:
                 k = len(self._mapper.keyframes) - 1
-                self._search(_Search(k, self._version + SEARCH_LAG_STEPS, self._mapper.graph.pose_array()))
+                estimate = self._mapper.graph.pose_array()
+                retired = self._mapper.places.keyframes_retired
+                self._search(_Search(k, self._version + SEARCH_LAG_STEPS, estimate, retired))
             if self._rebuild_due():
                 self._begin_redraw()
             if self._thread is None:
                 self._swap_in()
+            self._free_retired()
         return StepResult(self._version, result.pose, result.icp_used, result.ran, result.step_ms)
 
     def flush(self) -> None:
@@ -233,6 +244,15 @@ class OnlineGraphMapper:
                     self._idle.wait_for(lambda job=job: job.matches is not None)  # type: ignore[misc]
             if job.matches and self._mapper.add_closures(job.k, job.matches):
                 self._closed_since_rebuild = True
+            self._mapper.retire_places(job.k)
+
+    def _free_retired(self) -> None:
+        """Free the data of what was retired before every pending job began (:mod:`shared.slam.places`):
+        when this runs changes the state's size, never what a job reads."""
+        places = self._mapper.places
+        keyframes = min((j.held for j in self._searches), default=places.keyframes_retired)
+        scans = min((r.held for r in self._redraws), default=places.scans_retired)
+        self._mapper.free_retired(keyframes, scans)
 
     def _begin_redraw(self) -> None:
         """Start a rebuild of the shown map from the graph as it is now; earlier ones that have not
@@ -241,7 +261,10 @@ class OnlineGraphMapper:
         self._rebuilt_at = len(self._mapper.keyframes)
         for older in self._redraws:
             older.dropped = older.dropped or not older.started
-        job = _Redraw(self._version, self._mapper.graph.pose_array(), len(self._mapper.stepped()))
+        mapper = self._mapper
+        job = _Redraw(
+            self._version, mapper.graph.pose_array(), len(mapper.stepped()), mapper.places.scans_retired
+        )
         self._redraws.append(job)
         self._submit(job)
 
@@ -289,7 +312,7 @@ class OnlineGraphMapper:
             if isinstance(job, _Redraw):
                 self._redraw(job)
             else:
-                job.matches = self._mapper.find_closures(job.k, job.estimate)
+                job.matches = self._mapper.find_closures(job.k, job.estimate, job.held)
         except LinemapError as exc:
             self.failure = f"loop closure: {exc}"
             log.warning("%s; mapping goes on without it", self.failure)
@@ -312,10 +335,12 @@ class OnlineGraphMapper:
         rebuilt = self._make(self._config)
         if self._base is not None:
             rebuilt.seed_map(self._base)
+        held = self._mapper.places.scans_held(job.held)
         for i, (_step, scan, odometry) in enumerate(self._mapper.stepped()[: job.kept]):
             if self._closing:
                 return
-            rebuilt.step(scan, odometry, pose=self._mapper.kept_pose(i, job.estimate))
+            if held[i] and scan is not None:  # held for this job: never freed while it is pending
+                rebuilt.step(scan, odometry, pose=self._mapper.kept_pose(i, job.estimate))
         while not self._closing:  # catch up here, not in the step, until a few scans are left
             upto = len(job.since)
             if upto - job.caught_up <= _CATCH_UP_IN_STEP:
@@ -362,8 +387,10 @@ class OnlineGraphMapper:
                 "closed": self._closed_since_rebuild,
                 "rebuilt_at": self._rebuilt_at,
                 "rebuilds": self.rebuilds,
-                "searches": [(j.k, j.due, j.estimate, j.matches) for j in self._searches],
-                "redraw": None if redraw is None else (redraw.at, redraw.estimate, redraw.kept, redraw.since),
+                "searches": [(j.k, j.due, j.estimate, j.held, j.matches) for j in self._searches],
+                "redraw": None
+                if redraw is None
+                else (redraw.at, redraw.estimate, redraw.kept, redraw.held, redraw.since),
             }
             return graph_state(self, parts)
 
@@ -378,14 +405,14 @@ class OnlineGraphMapper:
             self._mapper, self._shown, self._base = parts["mapper"], parts["shown"], parts["base"]
             self._version, self._rebuilt_at = int(parts["version"]), int(parts["rebuilt_at"])
             self._closed_since_rebuild, self.rebuilds = bool(parts["closed"]), int(parts["rebuilds"])
-            for k, due, estimate, matches in parts["searches"]:
-                job = _Search(int(k), int(due), estimate, matches)
+            for k, due, estimate, held, matches in parts["searches"]:
+                job = _Search(int(k), int(due), estimate, int(held), matches)
                 self._searches.append(job)
                 if matches is None:
                     self._submit(job)
             if parts["redraw"] is not None:
-                at, estimate, kept, since = parts["redraw"]
-                redraw = _Redraw(int(at), estimate, int(kept), list(since))
+                at, estimate, kept, held, since = parts["redraw"]
+                redraw = _Redraw(int(at), estimate, int(kept), int(held), list(since))
                 self._redraws.append(redraw)
                 self._submit(redraw)
 

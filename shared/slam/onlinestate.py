@@ -4,11 +4,11 @@ edges and estimate, the accepted closures, the scans kept for redraws, the shown
 once a loop was closed) and the map drawn before loop closure was switched on.
 
 What the worker had not finished is not lost: keyframes whose loop search was pending are searched again
-after a restore, and a rebuild under way is started again. The gtsam solver is not saved: a restored graph
-gives a new iSAM2 every node at its saved estimate and every edge in one update
-(:meth:`shared.slam.graph.PoseGraph.reattach`), so later estimates agree with an uninterrupted run's to
-within the solver's relinearisation (well under a millimetre on the simulated world), not bit for bit.
-O(graph + kept scans + map) both ways.
+after a restore with their saved inputs, and the latest rebuild under way is started again. The gtsam
+solver is not saved: a restored graph replays the updates since its solver was last built from scratch
+(:meth:`shared.slam.graph.PoseGraph.reattach`), so it goes on bit for bit as an uninterrupted one. Retired
+keyframes and kept scans (:mod:`shared.slam.places`) are saved without their returns once no pending job
+reads them. O(graph + held kept scans + map) both ways.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from shared.errors import StateError
 from shared.pipeline import pipeline
 from shared.pipeline.pipestate import PIPELINE_SKIP, adopt_pipeline
 from shared.pipeline.state import MapperState, decode_tree, encode_tree, register_state_class
-from shared.slam import closure, graph, mapper, rows, settings
+from shared.slam import closure, graph, mapper, places, rows, settings
 
 if TYPE_CHECKING:
     from shared.slam.online import OnlineGraphMapper
@@ -39,6 +39,7 @@ register_state_class(
     closure.LoopMatch,
     settings.LoopClosureSettings,
     rows.Rows,
+    places.Places,
 )
 
 _SKIP: dict[type, frozenset[str]] = {
@@ -51,8 +52,8 @@ _SKIP: dict[type, frozenset[str]] = {
 def graph_state(online: OnlineGraphMapper, parts: dict[str, Any]) -> MapperState:
     """The state of ``online`` from ``parts`` (read under its lock: ``mapper``, ``shown``, ``base``,
     ``version``, ``closed``, ``rebuilt_at``, ``rebuilds``, ``searches`` (keyframe, due version, estimate,
-    matches or None) and ``redraw`` (version, estimate, kept scans, what the shown map took since) or
-    None)."""
+    keyframes retired then, matches or None) and ``redraw`` (version, estimate, kept scans, kept scans
+    retired then, what the shown map took since) or None)."""
     tree, arrays = encode_tree(parts, _SKIP)
     return MapperState(GRAPH_KIND, tree, arrays)
 
@@ -96,19 +97,21 @@ def _check_jobs(searches: Any, redraw: Any) -> None:
     for job in searches if isinstance(searches, list) else [None]:
         if not (
             isinstance(job, tuple)
-            and len(job) == 4
+            and len(job) == 5
             and isinstance(job[0], int)
             and isinstance(job[1], int)
             and _estimate(job[2])
-            and (job[3] is None or isinstance(job[3], list))
+            and isinstance(job[3], int)
+            and (job[4] is None or isinstance(job[4], list))
         ):
             raise StateError(f"the graph mapper's pending loop search {job!r:.80} is not one")
     if redraw is not None and not (
         isinstance(redraw, tuple)
-        and len(redraw) == 4
+        and len(redraw) == 5
         and isinstance(redraw[0], int)
         and _estimate(redraw[1])
         and isinstance(redraw[2], int)
-        and isinstance(redraw[3], list)
+        and isinstance(redraw[3], int)
+        and isinstance(redraw[4], list)
     ):
         raise StateError(f"the graph mapper's pending rebuild {redraw!r:.80} is not one")

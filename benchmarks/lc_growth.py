@@ -1,0 +1,99 @@
+"""How the robot's loop-closure state grows as it drives the same building again and again: a simulated
+patrol of a suite world (default ``loop-block``, a corridor loop) for ``--laps`` laps through the agent's
+own loop-closure mapper (:class:`robot_agent.mapping.PipelineSlot` with loop closure on: an
+:class:`~shared.slam.OnlineGraphMapper` with its worker threads and the agent's bounded history; the map
+is the same whatever the worker's timing). Every ``--every`` steps it prints the keyframes (all, and
+those still holding their scan), the scans kept for redraws (all, and those still held), the closures,
+the saved state's size and the time to take it and make its bytes, the last rebuild's time, and the
+shown map against the world's walls (mean and 95th-percentile distance, walls, spurious share).
+
+    .venv/bin/python benchmarks/lc_growth.py [--world loop-block] [--seed 0] [--laps 6] [--every 1000]
+
+``--json FILE`` writes the rows too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from robot_agent.mapping import PipelineSlot
+from robot_agent.sources import laser_offset
+from shared.metrics import line_accuracy
+from shared.pipeline import PipelineConfig
+from shared.sim import scene_patrol_scans
+from shared.sim.worlds import build_scene
+from shared.slam import OnlineGraphMapper
+
+__all__ = ["main"]
+
+
+def _row(online: OnlineGraphMapper, walls_true, step: int, t_run_s: float) -> dict[str, float | int]:  # type: ignore[no-untyped-def]
+    mapper = online._mapper
+    t0 = time.perf_counter()
+    state = online.state()
+    t1 = time.perf_counter()
+    size = len(state.to_bytes())
+    t2 = time.perf_counter()
+    segments = online.snapshot().segments
+    acc = line_accuracy(segments, walls_true)
+    places = getattr(mapper, "places", None)  # None: code from before places were retired
+    keys_retired = places.keyframes_retired if places is not None else 0
+    scans_retired = places.scans_retired if places is not None else 0
+    return {
+        "step": step,
+        "keyframes": len(mapper.keyframes),
+        "keyframes_held": len(mapper.keyframes) - keys_retired,
+        "kept_scans": len(mapper.stepped()),
+        "kept_scans_held": len(mapper.stepped()) - scans_retired,
+        "closures": online.closures,
+        "state_bytes": size,
+        "state_take_ms": round((t1 - t0) * 1e3, 1),
+        "state_bytes_ms": round((t2 - t1) * 1e3, 1),
+        "last_rebuild_ms": round(online.redraw_ms[-1], 1) if online.redraw_ms else 0.0,
+        "walls": len(segments),
+        "mean_error_cm": round(acc.mean_distance_m * 100, 2),
+        "p95_error_cm": round(acc.p95_distance_m * 100, 2),
+        "spurious_pct": round(acc.spurious_share * 100, 1),
+        "run_s": round(t_run_s, 1),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--world", default="loop-block")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--laps", type=int, default=6)
+    parser.add_argument("--every", type=int, default=1000, help="steps between two rows")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    walls_true = build_scene(args.world, args.seed).walls
+    slot = PipelineSlot(laser_offset(f"sim:{args.world}"))
+    slot.start(PipelineConfig.parse({"loop_closure": {}}))
+    online = slot.pipeline
+    assert isinstance(online, OnlineGraphMapper)
+    rows = []
+    header = False
+    t0 = time.perf_counter()
+    step = 0
+    for step, scan in enumerate(scene_patrol_scans(args.world, seed=args.seed, laps=args.laps), 1):
+        online.step(scan)
+        if step % args.every == 0:
+            rows.append(_row(online, walls_true, step, time.perf_counter() - t0))
+            if not header:
+                print("  ".join(f"{k:>10}" for k in rows[-1]))
+                header = True
+            print("  ".join(f"{v:>10}" for v in rows[-1].values()), flush=True)
+    online.flush()
+    online.wait_idle()
+    rows.append(_row(online, walls_true, step, time.perf_counter() - t0))
+    print("  ".join(f"{v:>10}" for v in rows[-1].values()), "(flushed)")
+    if args.json is not None:
+        args.json.write_text(json.dumps(rows, indent=1))
+    online.close()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,127 @@
+"""Places: what the robot's loop closure keeps of a building it drives again and again.
+
+Without this, every keyframe keeps its scan (for loop searches) and every scan kept for redraws stays
+(one each 10 cm), so the mapping state and each rebuild of the map grow with the distance driven: about
+3.6 MB per lap of the simulated corridor loop, 3 GB a day. Yet a scan taken where a newer one was taken,
+facing the same way, adds nothing to the map that the newer one does not see (and the newer one sees the
+building as it is now: moved furniture, a door that was opened). So once the graph has tied the robot's
+current stretch to the earlier visit (a loop closure accepted within :data:`TIED_KEYFRAMES` keyframes:
+the estimate of where it is is then good), each new keyframe **retires** the older keyframes at its place
+(within half the keyframe spacing and the keyframe turn), and each new kept scan the older kept scans at
+its place (within :data:`SCAN_PLACE`). A retired keyframe stays a node of the pose graph (its pose, its
+edges: a few hundred bytes) but is no longer a loop-search candidate and gives up its scan; a retired
+kept scan is not mapped again by later rebuilds and gives up its returns. What is held is then bounded by
+the places visited (area x headings), not by the distance driven. The idea is the reduced pose graph's
+(Johannsson et al., ICRA 2013: "Temporally scalable visual SLAM using a reduced pose graph") applied to
+the scans; the nodes themselves still grow with distance, a few hundred bytes each.
+
+**The same map whatever the timing.** Retirements are decided in the step (at the join of a keyframe's
+loop search, a fixed step), numbered in order; a job (a loop search, a rebuild) reads only what was held
+when it began (``held_upto``: the number of retirements then), and a retired item's data is freed only
+once no pending job began before its retirement (:meth:`Places.free_upto`). So when the data is freed
+changes the state's size, never the map.
+
+Cost: O(held keyframes + held kept scans) per keyframe (vectorised), in the step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from shared.slam.rows import Rows
+from shared.types import BoolArray, FloatArray, IntArray
+
+__all__ = ["SCAN_PLACE", "TIED_KEYFRAMES", "Places", "near"]
+
+#: kept scans within this distance (m) and turn (rad) of a newer one are at its place
+SCAN_PLACE = (0.10, math.radians(15.0))
+#: the graph ties the robot's stretch to an earlier visit while a loop closure was accepted at most this
+#: many keyframes back (5 m at the default 0.5 m spacing)
+TIED_KEYFRAMES = 10
+
+_HELD = math.inf
+
+
+class Places:
+    """Which keyframes and kept scans are held, and the order they were retired in (module docstring).
+
+    Per keyframe and per kept scan: the number of its retirement (``inf`` while held). ``enabled`` False
+    (offline mapping) keeps everything."""
+
+    __slots__ = (
+        "enabled",
+        "freed_keyframes",
+        "freed_scans",
+        "key_retired",
+        "keyframe_order",
+        "scan_order",
+        "scan_retired",
+    )
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self.key_retired = Rows(1)
+        self.scan_retired = Rows(1)
+        self.keyframe_order: list[int] = []  # keyframes in the order retired
+        self.scan_order: list[int] = []  # kept scans in the order retired
+        self.freed_keyframes = 0  # how many of keyframe_order gave up their data
+        self.freed_scans = 0
+
+    @property
+    def keyframes_retired(self) -> int:
+        return len(self.keyframe_order)
+
+    @property
+    def scans_retired(self) -> int:
+        return len(self.scan_order)
+
+    def add_keyframe(self) -> None:
+        self.key_retired.append((_HELD,))
+
+    def add_scan(self) -> None:
+        self.scan_retired.append((_HELD,))
+
+    def keyframes_held(self, upto: int | None = None) -> BoolArray:
+        """``(K,)``: which keyframes were held when ``upto`` keyframes had been retired (None: now)."""
+        col = self.key_retired.view()[:, 0]
+        return np.asarray(col >= (len(self.keyframe_order) if upto is None else upto))
+
+    def scans_held(self, upto: int | None = None) -> BoolArray:
+        """``(N,)``: which kept scans were held when ``upto`` kept scans had been retired (None: now)."""
+        col = self.scan_retired.view()[:, 0]
+        return np.asarray(col >= (len(self.scan_order) if upto is None else upto))
+
+    def retire_keyframes(self, indices: IntArray) -> None:
+        for i in indices.tolist():
+            self.key_retired.data[i, 0] = len(self.keyframe_order)
+            self.keyframe_order.append(int(i))
+
+    def retire_scans(self, indices: IntArray) -> None:
+        for i in indices.tolist():
+            self.scan_retired.data[i, 0] = len(self.scan_order)
+            self.scan_order.append(int(i))
+
+    def free_upto(self, keyframes: int, scans: int) -> tuple[list[int], list[int]]:
+        """The keyframes and kept scans retired before the ``keyframes``-th and ``scans``-th retirement
+        whose data is not freed yet (the caller frees it); they are marked freed."""
+        keys = self.keyframe_order[self.freed_keyframes : keyframes]
+        scans_out = self.scan_order[self.freed_scans : scans]
+        self.freed_keyframes = max(self.freed_keyframes, keyframes)
+        self.freed_scans = max(self.freed_scans, scans)
+        return keys, scans_out
+
+
+def near(
+    poses: FloatArray, among: IntArray, target: FloatArray, radius_m: float, turn_rad: float
+) -> IntArray:
+    """Those of ``among`` (indices into ``poses`` ``(N, 3)``) within ``radius_m`` of ``target`` ``(3,)``
+    and turned at most ``turn_rad`` from it. O(len(among))."""
+    if not len(among):
+        return among
+    rows = poses[among]
+    dist = np.hypot(rows[:, 0] - target[0], rows[:, 1] - target[1])
+    turn = np.abs(np.remainder(rows[:, 2] - target[2] + np.pi, 2 * np.pi) - np.pi)
+    out: IntArray = among[(dist <= radius_m) & (turn <= turn_rad)]
+    return out
