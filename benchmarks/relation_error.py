@@ -69,6 +69,8 @@ VARIANTS: dict[str, Callable[[], tuple[PipelineConfig, IcpGate]]] = {
 #: variants mapped under the keyframe pose graph with loop closure (:mod:`shared.slam`)
 LOOP_VARIANTS: dict[str, Callable[[], tuple[PipelineConfig, IcpGate]]] = {
     "loop": lambda: (PipelineConfig(), IcpGate()),
+    # as "loop", holding one keyframe scan and one scan per place as the robot does (shared.slam.places)
+    "loop-places": lambda: (PipelineConfig(), IcpGate()),
 }
 
 
@@ -94,7 +96,9 @@ def run(spec: LogSpec, variant: str, progress: Progress, jitter_m: float = 0.0) 
         offset = reader.info.laser_offset
         pipeline: Pipeline | GraphMapper = Pipeline(config, laser_offset=offset, icp_gate=gate)
         if variant in LOOP_VARIANTS:
-            pipeline = GraphMapper(lambda: Pipeline(config, laser_offset=offset, icp_gate=gate))
+            pipeline = GraphMapper(
+                lambda: Pipeline(config, laser_offset=offset, icp_gate=gate), places=variant == "loop-places"
+            )
         start = time.perf_counter()
         for scan in reader:
             odo = scan.odometry
@@ -112,7 +116,8 @@ def run(spec: LogSpec, variant: str, progress: Progress, jitter_m: float = 0.0) 
             poses = [tuple(row[1:]) for row in pipeline.trajectory()]
             progress.console.log(
                 f"{spec.title}: {len(pipeline.keyframes)} keyframes, {len(pipeline.closures)} loop closures "
-                f"of {pipeline.candidates_tried} candidates"
+                f"of {pipeline.candidates_tried} candidates; {pipeline.places.keyframes_retired} keyframes "
+                f"and {pipeline.places.scans_retired} scans retired"
             )
         else:
             pipeline.flush()

@@ -200,6 +200,8 @@ class GraphMapper:
         self._add_skip_edges(k)
         if self.settings.enabled and self.search_inline:
             self.add_closures(k, self.find_closures(k))
+            self.retire_places(k)
+            self.free_retired(self.places.keyframes_retired, self.places.scans_retired)  # no job pending
         else:
             self._update()
 

@@ -1,0 +1,161 @@
+"""Places (shared.slam.places): what the loop closure holds of a building driven again and again.
+
+The geometry (``near``) against a brute-force reading; the bookkeeping (retirement order, what a job that
+began earlier still reads, freeing once); and on the simulated corridor loop: laps 3 and 4 add no held
+keyframe or kept scan to lap 2's (the places are the same), the state stops growing with the scans, and
+the map stays as good as the one drawn from every scan."""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from robot_agent.sources import laser_offset
+from shared.metrics import line_accuracy
+from shared.pipeline import MapperState, Pipeline, PipelineConfig
+from shared.sim import scene_patrol_scans
+from shared.sim.worlds import build_scene
+from shared.slam import OnlineGraphMapper
+from shared.slam.places import Places, near
+
+_finite = st.floats(-20.0, 20.0, allow_nan=False)
+
+
+@given(
+    st.lists(st.tuples(_finite, _finite, st.floats(-10.0, 10.0)), min_size=0, max_size=30),
+    st.tuples(_finite, _finite, st.floats(-10.0, 10.0)),
+    st.floats(0.0, 5.0),
+    st.floats(0.0, math.pi),
+)
+@settings(max_examples=200, deadline=None)
+def test_near_is_the_brute_force_reading(rows, target, radius_m, turn_rad) -> None:  # type: ignore[no-untyped-def]
+    poses = np.array(rows, dtype=np.float64).reshape(-1, 3)
+    among = np.arange(len(poses))[::2]
+    got = set(near(poses, among, np.array(target), radius_m, turn_rad).tolist())
+    for i in among.tolist():
+        x, y, th = rows[i]
+        dist = math.hypot(x - target[0], y - target[1])
+        turn = abs((th - target[2] + math.pi) % (2 * math.pi) - math.pi)
+        if abs(dist - radius_m) < 1e-9 or abs(turn - turn_rad) < 1e-9:
+            continue  # on the boundary: either reading is right
+        assert (i in got) == (dist <= radius_m and turn <= turn_rad), (i, dist, turn)
+    assert got <= set(among.tolist())
+
+
+def test_a_job_reads_what_was_held_when_it_began_and_data_is_freed_once() -> None:
+    places = Places(True)
+    for _ in range(5):
+        places.add_keyframe()
+        places.add_scan()
+    began = places.keyframes_retired  # a job begins: nothing retired yet
+    places.retire_keyframes(np.array([3, 1]))
+    places.retire_scans(np.array([0]))
+    assert places.keyframes_held(began).tolist() == [True] * 5
+    assert places.keyframes_held().tolist() == [True, False, True, False, True]
+    assert places.keyframes_held(1).tolist() == [True, True, True, False, True]  # 3 retired first
+    assert places.scans_held().tolist() == [False, True, True, True, True]
+    # the job that began before is pending: nothing may be freed; once it is joined, all, once
+    assert places.free_upto(began, 0) == ([], [])
+    assert places.free_upto(2, 1) == ([3, 1], [0])
+    assert places.free_upto(2, 1) == ([], [])
+    assert (places.freed_keyframes, places.freed_scans) == (2, 1)
+
+
+def test_places_off_holds_everything() -> None:
+    online = _run(laps=2, places=False)[-1][0]
+    assert online._mapper.places.keyframes_retired == 0 and online._mapper.places.scans_retired == 0
+
+
+@cache
+def _run(laps: int, places: bool) -> list[tuple[OnlineGraphMapper, int, int, int]]:
+    """The agent's mapper in the step over ``laps`` laps of loop-block: per lap, the mapper (the last one
+    flushed), held keyframes, held kept scans, the state's size."""
+    offset = laser_offset("sim:loop-block")
+    online = OnlineGraphMapper(
+        lambda c: Pipeline(c, laser_offset=offset, history=8000),
+        PipelineConfig(),
+        worker=False,
+        history=8000,
+        places=places,
+    )
+    rows = []
+    per_lap = None
+    scans = list(scene_patrol_scans("loop-block", seed=0, laps=laps))
+    per_lap = len(scans) // laps
+    for i, scan in enumerate(scans, 1):
+        online.step(scan)
+        if i % per_lap == 0:
+            m = online._mapper
+            held_k = int(m.places.keyframes_held().sum())
+            held_s = int(m.places.scans_held().sum())
+            rows.append((online, held_k, held_s, len(online.state().to_bytes())))
+    online.flush()
+    return rows
+
+
+def test_laps_three_and_four_hold_no_more_than_lap_two_and_map_as_well() -> None:
+    rows = _run(laps=4, places=True)
+    _, k2, s2, b2 = rows[1]
+    online, k4, s4, b4 = rows[3]
+    mapper = online._mapper
+    assert mapper.places.keyframes_retired > 0 and mapper.places.scans_retired > 0
+    assert len(mapper.keyframes) > 3 * k4  # nodes grow with distance; held ones do not
+    assert k4 <= 1.1 * k2 and s4 <= 1.1 * s2
+    # what the state still adds per lap (nodes, edges) is far below a lap's scans (lap 1's state)
+    assert b4 - b2 < 0.25 * rows[0][3]
+    # freed: no retired keyframe or scan of before the last pending job keeps its returns
+    retired = mapper.places.keyframe_order[: mapper.places.freed_keyframes]
+    assert retired and all(len(mapper.keyframes[j].scan) == 0 for j in retired)
+    walls = build_scene("loop-block", 0).walls
+    acc = line_accuracy(online.snapshot().segments, walls)
+    every = _run(laps=4, places=False)[-1][0]
+    acc_every = line_accuracy(every.snapshot().segments, walls)
+    assert acc.mean_distance_m < max(0.02, 1.25 * acc_every.mean_distance_m)
+    assert acc.spurious_share <= acc_every.spurious_share + 0.02
+    assert len(online.walls()[0]) <= 1.2 * len(every.walls()[0])
+
+
+def test_a_state_saved_with_retired_data_still_held_for_a_job_resumes_exactly(late_worker) -> None:  # type: ignore[no-untyped-def]
+    """Saved while a pending rebuild began before a retirement whose scan it still reads (so that scan's
+    returns are in the state), restored, stepped on: the same map as the run in the step, bit for bit."""
+    from tests.shared.slam.slamcheck import assert_same_map
+
+    offset = laser_offset("sim:loop-block")
+    scans = list(scene_patrol_scans("loop-block", seed=0, laps=3))
+
+    def make(worker: bool) -> OnlineGraphMapper:
+        return OnlineGraphMapper(lambda c: Pipeline(c, laser_offset=offset), PipelineConfig(), worker=worker)
+
+    first = make(True)
+    late = late_worker(first)
+    try:
+        split = 0
+        for i, scan in enumerate(scans, 1):
+            late.step(scan)
+            split = i
+            p = first._mapper.places
+            pending = first._redraws and not first._redraws[-1].done
+            if pending and p.scans_retired > p.freed_scans and p.keyframes_retired > p.freed_keyframes:
+                break
+        state = first.state()
+        late.release()
+    finally:
+        first.close()
+    assert split < len(scans), "no moment with retired data held for a pending job"
+    restored = make(True)
+    through = make(False)
+    try:
+        restored.restore(MapperState.from_bytes(state.to_bytes()))
+        for scan in scans[split:]:
+            restored.step(scan)
+        for scan in scans:
+            through.step(scan)
+        restored.flush()
+        through.flush()
+        assert_same_map(through, restored)
+    finally:
+        restored.close()
