@@ -24,7 +24,7 @@ import gtsam
 import numpy as np
 
 from shared.slam.errors import OptimisationError
-from shared.types import FloatArray, Pose2D
+from shared.types import FloatArray, Pose2D, wrap_angle
 
 __all__ = ["RESOLVE_EVERY_UPDATES", "Edge", "PoseGraph"]
 
@@ -51,13 +51,28 @@ def _pose2(p: Pose2D) -> gtsam.Pose2:
     return gtsam.Pose2(p.x_m, p.y_m, p.theta_rad)
 
 
-def _poses_of(values: gtsam.Values, n: int) -> list[Pose2D]:
-    """Nodes ``0..n-1`` of ``values`` as poses, in key order (one C++ call for the array: the per-node
-    ``atPose2`` took a third of an update's time on long graphs). O(n)."""
-    arr = gtsam.utilities.extractPose2(values)
+def _poses_of(values: gtsam.Values, n: int) -> FloatArray:
+    """Nodes ``0..n-1`` of ``values`` as read-only rows ``(n, 3)`` ``[x_m, y_m, theta_rad]``, in key order
+    (one C++ call: the per-node ``atPose2``, and a ``Pose2D`` per node, took a third of an update's time
+    on long graphs). O(n)."""
+    arr = np.array(gtsam.utilities.extractPose2(values), dtype=np.float64).reshape(-1, 3)
     if len(arr) != n:
         raise OptimisationError(f"the solution holds {len(arr)} poses for {n} nodes")
-    return [Pose2D(x, y, th) for x, y, th in arr.tolist()]
+    if not np.isfinite(arr).all():
+        raise OptimisationError("the solution holds a pose that is not finite")
+    th = arr[:, 2]
+    for i in np.flatnonzero((th <= -math.pi) | (th > math.pi)).tolist():  # as Pose2D wraps: (-pi, pi]
+        th[i] = wrap_angle(float(th[i]))
+    return _frozen(arr)
+
+
+def _frozen(arr: FloatArray) -> FloatArray:
+    arr.setflags(write=False)
+    return arr
+
+
+def _row(p: Pose2D) -> FloatArray:
+    return np.array([[p.x_m, p.y_m, p.theta_rad]], dtype=np.float64)
 
 
 def _local(information: FloatArray, measurement: Pose2D) -> FloatArray:
@@ -76,8 +91,9 @@ class PoseGraph:
     def __init__(self, *, robust_sigmas: float = 3.0, extra_iterations: int = 2) -> None:
         self._robust_sigmas = robust_sigmas
         self._extra = extra_iterations
-        self._estimate: list[Pose2D] = []
-        self._array: FloatArray | None = None  # the estimate as (n, 3) rows, once asked for
+        # the estimate as read-only (n, 3) rows; replaced, never written in place, so an array handed out
+        # (pose_array) stays what it was
+        self._estimate: FloatArray = _frozen(np.zeros((0, 3)))
         self._first: Pose2D | None = None
         self._edges: list[Edge] = []
         self._loop_pending = False
@@ -122,21 +138,20 @@ class PoseGraph:
             self._new_factors = gtsam.NonlinearFactorGraph()
             self._new_values = gtsam.Values()
 
-    def _queue_graph(self, estimate: list[Pose2D], edges: list[Edge]) -> None:
-        """The anchor, every node at ``estimate`` and ``edges``, queued for one update."""
+    def _queue_graph(self, estimate: FloatArray, edges: list[Edge]) -> None:
+        """The anchor, every node at ``estimate`` (rows) and ``edges``, queued for one update."""
         self._prior()
-        for k, p in enumerate(estimate):
-            self._new_values.insert(k, _pose2(p))
+        for k, (x, y, th) in enumerate(estimate.tolist()):
+            self._new_values.insert(k, gtsam.Pose2(x, y, th))
         self._queue_edges(edges)
 
     def _resolve(self) -> None:
         """Build the solver from scratch: every node at its estimate, every edge, one update (the estimate
         stays); the history starts again here. O(graph)."""
         self._fresh_solver()
-        self._array = None
         self._base = (len(self._estimate), len(self._edges), self.pose_array())
         self._log, self._guesses = [], []
-        if self._estimate:
+        if len(self._estimate):
             self._queue_graph(self._estimate, self._edges)
             self._solve(False)
 
@@ -147,13 +162,12 @@ class PoseGraph:
         very solver that was saved and later updates give what they would have given. If the replay
         does not arrive at the saved estimate (a state from another gtsam), the solver is built from
         the saved estimate instead (within its relinearisation of it). O(graph + updates since)."""
-        saved, history, guesses = list(self._estimate), list(self._log), list(self._guesses)
+        saved, history, guesses = _frozen(np.array(self._estimate)), list(self._log), list(self._guesses)
         nodes, edges, base = self._base
         self._fresh_solver()
-        self._array = None
         try:
+            self._estimate = _frozen(np.array(base, dtype=np.float64).reshape(-1, 3))
             if nodes:
-                self._estimate = [Pose2D(x, y, th) for x, y, th in np.asarray(base).tolist()]
                 self._queue_graph(self._estimate, self._edges[:edges])
                 self._solve(False)
             self._estimate = self._estimate[:nodes]
@@ -163,15 +177,14 @@ class PoseGraph:
                     self._new_values.insert(k, _pose2(guess))
                     if k == 0:
                         self._prior()
-                    self._estimate.append(guess)
+                    self._estimate = np.vstack([self._estimate, _row(guess)])
                 self._queue_edges(self._edges[edges:e_after])
                 edges = e_after
                 self._estimate = _poses_of(self._solve(loops), len(self._estimate))
         except (OptimisationError, IndexError) as exc:
             log.warning("the pose graph's solver did not replay (%s); rebuilt from the saved estimate", exc)
-        exact = self._estimate == saved
+        exact = self._estimate.shape == saved.shape and bool(np.array_equal(self._estimate, saved))
         self._estimate = saved
-        self._array = None
         if not exact:
             log.warning("the pose graph's solver replayed to another estimate; rebuilt from the saved one")
             self._resolve()
@@ -194,9 +207,8 @@ class PoseGraph:
         if index == 0:
             self._first = guess
             self._prior()
-        self._estimate.append(guess)
+        self._estimate = _frozen(np.vstack([self._estimate, _row(guess)]))
         self._guesses.append(guess)
-        self._array = None
         return index
 
     def add_edge(self, i: int, j: int, measurement: Pose2D, information: FloatArray, *, loop: bool) -> None:
@@ -229,14 +241,13 @@ class PoseGraph:
         loops, self._loop_pending = self._loop_pending, False
         self._log.append((len(self._estimate), len(self._edges), loops))
         self._estimate = _poses_of(self._solve(loops), len(self._estimate))
-        self._array = None
         if len(self._log) >= RESOLVE_EVERY_UPDATES:
             self._resolve()
 
     def optimise_batch(self, max_iterations: int = 100) -> None:
         """Re-solve the whole graph with Levenberg-Marquardt from the current estimate (offline)."""
         self.update()
-        if not self._estimate:
+        if not len(self._estimate):
             return
         graph = gtsam.NonlinearFactorGraph()
         assert self._first is not None
@@ -249,8 +260,8 @@ class PoseGraph:
                 )
             )
         initial = gtsam.Values()
-        for k, p in enumerate(self._estimate):
-            initial.insert(k, _pose2(p))
+        for k, (x, y, th) in enumerate(self._estimate.tolist()):
+            initial.insert(k, gtsam.Pose2(x, y, th))
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations)
         try:
@@ -258,29 +269,25 @@ class PoseGraph:
         except RuntimeError as exc:
             raise OptimisationError(f"batch optimisation failed: {exc}") from exc
         poses = _poses_of(result, len(self._estimate))
-        if all(math.isfinite(p.x_m) for p in poses):
+        if np.isfinite(poses).all():
             self._estimate = poses
             self._resolve()
 
     # ------------------------------------------------------------------ reading
     def pose(self, index: int) -> Pose2D:
-        """The current estimate of node ``index`` (world frame)."""
-        return self._estimate[index]
+        """The current estimate of node ``index`` (world frame). O(1)."""
+        x, y, th = self._estimate[index].tolist()
+        return Pose2D(x, y, th)
 
     def poses(self) -> list[Pose2D]:
-        """Every node's current estimate, in order."""
-        return list(self._estimate)
+        """Every node's current estimate, in order. O(n)."""
+        return [Pose2D(x, y, th) for x, y, th in self._estimate.tolist()]
 
     def pose_array(self) -> FloatArray:
         """Every node's current estimate as read-only rows ``(n, 3)`` ``[x_m, y_m, theta_rad]``; the same
-        array until the estimate changes (a copy-free snapshot for work off the step). O(n) when it
-        changed, else O(1)."""
-        arr = self._array
-        if arr is None:
-            arr = np.array([p.as_tuple() for p in self._estimate], dtype=np.float64).reshape(-1, 3)
-            arr.setflags(write=False)
-            self._array = arr
-        return arr
+        array until the estimate changes, and never changed in place (a copy-free snapshot for work off
+        the step). O(1)."""
+        return self._estimate
 
     def covariance(self, index: int) -> FloatArray:
         """The marginal covariance of node ``index`` ``(3, 3)`` over world-frame ``(x_m, y_m, theta_rad)``
@@ -290,7 +297,7 @@ class PoseGraph:
             local = np.asarray(self._isam.marginalCovariance(index), dtype=np.float64)
         except RuntimeError as exc:
             raise OptimisationError(f"no marginal covariance of node {index}: {exc}") from exc
-        th = self._estimate[index].theta_rad
+        th = float(self._estimate[index, 2])
         c, s = math.cos(th), math.sin(th)
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         out: FloatArray = rot @ local @ rot.T
@@ -299,7 +306,7 @@ class PoseGraph:
     def residual_sigmas(self, edge: Edge) -> float:
         """How far the current estimate is from ``edge``'s measurement, in the edge's standard deviations
         (Mahalanobis distance). A loop edge far beyond ``robust_sigmas`` is one the kernel outvoted."""
-        predicted = self._estimate[edge.i].between(self._estimate[edge.j])
+        predicted = self.pose(edge.i).between(self.pose(edge.j))
         d = np.array(
             [
                 predicted.x_m - edge.measurement.x_m,

@@ -45,7 +45,7 @@ register_state_class(
 _SKIP: dict[type, frozenset[str]] = {
     **PIPELINE_SKIP,
     mapper.GraphMapper: frozenset({"_make"}),
-    graph.PoseGraph: frozenset({"_params", "_isam", "_new_factors", "_new_values", "_array"}),
+    graph.PoseGraph: frozenset({"_params", "_isam", "_new_factors", "_new_values"}),
 }
 
 
