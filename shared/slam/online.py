@@ -27,10 +27,11 @@ relinearisation.
 
 Until the first closure the shown map is the front end's own. A rebuild costs as much as mapping the kept
 scans again (about 2 ms a scan on the simulated world, one kept in four at 0.4 m/s): after an hour of
-driving about 15 s of the worker's time; a rebuild begun while one is under way supersedes it. Memory
-grows with the distance driven (a robot standing still keeps nothing), not with time.
-Keyframe-anchored wall observations, re-placed without mapping the scans again, are the way to bound it
-further (docs/loopclosure.md, "Not yet").
+driving about 15 s of the worker's time without places; a rebuild begun while one is under way supersedes
+it. A building driven again holds one keyframe scan and one kept scan per place
+(:mod:`shared.slam.places`), so the scans held and a rebuild's time grow with the places visited, not
+with the distance driven; the graph's nodes and edges (a few hundred bytes a keyframe) still do, and a
+robot standing still adds nothing.
 
 Thread safety: the step and the readers (``walls``, ``snapshot``) share the mapper under one lock; the
 worker never takes it: it reads only its job's input and the append-only keyframes, steps and kept scans.
