@@ -5,9 +5,11 @@ own loop-closure mapper (:class:`robot_agent.mapping.PipelineSlot` with loop clo
 is the same whatever the worker's timing). Every ``--every`` steps it prints the keyframes (all, and
 those still holding their scan), the scans kept for redraws (all, and those still held), the closures,
 the saved state's size and the time to take it and make its bytes, the last rebuild's time, and the
-shown map against the world's walls (mean and 95th-percentile distance, walls, spurious share).
+shown map against the world's walls (mean and 95th-percentile distance, walls, spurious share, the
+share of the world's wall length mapped).
 
     .venv/bin/python benchmarks/lc_growth.py [--world loop-block] [--seed 0] [--laps 6] [--every 1000]
+        [--no-places]
 
 ``--json FILE`` writes the rows too.
 """
@@ -23,6 +25,7 @@ from robot_agent.mapping import PipelineSlot
 from robot_agent.sources import laser_offset
 from shared.metrics import line_accuracy
 from shared.pipeline import PipelineConfig
+from shared.protocol import MAX_TRAJECTORY_POSES
 from shared.sim import scene_patrol_scans
 from shared.sim.worlds import build_scene
 from shared.slam import OnlineGraphMapper
@@ -57,6 +60,7 @@ def _row(online: OnlineGraphMapper, walls_true, step: int, t_run_s: float) -> di
         "mean_error_cm": round(acc.mean_distance_m * 100, 2),
         "p95_error_cm": round(acc.p95_distance_m * 100, 2),
         "spurious_pct": round(acc.spurious_share * 100, 1),
+        "complete_pct": round(acc.completeness * 100, 1),  # of every wall of the world, seen or not
         "run_s": round(t_run_s, 1),
     }
 
@@ -68,12 +72,17 @@ def main() -> None:
     parser.add_argument("--laps", type=int, default=6)
     parser.add_argument("--every", type=int, default=1000, help="steps between two rows")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--no-places", action="store_true", help="hold every keyframe scan and kept scan")
     args = parser.parse_args()
     walls_true = build_scene(args.world, args.seed).walls
     slot = PipelineSlot(laser_offset(f"sim:{args.world}"))
-    slot.start(PipelineConfig.parse({"loop_closure": {}}))
+    config = PipelineConfig.parse({"loop_closure": {}})
+    slot.start(config)
     online = slot.pipeline
     assert isinstance(online, OnlineGraphMapper)
+    if args.no_places:  # as the agent builds it, places off
+        online.close()
+        online = OnlineGraphMapper(slot._make_pipeline, config, history=MAX_TRAJECTORY_POSES, places=False)
     rows = []
     header = False
     t0 = time.perf_counter()
