@@ -7,8 +7,11 @@ import threading
 
 import numpy as np
 
+from shared.pipeline import MapperState
+from shared.pipeline.pipeline import StepResult
 from shared.slam import OnlineGraphMapper
 from shared.slam.online import SEARCH_LAG_STEPS, _Redraw, _Search
+from shared.types import Pose2D, Scan
 
 
 class LateWorker:
@@ -33,7 +36,7 @@ class LateWorker:
 
         online._run = late  # type: ignore[method-assign]
 
-    def step(self, scan, odometry=None):  # type: ignore[no-untyped-def]
+    def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
         result = self.online.step(scan, odometry)
         with self._cond:
             self._now = result.version
@@ -45,6 +48,24 @@ class LateWorker:
         with self._cond:
             self._released = True
             self._cond.notify_all()
+
+
+def state_when(online: OnlineGraphMapper, late: LateWorker, scans: list, moment) -> tuple[MapperState, int]:  # type: ignore[no-untyped-def, type-arg]
+    """Step ``late`` (holding ``online``'s worker back) through ``scans`` until ``moment(step)`` holds, take
+    the state then, let the worker go and close ``online``: the state and the steps taken. Fails if the
+    moment never came."""
+    split = 0
+    try:
+        for split, scan in enumerate(scans, 1):
+            late.step(scan)
+            if moment(split):
+                break
+        state = online.state()
+        late.release()
+    finally:
+        online.close()
+    assert split < len(scans), "the moment never came"
+    return state, split
 
 
 def assert_same_map(a: OnlineGraphMapper, b: OnlineGraphMapper) -> None:

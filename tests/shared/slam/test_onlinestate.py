@@ -13,7 +13,7 @@ from shared.errors import StateError
 from shared.pipeline import MapperState, Pipeline, PipelineConfig
 from shared.sim.worlds import simulate_case
 from shared.slam import OnlineGraphMapper
-from tests.shared.slam.slamcheck import assert_same_map
+from tests.shared.slam.slamcheck import assert_same_map, state_when
 
 
 @cache
@@ -61,19 +61,12 @@ def test_pending_searches_and_rebuild_are_taken_up_after_a_restore(late_worker) 
     where one stepped through in the step ends."""
     scans = _case().run.scans
     first = _mapper(worker=True)
-    late = late_worker(first)
-    try:
-        split = 0
-        for split, scan in enumerate(scans, 1):
-            late.step(scan)
-            searching = any(j.matches is None for j in first._searches)
-            if split >= 300 and searching and first._redraws and not first._redraws[-1].done:
-                break
-        state = first.state()
-        late.release()
-    finally:
-        first.close()
-    assert split < len(scans), "no moment with a search and a rebuild pending"
+
+    def pending(split: int) -> bool:  # a search and a rebuild pending
+        searching = any(j.matches is None for j in first._searches)
+        return split >= 300 and searching and bool(first._redraws) and not first._redraws[-1].done
+
+    state, split = state_when(first, late_worker(first), scans, pending)
     restored = _mapper(worker=True)
     try:
         restored.restore(MapperState.from_bytes(state.to_bytes()))

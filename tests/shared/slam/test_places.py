@@ -21,6 +21,7 @@ from shared.sim import scene_patrol_scans
 from shared.sim.worlds import build_scene
 from shared.slam import OnlineGraphMapper
 from shared.slam.places import Places, near
+from tests.shared.slam.slamcheck import assert_same_map, state_when
 
 _finite = st.floats(-20.0, 20.0, allow_nan=False)
 
@@ -122,8 +123,6 @@ def test_laps_three_and_four_hold_no_more_than_lap_two_and_map_as_well() -> None
 def test_a_state_saved_with_retired_data_still_held_for_a_job_resumes_exactly(late_worker) -> None:  # type: ignore[no-untyped-def]
     """Saved while a pending rebuild began before a retirement whose scan it still reads (so that scan's
     returns are in the state), restored, stepped on: the same map as the run in the step, bit for bit."""
-    from tests.shared.slam.slamcheck import assert_same_map
-
     offset = laser_offset("sim:loop-block")
     scans = list(scene_patrol_scans("loop-block", seed=0, laps=3))
 
@@ -131,21 +130,13 @@ def test_a_state_saved_with_retired_data_still_held_for_a_job_resumes_exactly(la
         return OnlineGraphMapper(lambda c: Pipeline(c, laser_offset=offset), PipelineConfig(), worker=worker)
 
     first = make(True)
-    late = late_worker(first)
-    try:
-        split = 0
-        for i, scan in enumerate(scans, 1):
-            late.step(scan)
-            split = i
-            p = first._mapper.places
-            pending = first._redraws and not first._redraws[-1].done
-            if pending and p.scans_retired > p.freed_scans and p.keyframes_retired > p.freed_keyframes:
-                break
-        state = first.state()
-        late.release()
-    finally:
-        first.close()
-    assert split < len(scans), "no moment with retired data held for a pending job"
+
+    def held_for_a_job(_split: int) -> bool:  # retired data a pending job still reads
+        p = first._mapper.places
+        pending = bool(first._redraws) and not first._redraws[-1].done
+        return pending and p.scans_retired > p.freed_scans and p.keyframes_retired > p.freed_keyframes
+
+    state, split = state_when(first, late_worker(first), scans, held_for_a_job)
     restored = make(True)
     through = make(False)
     try:
