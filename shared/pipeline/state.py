@@ -35,7 +35,8 @@ __all__ = ["STATE_FORMAT", "MapperState", "decode_tree", "encode_tree", "registe
 #: their attributes): a change to what a state holds comes with a new format, so an older agent's state
 #: is refused with an error that says so, never half read (tests/shared/slam/test_onlinestate.py pins it).
 #: 2: the graph mapper's pending jobs, its solver's history and its per-step rows (2026-12-06)
-#: 3: places (retired keyframes and kept scans, shared.slam.places) and the keyframes' rows (2026-12-06)
+#: 3: places (retired keyframes and kept scans, shared.slam.places), the keyframes' rows, the pose graph's
+#: estimate and edges as arrays (2026-12-06)
 STATE_FORMAT = 3
 #: the bytes form starts with this, then the zlib-compressed archive
 _MAGIC = b"LMSTATE\x00"

@@ -24,6 +24,7 @@ import gtsam
 import numpy as np
 
 from shared.slam.errors import OptimisationError
+from shared.slam.rows import Rows
 from shared.types import FloatArray, Pose2D, wrap_angle
 
 __all__ = ["RESOLVE_EVERY_UPDATES", "Edge", "PoseGraph"]
@@ -49,6 +50,22 @@ class Edge:
 
 def _pose2(p: Pose2D) -> gtsam.Pose2:
     return gtsam.Pose2(p.x_m, p.y_m, p.theta_rad)
+
+
+#: an edge as a row of :attr:`PoseGraph._edges`: i, j, the measurement (x, y, theta), loop (0/1) and the
+#: information's 9 entries (row-major)
+_EDGE_WIDTH = 15
+
+
+def _edge_row(e: Edge) -> list[float]:
+    m = e.measurement
+    return [float(e.i), float(e.j), m.x_m, m.y_m, m.theta_rad, float(e.loop), *e.information.ravel().tolist()]
+
+
+def _edge_of(row: FloatArray) -> Edge:
+    i, j, x, y, th, loop = row[:6].tolist()
+    info = np.array(row[6:15], dtype=np.float64).reshape(3, 3)
+    return Edge(int(i), int(j), Pose2D(x, y, th), info, bool(loop))
 
 
 def _poses_of(values: gtsam.Values, n: int) -> FloatArray:
@@ -95,7 +112,8 @@ class PoseGraph:
         # (pose_array) stays what it was
         self._estimate: FloatArray = _frozen(np.zeros((0, 3)))
         self._first: Pose2D | None = None
-        self._edges: list[Edge] = []
+        # every edge as a row (_EDGE_WIDTH): a state copies one array, not an object per edge
+        self._edges = Rows(_EDGE_WIDTH)
         self._loop_pending = False
         # the solver's history since it was last built from scratch (RESOLVE_EVERY_UPDATES): the graph
         # then (node and edge counts, the estimate), then each update's node count, edge count and
@@ -120,8 +138,10 @@ class PoseGraph:
         anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
         self._new_factors.add(gtsam.PriorFactorPose2(0, _pose2(self._first), anchor))
 
-    def _queue_edges(self, edges: list[Edge]) -> None:
-        for e in edges:
+    def _queue_edges(self, rows: FloatArray) -> None:
+        """The edges of ``rows`` (rows of ``_edges``) queued as factors. O(len(rows))."""
+        for row in rows:
+            e = _edge_of(row)
             noise = self._noise(_local(e.information, e.measurement), e.loop)
             self._new_factors.add(gtsam.BetweenFactorPose2(e.i, e.j, _pose2(e.measurement), noise))
 
@@ -138,7 +158,7 @@ class PoseGraph:
             self._new_factors = gtsam.NonlinearFactorGraph()
             self._new_values = gtsam.Values()
 
-    def _queue_graph(self, estimate: FloatArray, edges: list[Edge]) -> None:
+    def _queue_graph(self, estimate: FloatArray, edges: FloatArray) -> None:
         """The anchor, every node at ``estimate`` (rows) and ``edges``, queued for one update."""
         self._prior()
         for k, (x, y, th) in enumerate(estimate.tolist()):
@@ -152,7 +172,7 @@ class PoseGraph:
         self._base = (len(self._estimate), len(self._edges), self.pose_array())
         self._log, self._guesses = [], []
         if len(self._estimate):
-            self._queue_graph(self._estimate, self._edges)
+            self._queue_graph(self._estimate, self._edges.view())
             self._solve(False)
 
     def reattach(self) -> None:
@@ -168,7 +188,7 @@ class PoseGraph:
         try:
             self._estimate = _frozen(np.array(base, dtype=np.float64).reshape(-1, 3))
             if nodes:
-                self._queue_graph(self._estimate, self._edges[:edges])
+                self._queue_graph(self._estimate, self._edges.view()[:edges])
                 self._solve(False)
             self._estimate = self._estimate[:nodes]
             for n_after, e_after, loops in history:
@@ -178,7 +198,7 @@ class PoseGraph:
                     if k == 0:
                         self._prior()
                     self._estimate = np.vstack([self._estimate, _row(guess)])
-                self._queue_edges(self._edges[edges:e_after])
+                self._queue_edges(self._edges.view()[edges:e_after])
                 edges = e_after
                 self._estimate = _poses_of(self._solve(loops), len(self._estimate))
         except (OptimisationError, IndexError) as exc:
@@ -197,8 +217,8 @@ class PoseGraph:
 
     @property
     def edges(self) -> tuple[Edge, ...]:
-        """Every edge added so far, in order."""
-        return tuple(self._edges)
+        """Every edge added so far, in order. O(edges)."""
+        return tuple(_edge_of(row) for row in self._edges.view())
 
     def add_node(self, guess: Pose2D) -> int:
         """A new node at ``guess`` (world frame); the first is anchored there. Returns its index."""
@@ -218,7 +238,7 @@ class PoseGraph:
         info = np.asarray(information, dtype=np.float64)
         if info.shape != (3, 3) or not np.isfinite(info).all() or np.linalg.eigvalsh(info)[0] <= 0.0:
             raise OptimisationError(f"edge {i}->{j}: information {info.tolist()} is not positive definite")
-        self._edges.append(Edge(i, j, measurement, info, loop))
+        self._edges.append(_edge_row(Edge(i, j, measurement, info, loop)))
         self._loop_pending = self._loop_pending or loop
         self._new_factors.add(
             gtsam.BetweenFactorPose2(i, j, _pose2(measurement), self._noise(_local(info, measurement), loop))
@@ -253,7 +273,7 @@ class PoseGraph:
         assert self._first is not None
         anchor = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
         graph.add(gtsam.PriorFactorPose2(0, _pose2(self._first), anchor))
-        for e in self._edges:
+        for e in map(_edge_of, self._edges.view()):
             graph.add(
                 gtsam.BetweenFactorPose2(
                     e.i, e.j, _pose2(e.measurement), self._noise(_local(e.information, e.measurement), e.loop)
