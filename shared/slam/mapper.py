@@ -113,6 +113,7 @@ class GraphMapper:
         )
         self.keyframes: list[Keyframe] = []
         self.closures: list[LoopClosure] = []
+        self._pairs = Rows(2)  # per closure: its current and candidate keyframe (counted vectorised)
         self.candidates_tried = 0
         self.optimise_ms: list[float] = []
         # per step: stamp, the front end's pose (x, y, theta), its keyframe; ``history`` poses at most
@@ -231,13 +232,15 @@ class GraphMapper:
             # closures between the same two stretches of the path share their errors (the same faces
             # seen from the same sides): the n-th of them counts 1/n, not as a new witness
             near = 2 * self.settings.submap_keyframes
-            n = sum(
-                1
-                for c in self.closures
-                if abs(c.current - k) <= near and abs(c.candidate - match.candidate) <= near
+            pairs = self._pairs.view()
+            n = int(
+                np.count_nonzero(
+                    (np.abs(pairs[:, 0] - k) <= near) & (np.abs(pairs[:, 1] - match.candidate) <= near)
+                )
             )
             self.graph.add_edge(match.candidate, k, pose, info / (1 + n), loop=True)
             self.closures.append(LoopClosure(k, match.candidate, pose, match.inlier_share))
+            self._pairs.append((k, match.candidate))
             added += 1
         self._update()
         return added
