@@ -127,7 +127,9 @@ class GraphMapper:
         # robot moved or turned that much since the last one kept, with its step index
         self._scans: list[tuple[int, Scan | None, Pose2D | None]] = []
         self._kept = Rows(4)  # per kept scan: the front end's pose (x, y, theta) and its keyframe
-        self._fronts = Rows(4)  # per keyframe: the front end's pose (x, y, theta), the travel up to it (m)
+        # per keyframe: the front end's pose (x, y, theta), the travel up to it (m), its scan's stamp (s) and
+        # its step
+        self._fronts = Rows(6)
         #: which keyframes and kept scans a building driven again holds (shared.slam.places; the robot's)
         self.places = Places(places)
         self._spacing = redraw_spacing
@@ -183,7 +185,7 @@ class GraphMapper:
         scan = self.front.scan_points
         points = offset.transform_points(scan) if len(scan) else np.zeros((0, 2))
         key = Keyframe(step, pose, odom, points, scan, self._travelled, stamp_s)
-        self._fronts.append((pose.x_m, pose.y_m, pose.theta_rad, self._travelled))
+        self._fronts.append((pose.x_m, pose.y_m, pose.theta_rad, self._travelled, stamp_s, step))
         self.places.add_keyframe()
         if not self.keyframes:
             self.keyframes.append(key)
@@ -390,17 +392,25 @@ class GraphMapper:
     def keyframe_rows(self) -> list[list[float]]:
         """The keyframes as the wire has them (:mod:`shared.protocol.posegraph`): ``[keyframe_id,
         stamp_s, x_m, y_m, theta_rad]`` at the graph's current estimate. O(keyframes)."""
-        out: list[list[float]] = []
-        for k, kf in enumerate(self.keyframes):
-            if k >= len(self.graph) or kf.step >= self._n_steps:
-                break
-            p = self.graph.pose(k)
-            out.append([float(k), kf.stamp_s, p.x_m, p.y_m, p.theta_rad])
+        rows: list[list[float]] = self.keyframe_array().tolist()
+        return rows
+
+    def keyframe_array(self) -> FloatArray:
+        """:meth:`keyframe_rows` as one array ``(K, 5)``. O(keyframes), vectorised."""
+        fronts = self._fronts.view()
+        estimate = self.graph.pose_array()
+        n = min(len(fronts), len(estimate))
+        n = int(np.searchsorted(fronts[:n, 5], self._n_steps))  # made in a step that is over
+        out = np.empty((n, 5))
+        out[:, 0] = np.arange(n)
+        out[:, 1] = fronts[:n, 4]
+        out[:, 2:] = estimate[:n]
         return out
 
-    def closure_pairs(self) -> list[list[int]]:
-        """The accepted loop closures as ``[keyframe_id, keyframe_id]`` (earlier place first). O(closures)."""
-        return [[c.candidate, c.current] for c in self.closures]
+    def closure_pairs(self, since: int = 0) -> list[list[int]]:
+        """The accepted loop closures from the ``since``-th on as ``[keyframe_id, keyframe_id]`` (earlier
+        place first). O(closures since)."""
+        return [[c.candidate, c.current] for c in self.closures[since:]]
 
     def trajectory(self) -> FloatArray:
         """The corrected trajectory ``(N, 4)``: stamp (s), x, y (m), heading (rad) per step (with a

@@ -504,10 +504,16 @@ class OnlineGraphMapper:
         with self._lock:
             return self._mapper.keyframe_rows()
 
-    def closure_pairs(self) -> list[list[int]]:
-        """The accepted loop closures ``[keyframe_id_a, keyframe_id_b]``. O(closures)."""
+    def keyframe_array(self) -> FloatArray:
+        """:meth:`keyframe_rows` as one array ``(K, 5)``. O(keyframes), vectorised."""
         with self._lock:
-            return self._mapper.closure_pairs()
+            return self._mapper.keyframe_array()
+
+    def closure_pairs(self, since: int = 0) -> list[list[int]]:
+        """The accepted loop closures from the ``since``-th on, ``[keyframe_id_a, keyframe_id_b]``.
+        O(closures since)."""
+        with self._lock:
+            return self._mapper.closure_pairs(since)
 
     def pose_covariance(self) -> FloatArray | None:
         """The covariance ``(3, 3)`` (world frame; m^2, m*rad, rad^2) of the newest keyframe, the pose
