@@ -50,10 +50,10 @@ from shared.slam.edges import AGREEMENT_CHI2, consistent, hold_unseen, with_floo
 from shared.slam.errors import OptimisationError
 from shared.slam.graph import PoseGraph
 from shared.slam.information import scan_edge
-from shared.slam.places import SCAN_PLACE, TIED_KEYFRAMES, Places, near
+from shared.slam.places import SCAN_PLACE, SCANS_PER_PLACE, TIED_KEYFRAMES, Places, near
 from shared.slam.rows import Rows
 from shared.slam.settings import LoopClosureSettings
-from shared.types import FloatArray, Pose2D, Scan
+from shared.types import BoolArray, FloatArray, IntArray, Pose2D, Scan
 
 __all__ = ["GraphMapper", "Keyframe", "LoopClosure"]
 
@@ -478,12 +478,19 @@ class GraphMapper:
         old_s = np.flatnonzero(p.scans_held() & (travelled[keys] < limit))
         if not len(new) or not len(old_s):
             return
-        at_old = _compose(estimate[keys[old_s]], _between(fronts[keys[old_s], :3], kept[old_s, :3]))
-        at_new = _compose(estimate[keys[new]], _between(fronts[keys[new], :3], kept[new, :3]))
-        radius, turn = SCAN_PLACE
-        dist = np.hypot(at_old[:, None, 0] - at_new[None, :, 0], at_old[:, None, 1] - at_new[None, :, 1])
-        dtheta = np.abs(_wrap(at_old[:, None, 2] - at_new[None, :, 2]))
-        p.retire_scans(old_s[np.any((dist <= radius) & (dtheta <= turn), axis=1)])
+
+        def at(i: IntArray) -> FloatArray:  # kept scans' poses under the graph now
+            return _compose(estimate[keys[i]], _between(fronts[keys[i], :3], kept[i, :3]))
+
+        # the old held scans at a new one's place, then of those the ones with SCANS_PER_PLACE held scans
+        # newer than themselves at their own place (among those and the new ones)
+        near_new = _at_place(at(old_s), at(new))
+        cand = old_s[near_new.any(axis=1)]
+        if not len(cand):
+            return
+        pool = np.concatenate([cand, new])
+        newer = _at_place(at(cand), at(pool)) & (pool[None, :] > cand[:, None])
+        p.retire_scans(cand[newer.sum(axis=1) >= SCANS_PER_PLACE])
 
     def free_retired(self, keyframes_upto: int, scans_upto: int) -> None:
         """Drop the data (returns) of the keyframes and kept scans retired before the ``keyframes_upto``-th
@@ -499,6 +506,14 @@ class GraphMapper:
 
 _NO_POINTS = np.zeros((0, 2))
 _NO_POINTS.setflags(write=False)
+
+
+def _at_place(a: FloatArray, b: FloatArray) -> BoolArray:
+    """``(len(a), len(b))``: whether pose row ``a[i]`` is at ``b[j]``'s place (:data:`SCAN_PLACE`)."""
+    radius, turn = SCAN_PLACE
+    dist = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
+    out: BoolArray = (dist <= radius) & (np.abs(_wrap(a[:, None, 2] - b[None, :, 2])) <= turn)
+    return out
 
 
 def _wrap(theta: FloatArray) -> FloatArray:

@@ -2,15 +2,16 @@
 
 Without this, every keyframe keeps its scan (for loop searches) and every scan kept for redraws stays
 (one each 10 cm), so the mapping state and each rebuild of the map grow with the distance driven: about
-3.6 MB per lap of the simulated corridor loop, 3 GB a day. Yet a scan taken where a newer one was taken,
-facing the same way, adds nothing to the map that the newer one does not see (and the newer one sees the
+3.6 MB per lap of the simulated corridor loop, 3 GB a day. Yet a scan taken where newer ones were taken,
+facing the same way, adds nothing to the map that the newer ones do not see (and the newer one sees the
 building as it is now: moved furniture, a door that was opened). So once the graph has tied the robot's
 current stretch to the earlier visit (a loop closure accepted within :data:`TIED_KEYFRAMES` keyframes:
 the estimate of where it is is then good), each new keyframe **retires** the older keyframes at its place
 (within half the keyframe spacing and the keyframe turn), and each new kept scan the older kept scans at
-its place (within :data:`SCAN_PLACE`). A retired keyframe stays a node of the pose graph (its pose, its
-edges: a few hundred bytes) but is no longer a loop-search candidate and gives up its scan; a retired
-kept scan is not mapped again by later rebuilds and gives up its returns. What is held is then bounded by
+its place (within :data:`SCAN_PLACE`) beyond the newest :data:`SCANS_PER_PLACE` there. A retired
+keyframe stays a node of the pose graph (its pose, its edges: a few hundred bytes) but is no longer a
+loop-search candidate and gives up its scan; a retired kept scan is not mapped again by later rebuilds
+and gives up its returns. What is held is then bounded by
 the places visited (area x headings), not by the distance driven. The idea is the reduced pose graph's
 (Johannsson et al., ICRA 2013: "Temporally scalable visual SLAM using a reduced pose graph") applied to
 the scans; the nodes themselves still grow with distance, a few hundred bytes each.
@@ -30,13 +31,18 @@ import math
 
 import numpy as np
 
+from shared.pipeline.wallmap import MergeTolerances
 from shared.slam.rows import Rows
 from shared.types import BoolArray, FloatArray, IntArray
 
-__all__ = ["SCAN_PLACE", "TIED_KEYFRAMES", "Places", "near"]
+__all__ = ["SCANS_PER_PLACE", "SCAN_PLACE", "TIED_KEYFRAMES", "Places", "near"]
 
 #: kept scans within this distance (m) and turn (rad) of a newer one are at its place
 SCAN_PLACE = (0.10, math.radians(15.0))
+#: a place holds this many kept scans, the newest: as many as the wall map needs to show a wall
+#: (:class:`shared.pipeline.wallmap.MergeTolerances` ``min_observations``), so a short wall seen from one
+#: place only, lap after lap, is still drawn by a rebuild (with one scan a place it dropped below)
+SCANS_PER_PLACE = MergeTolerances().min_observations
 #: the graph ties the robot's stretch to an earlier visit while a loop closure was accepted at most this
 #: many keyframes back (5 m at the default 0.5 m spacing)
 TIED_KEYFRAMES = 10
