@@ -69,7 +69,7 @@ VARIANTS: dict[str, Callable[[], tuple[PipelineConfig, IcpGate]]] = {
 #: variants mapped under the keyframe pose graph with loop closure (:mod:`shared.slam`)
 LOOP_VARIANTS: dict[str, Callable[[], tuple[PipelineConfig, IcpGate]]] = {
     "loop": lambda: (PipelineConfig(), IcpGate()),
-    # as "loop", holding one keyframe scan and one scan per place as the robot does (shared.slam.places)
+    # as "loop", holding one keyframe scan and three scans per place as the robot does (shared.slam.places)
     "loop-places": lambda: (PipelineConfig(), IcpGate()),
 }
 

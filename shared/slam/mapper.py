@@ -27,7 +27,7 @@ closed come out once.
 Memory: every keyframe's returns (twice: robot and scanner frame) and every scan for the rebuild (8 bytes
 a beam): about 12 MB for ACES' 7,374 scans; with ``redraw_spacing`` (the robot's online mapper) only the
 scans that far apart are kept for redraws, and with ``places`` a building driven again holds one keyframe
-scan and one kept scan per place (:mod:`shared.slam.places`).
+scan and three kept scans per place (:mod:`shared.slam.places`).
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ relinearisation.
 Until the first closure the shown map is the front end's own. A rebuild costs as much as mapping the kept
 scans again (about 2 ms a scan on the simulated world, one kept in four at 0.4 m/s): after an hour of
 driving about 15 s of the worker's time without places; a rebuild begun while one is under way supersedes
-it. A building driven again holds one keyframe scan and one kept scan per place
+it. A building driven again holds one keyframe scan and three kept scans per place
 (:mod:`shared.slam.places`), so the scans held and a rebuild's time grow with the places visited, not
 with the distance driven; the graph's nodes and edges (a few hundred bytes a keyframe) still do, and a
 robot standing still adds nothing.
@@ -120,7 +120,7 @@ class OnlineGraphMapper:
 
     ``redraw_spacing``: the scans kept for redraws (:data:`REDRAW_SPACING`; None: every one).
     ``history``: the trajectory's poses kept at most (the agent's bound; None: every one).
-    ``places``: a building driven again holds one keyframe scan and one kept scan per place
+    ``places``: a building driven again holds one keyframe scan and three kept scans per place
     (:mod:`shared.slam.places`; False: every one, growing with the distance driven).
 
     ``front``: a pipeline that has mapped already (loop closure switched on while the robot runs). It goes
