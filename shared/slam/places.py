@@ -3,7 +3,7 @@
 Without this, every keyframe keeps its scan (for loop searches) and every scan kept for redraws stays
 (one each 10 cm), so the mapping state and each rebuild of the map grow with the distance driven: about
 3.6 MB per lap of the simulated corridor loop, 3 GB a day. Yet a scan taken where newer ones were taken,
-facing the same way, adds nothing to the map that the newer ones do not see (and the newer one sees the
+facing the same way, adds nothing to the map that the newer ones do not see (and the newer ones see the
 building as it is now: moved furniture, a door that was opened). So once the graph has tied the robot's
 current stretch to the earlier visit (a loop closure accepted within :data:`TIED_KEYFRAMES` keyframes:
 the estimate of where it is is then good), each new keyframe **retires** the older keyframes at its place
@@ -11,8 +11,8 @@ the estimate of where it is is then good), each new keyframe **retires** the old
 its place (within :data:`SCAN_PLACE`) beyond the newest :data:`SCANS_PER_PLACE` there. A retired
 keyframe stays a node of the pose graph (its pose, its edges: a few hundred bytes) but is no longer a
 loop-search candidate and gives up its scan; a retired kept scan is not mapped again by later rebuilds
-and gives up its returns. What is held is then bounded by
-the places visited (area x headings), not by the distance driven. The idea is the reduced pose graph's
+and gives up its returns. What is held is then bounded by the places visited (area x headings), not by
+the distance driven. The idea is the reduced pose graph's
 (Johannsson et al., ICRA 2013: "Temporally scalable visual SLAM using a reduced pose graph") applied to
 the scans; the nodes themselves still grow with distance, a few hundred bytes each.
 
@@ -22,7 +22,8 @@ when it began (``held_upto``: the number of retirements then), and a retired ite
 once no pending job began before its retirement (:meth:`Places.free_upto`). So when the data is freed
 changes the state's size, never the map.
 
-Cost: O(held keyframes + held kept scans) per keyframe (vectorised), in the step.
+Cost: O(keyframes + kept scans) per keyframe, vectorised (masks over every row, distances only among the
+held ones near the new keyframe's scans), in the step.
 """
 
 from __future__ import annotations
