@@ -8,6 +8,7 @@ returns the app; ``linemap server`` serves it with uvicorn.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -73,6 +74,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         tasks = [asyncio.create_task(_flush_seen(state)), asyncio.create_task(_checkpoint(state))]
+        tasks.append(asyncio.create_task(state.polls.run(settings.poll_recheck_s)))  # server.pollsweep
         tasks.append(asyncio.create_task(drive_forever(driver)))  # rollouts (server.rolloutdriver)
         state.credentials.start(db.read)  # keeps the credentials in use cached (server.credcache)
         if listener is not None:
@@ -136,11 +138,18 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
 
 
 async def _flush_seen(state: AppState, every_s: float = 10.0) -> None:
-    """Every few seconds: write robots' last-seen times (one transaction for all robots)."""
+    """Every few seconds: write robots' last-seen times (one transaction per writer thread, each for the
+    robots whose uploads that thread writes: server.writer)."""
+    writer = state.writer
     while True:
         await asyncio.sleep(every_s)
         try:
-            await state.writer.submit(state.flush_seen)
+            await asyncio.gather(
+                *(
+                    writer.submit(functools.partial(state.flush_seen, shard=(k, writer.shards)), key=k)
+                    for k in range(writer.shards)
+                )
+            )
         except StorageFullError as exc:  # said once by the database; retried with the next round
             log.debug("robots' last-seen times not recorded: %s", exc)
         except Exception:  # retried with the next round; never kill the task

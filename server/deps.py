@@ -21,7 +21,7 @@ from typing import Annotated
 
 from fastapi import Depends, Header, Request
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import Connection, bindparam, update
+from sqlalchemy import Connection, bindparam, select, update
 
 from server.agents import InstanceCheck
 from server.credcache import CredentialCache, Principal, credential_kind, find_principals
@@ -31,6 +31,7 @@ from server.errors import AuthError, ForbiddenError
 from server.hub import Hub
 from server.limiter import AuthLimiter, retry_after_header
 from server.models import Robot, utcnow
+from server.pollsweep import PollSweep
 from server.recentmaps import RecentMaps
 from server.security import SESSION_PREFIX, hash_token
 from server.settings import Settings
@@ -73,6 +74,7 @@ class AppState:
     limiter: AuthLimiter = field(init=False)
     instances: InstanceCheck = field(init=False)  # the agent process speaking for each robot
     credentials: CredentialCache = field(init=False)
+    polls: PollSweep = field(init=False)  # the long-polls' safety net (server.pollsweep)
     _seen: dict[int, datetime] = field(default_factory=dict)
     _seen_mono: dict[int, float] = field(default_factory=dict)  # time.monotonic() when last heard from
     mono_clock: Callable[[], float] = time.monotonic
@@ -83,6 +85,17 @@ class AppState:
         self.instances = InstanceCheck(self.db)
         self.limiter = AuthLimiter.from_settings(self.settings, self.db)
         self.credentials = CredentialCache(self.settings.credential_cache_s)
+        self.polls = PollSweep(self.hub, self.read_seqs)
+
+    def read_seqs(self, ids: list[int]) -> dict[int, int]:
+        """``{robot_id: last_seq}`` of the robots among ``ids`` that exist (blocking; a worker thread).
+        One statement per 1,000 ids."""
+        out: dict[int, int] = {}
+        with self.db.read() as s:
+            for start in range(0, len(ids), 1000):
+                q = select(Robot.id, Robot.last_seq).where(Robot.id.in_(ids[start : start + 1000]))
+                out.update((int(rid), int(seq)) for rid, seq in s.execute(q))
+        return out
 
     def forget_credentials(self) -> None:
         """Drop cached lookups (after a token is revoked or a session closed)."""
@@ -139,14 +152,22 @@ class AppState:
         age_s = None if mono is None else self.mono_clock() - mono
         return presence(stored, self._seen.get(robot_id), age_s, utcnow(), self.settings.online_window_s)
 
-    def flush_seen(self, conn: Connection | None = None) -> None:
+    def flush_seen(self, conn: Connection | None = None, *, shard: tuple[int, int] | None = None) -> None:
         """Write the last-seen times noted since the previous flush (one executemany; in ``conn``'s
-        transaction when given, e.g. a write batch). Reads merge in the newer in-memory times."""
+        transaction when given, e.g. a write batch). Reads merge in the newer in-memory times.
+        ``shard=(k, n)``: only the robots whose id is ``k`` modulo ``n`` (the robots of one writer thread,
+        :meth:`server.writer.WriteBatcher.shard`: their rows are written by that thread alone)."""
         with self._lock:
-            pending, self._unflushed = self._unflushed, {}
+            if shard is None:
+                pending, self._unflushed = self._unflushed, {}
+            else:
+                k, n = shard
+                pending = {rid: at for rid, at in self._unflushed.items() if rid % n == k}
+                for rid in pending:
+                    del self._unflushed[rid]
         if not pending:
             return
-        rows = [{"rid": rid, "at": at} for rid, at in pending.items()]
+        rows = [{"rid": rid, "at": at} for rid, at in sorted(pending.items())]
         stmt = update(Robot).where(Robot.id == bindparam("rid")).values(last_seen_at=bindparam("at"))
         if conn is not None:
             conn.execute(stmt, rows)

@@ -12,8 +12,9 @@ hands the payloads to :meth:`Hub.receive`, which publishes a :class:`~server.not
 subscribers ("read the topic from the database up to this version"); a process skips its own notices,
 whose full items it has published in-process already. After the listener reconnects it calls
 :meth:`Hub.resync`: every subscriber gets :data:`OVERFLOW` and catches up from the database, covering
-whatever was written while no one listened. Waiters also re-read the database every ``poll_recheck_s``
-as a safety net. On SQLite (one process) :meth:`announce` does nothing.
+whatever was written while no one listened. A safety net runs every ``poll_recheck_s``: map streams
+re-read, and one read checks every waiting long-poll of the process (:mod:`server.pollsweep`). On
+SQLite (one process) :meth:`announce` does nothing.
 
 All methods but :meth:`Hub.announce` must be called from the event loop's thread.
 """

@@ -9,8 +9,9 @@ peer is noticed (TCP keepalives cover a silent network too).
 When the connection fails (the database restarted, ``pg_terminate_backend``, a network cut) the listener
 reconnects with exponential backoff (:class:`Backoff`: 0.1 s doubling to 5 s, +-20 % jitter), and once
 it listens again it calls :meth:`server.hub.Hub.resync`: every subscriber catches up from the database,
-since notices sent meanwhile were lost. Subscribers also re-read the database every ``poll_recheck_s``,
-so while no listener runs they are late, never wrong.
+since notices sent meanwhile were lost. The safety net runs every ``poll_recheck_s`` (map streams re-read,
+one read checks every waiting long-poll: :mod:`server.pollsweep`), so while no listener runs waiters are
+late, never wrong.
 """
 
 from __future__ import annotations

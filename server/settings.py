@@ -32,9 +32,11 @@ class Settings(BaseSettings):
         1.0,
         gt=0,
         le=60,
-        description="A waiting long-poll or stream re-reads the database this often: a safety net, since "
-        "writes wake waiters at once (in this process, and on PostgreSQL in every other one through "
-        "LISTEN/NOTIFY) and the notice listener resynchronises every waiter after it reconnects.",
+        description="The safety net's period (s): a waiting map stream re-reads the database, one read "
+        "checks every waiting long-poll of the process (server.pollsweep), and waiters notice a client "
+        "that has gone. A safety net, since writes wake waiters at once (in this process, and on "
+        "PostgreSQL in every other one through LISTEN/NOTIFY) and the notice listener resynchronises "
+        "every waiter after it reconnects.",
     )
     online_window_s: float = Field(10.0, gt=0, description="A robot seen within this window is online.")
     rollout_tick_s: float = Field(

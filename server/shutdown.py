@@ -5,7 +5,7 @@ graceful timeout; a robot's long-poll (up to ``long_poll_max_s``) or a dashboard
 was cancelled mid-await and logged a traceback per request. Here :class:`ShutdownSignal` is set when the
 server begins to stop (``linemap server`` sets it from uvicorn's exit handler), and
 :class:`DisconnectOnShutdown` then tells every waiting handler its client has gone: a handler's
-``request.is_disconnected()`` becomes true (both the long-poll and the stream re-check it every
+``request.is_disconnected()`` becomes true (both the long-poll and the stream check it every
 ``poll_recheck_s``), so the long-poll answers its (empty) result and the stream ends (its body closed
 properly), within about ``poll_recheck_s`` (1 s by default). A request whose body is still arriving is not
 cut short.

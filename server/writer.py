@@ -12,6 +12,11 @@ to its caller alone and the batch commits the others. An unexpected database err
 its jobs are retried one by one, so one bad job never sinks the rest.
 
 Cost: one thread hop and ``1/batch`` of a commit per job.
+
+On PostgreSQL, keep every write of robot rows that may run beside the upload batches to one robot per
+transaction or route it through :meth:`WriteBatcher.submit` with that robot's ``key`` (as
+:meth:`WriteBatcher.shard` and the last-seen flush do): a transaction that locks two robots' rows while two
+writer threads each hold one of them deadlocks (PostgreSQL aborts one after ``deadlock_timeout``).
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from server.database import Database
 from server.errors import ServerError, StorageFullError
 
-__all__ = ["WriteBatcher"]
+__all__ = ["PG_WRITERS", "WriteBatcher"]
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -43,6 +48,8 @@ _STOP = object()
 #: for the GIL with the busy loop and held the write queue ~1 s each time under server_load (with every
 #: upload of that second waiting for it).
 INLINE_WAIT_S = 0.05
+#: Writer threads on a database other than SQLite (each holds one connection of the pool while it writes).
+PG_WRITERS = 4
 #: A write batch slower than this is logged (debug level), in milliseconds.
 _SLOW_BATCH_MS = 30.0
 
@@ -56,14 +63,24 @@ class _Job(Generic[T]):
 
 
 class WriteBatcher:
-    """Runs ``submit``-ted jobs on one thread, up to ``max_batch`` per transaction."""
+    """Runs ``submit``-ted jobs on ``writers`` threads (1 on SQLite; default :data:`PG_WRITERS`), up to
+    ``max_batch`` per transaction; a job's ``key`` picks its thread (``key % writers``)."""
 
-    def __init__(self, db: Database, max_batch: int = 8) -> None:
+    def __init__(self, db: Database, max_batch: int = 8, writers: int | None = None) -> None:
+        if writers is None:
+            writers = 1 if db.is_sqlite else PG_WRITERS
+        if writers < 1:
+            raise ValueError(f"writers={writers}: expected at least 1 writer thread")
         self._db = db
         self._max = max_batch
-        self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._run, name="linemap-writer", daemon=True)
-        self._thread.start()
+        self._queues: list[queue.SimpleQueue[Any]] = [queue.SimpleQueue() for _ in range(writers)]
+        self._threads = [
+            threading.Thread(target=self._run, args=(q,), name=f"linemap-writer-{i}", daemon=True)
+            for i, q in enumerate(self._queues)
+        ]
+        for thread in self._threads:
+            thread.start()
+        self._stats_lock = threading.Lock()
         self.batches = 0
         self.jobs = 0
         # SQLite writes are short local I/O: done on the event loop they avoid handing the GIL back and
@@ -72,10 +89,19 @@ class WriteBatcher:
         self._writable: asyncio.Future[None] | None = None
         self._waiter = ThreadPoolExecutor(1, thread_name_prefix="linemap-write-wait")
 
-    async def submit(self, fn: Callable[[Connection], T], *, heavy: bool = False) -> T:
+    @property
+    def shards(self) -> int:
+        """The number of writer threads (``key`` values ``0 .. shards - 1`` reach each one)."""
+        return len(self._queues)
+
+    def shard(self, key: int) -> int:
+        """The writer thread that applies the jobs of ``key``."""
+        return key % len(self._queues)
+
+    async def submit(self, fn: Callable[[Connection], T], *, heavy: bool = False, key: int = 0) -> T:
         """Run ``fn(conn)`` (on SQLite inline, once this process's write queue is free; else in the next
-        batch); its result, or its error. ``heavy``: a long job (many rows), kept off the event loop
-        and out of the batches."""
+        batch of the writer thread of ``key``, the robot whose rows it writes); its result, or its error.
+        ``heavy``: a long job (many rows), kept off the event loop and out of the batches."""
         while self.inline and not heavy:
             # Block the loop only when no job waits off the loop yet: behind a long write, each upload
             # arriving would otherwise block it again.
@@ -96,7 +122,7 @@ class WriteBatcher:
         if heavy:
             return await run_in_threadpool(self._alone, fn)
         job: _Job[T] = _Job(fn)
-        self._queue.put(job)
+        self._queues[self.shard(key)].put(job)
         return await asyncio.wrap_future(job.future)
 
     def _alone(self, fn: Callable[[Connection], T]) -> T:
@@ -104,23 +130,25 @@ class WriteBatcher:
             return fn(conn)
 
     def close(self) -> None:
-        self._queue.put(_STOP)
-        self._thread.join(timeout=10)
+        for q in self._queues:
+            q.put(_STOP)
+        for thread in self._threads:
+            thread.join(timeout=10)
         self._waiter.shutdown(wait=False, cancel_futures=True)
 
-    def _run(self) -> None:
+    def _run(self, jobs: queue.SimpleQueue[Any]) -> None:
         while True:
-            first = self._queue.get()
+            first = jobs.get()
             if first is _STOP:
                 return
             batch = [first]
             while len(batch) < self._max:
                 try:
-                    nxt = self._queue.get_nowait()
+                    nxt = jobs.get_nowait()
                 except queue.Empty:
                     break
                 if nxt is _STOP:
-                    self._queue.put(_STOP)
+                    jobs.put(_STOP)
                     break
                 batch.append(nxt)
             started = time.perf_counter()
@@ -156,8 +184,9 @@ class WriteBatcher:
             for job in batch:
                 _settle(job, None, exc)
             return
-        self.batches += 1
-        self.jobs += len(batch)
+        with self._stats_lock:
+            self.batches += 1
+            self.jobs += len(batch)
         for job, value, error in results:
             _settle(job, value, error)
 

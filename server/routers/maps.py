@@ -142,7 +142,7 @@ async def upload_map(
             state.hub.announce(conn, f"maps:{robot_id}", body.version)
             return applied, log_upload(conn, robot_id, applied.event, undo=applied.undo)
 
-    applied, logged = await state.writer.submit(write, heavy=heavy)
+    applied, logged = await state.writer.submit(write, heavy=heavy, key=robot_id)
     if applied.new_session:  # versions count anew: a version kept from the old session is another map
         state.recent_maps.forget(robot_id)
     if logged is not None:

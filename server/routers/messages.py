@@ -12,7 +12,6 @@ numbers, applied once.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 from typing import Annotated
 
@@ -34,6 +33,7 @@ from server.deps import (
 from server.errors import AuthError, ConflictError, InvalidRequestError, NotFoundError, TooLargeError
 from server.models import Message, Robot, utcnow
 from server.msgqueue import queue_message
+from server.pollsweep import message_topic
 from server.routers.robots import get_robot
 from server.schemas import DB_INT_MAX, AckIn, DbIdPath, MessageList, MessageOut
 from shared.control import (
@@ -98,7 +98,7 @@ async def post_message(
             line=None,
         ) from None
     out = await run_in_threadpool(_queue, state, robot_id, xml, msg, who)
-    state.hub.publish(f"messages:{robot_id}", out["seq"])
+    state.hub.publish(message_topic(robot_id), out["seq"])
     return out
 
 
@@ -186,23 +186,39 @@ async def list_messages(
     loop = asyncio.get_running_loop()
     deadline = loop.time() + min(wait, state.settings.long_poll_max_s)
     recheck = state.settings.poll_recheck_s
-    with state.hub.subscribe(f"messages:{robot_id}") as queue:
+    # Woken by the hub when a message is queued (any process); the safety net against a missed wake-up is
+    # one read for every waiting poll of the process (server.pollsweep), not a re-read per poll.
+    with state.hub.subscribe(message_topic(robot_id)) as queue, state.polls.watch(robot_id, after):
         waited = False
         while True:
             out = await run_in_threadpool(_read, state, robot_id, after, limit)
             if resync and after > int(out["last_seq"]):  # type: ignore[call-overload]
                 await run_in_threadpool(_resync, state, robot_id, after, who)
-                state.hub.publish(f"messages:{robot_id}", after)
+                state.hub.publish(message_topic(robot_id), after)
                 out = await run_in_threadpool(_read, state, robot_id, after, limit)
             resync = False
-            remaining = deadline - loop.time()
             if out["messages"] and waited and not await still_valid(request, state):
                 raise AuthError("unknown or revoked token")  # revoked while the poll waited
-            if out["messages"] or remaining <= 0 or await request.is_disconnected():
+            if out["messages"] or deadline - loop.time() <= 0 or await request.is_disconnected():
                 return out
             waited = True
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(queue.get(), timeout=min(remaining, recheck))
+            if not await _woken(queue, request, deadline, recheck):
+                return out  # the client went away (or the server is stopping): no read for nobody
+
+
+async def _woken(queue: asyncio.Queue[object], request: Request, deadline: float, recheck_s: float) -> bool:
+    """Wait for a wake-up on ``queue`` or the ``deadline`` (loop time): True, then the poll reads again
+    (at the deadline, once, so that its answer carries the numbering of now). False as soon as the client
+    has gone, checked every ``recheck_s`` (no database read for it)."""
+    loop = asyncio.get_running_loop()
+    while (remaining := deadline - loop.time()) > 0:
+        try:
+            await asyncio.wait_for(queue.get(), timeout=min(remaining, recheck_s))
+            return True
+        except TimeoutError:
+            if await request.is_disconnected():
+                return False
+    return True
 
 
 @router.get("/{seq}", response_model=MessageOut)

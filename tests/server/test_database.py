@@ -60,4 +60,3 @@ def test_a_reader_inside_the_log_delays_the_reset_and_loses_nothing(tmp_path: Pa
     finally:
         reader.close()
         db.dispose()
-

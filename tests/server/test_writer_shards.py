@@ -1,0 +1,97 @@
+"""The write path's writer threads on PostgreSQL (server.writer): a job's key (the robot) picks its thread,
+so one robot's jobs run on one thread in the order submitted and different robots' jobs run side by side;
+the last-seen flush is split the same way (each writer writes its own robots' rows)."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Callable, Iterator
+from datetime import datetime
+from pathlib import Path
+
+import pytest
+from sqlalchemy import Connection, select, text
+
+from server.database import Database
+from server.deps import AppState
+from server.migrate import upgrade
+from server.models import Robot
+from server.settings import Settings
+from server.writer import PG_WRITERS, WriteBatcher
+from tests.server.live import database_url
+
+
+@pytest.fixture
+def pg(tmp_path: Path) -> Iterator[Database]:
+    db = Database(database_url("postgresql", tmp_path))
+    with db.write_conn() as conn:
+        conn.execute(text("CREATE TABLE t (id SERIAL PRIMARY KEY, k INTEGER, n INTEGER)"))
+    yield db
+    db.dispose()
+
+
+def _job(k: int, n: int, log: list[tuple[int, int, int]]) -> Callable[[Connection], int]:
+    def job(conn: Connection) -> int:
+        conn.execute(text("INSERT INTO t (k, n) VALUES (:k, :n)"), {"k": k, "n": n})
+        log.append((k, n, threading.get_ident()))
+        return n
+
+    return job
+
+
+def test_a_keys_jobs_run_on_one_thread_in_order_and_keys_spread(pg: Database) -> None:
+    writer = WriteBatcher(pg)
+    assert writer.shards == PG_WRITERS > 1
+    log: list[tuple[int, int, int]] = []
+
+    async def go() -> list[int]:
+        jobs = [writer.submit(_job(k, n, log), key=k) for n in range(10) for k in range(2 * PG_WRITERS)]
+        return await asyncio.gather(*jobs)
+
+    try:
+        assert asyncio.run(go()) == [n for n in range(10) for _ in range(2 * PG_WRITERS)]
+    finally:
+        writer.close()
+    threads = {k: {ident for kk, _, ident in log if kk == k} for k in range(2 * PG_WRITERS)}
+    assert all(len(t) == 1 for t in threads.values())  # one thread per key
+    assert len({next(iter(threads[k])) for k in range(PG_WRITERS)}) == PG_WRITERS  # keys spread
+    for k in range(2 * PG_WRITERS):
+        assert threads[k] == threads[k % PG_WRITERS]  # same shard, same thread
+        assert [n for kk, n, _ in log if kk == k] == list(range(10))  # in the order submitted
+    with pg.read() as s:
+        stored = s.execute(text("SELECT k, n FROM t ORDER BY id")).all()
+    for k in range(2 * PG_WRITERS):  # committed in that order too
+        assert [n for kk, n in stored if kk == k] == list(range(10))
+
+
+def test_no_writer_threads_is_refused(pg: Database) -> None:
+    with pytest.raises(ValueError, match="writers=0"):
+        WriteBatcher(pg, writers=0)
+
+
+def test_the_last_seen_flush_writes_one_shard_at_a_time(tmp_path: Path) -> None:
+    url = database_url("postgresql", tmp_path)
+    db = Database(url)
+    upgrade(db.engine)
+    writer = WriteBatcher(db)
+    state = AppState(settings=Settings(database_url=url), db=db, writer=writer)
+    try:
+        with db.write_conn() as conn:
+            for i in range(8):
+                conn.execute(Robot.__table__.insert().values(name=f"r{i}", token_hash=f"{i:064d}"))
+        with db.read() as s:
+            ids = sorted(s.scalars(select(Robot.id)))
+        for rid in ids:
+            state.mark_seen(rid)
+        state.flush_seen(shard=(1, 4))
+        with db.read() as s:
+            seen = {int(r[0]): r[1] for r in s.execute(select(Robot.id, Robot.last_seen_at))}
+        assert {rid for rid, at in seen.items() if at is not None} == {rid for rid in ids if rid % 4 == 1}
+        state.flush_seen()  # the rest, none twice
+        with db.read() as s:
+            seen = {int(r[0]): r[1] for r in s.execute(select(Robot.id, Robot.last_seen_at))}
+        assert all(isinstance(at, datetime) for at in seen.values())  # every robot once the rest is flushed
+    finally:
+        writer.close()
+        db.dispose()
