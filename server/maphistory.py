@@ -34,7 +34,7 @@ from server.maplog import KEEP_VERSIONS
 from server.models import MapDeltaRecord, MapSegment, MapState, Robot, TrajectoryPoint
 from server.schemas import MapHistoryOut, MapHistoryVersion, MapOut, MapUpload
 
-__all__ = ["capture_undo", "map_version", "read_history", "read_version"]
+__all__ = ["UndoReads", "capture_undo", "map_version", "read_history", "read_version", "touched_ids"]
 
 _LOG: Table = MapDeltaRecord.__table__  # type: ignore[assignment]
 _SEG: Table = MapSegment.__table__  # type: ignore[assignment]
@@ -45,27 +45,37 @@ _CHUNK = 500
 _READ_TRIES = 5
 
 
-def capture_undo(conn: Connection, robot_id: int, up: MapUpload) -> str:
-    """The undo record of delta ``up`` as JSON, read in ``conn``'s transaction before it is applied: the
-    touched walls as they are (``walls``: rows ``[id, x0, y0, x1, y1]``; those the delta sends unchanged are
-    left out), the touched ids that do not exist yet (``absent``), and the small part of the map state
-    (``stamp_s``, ``pose``, ``wall_time_s``). The centroids only when the base version's own log entry does
-    not hold them (a snapshot is logged without its body): a delta's entry carries them all, and keeping
-    them twice doubled the log (8.3 of 17 KB a version on the simulator). O(walls in ``up``): two
-    statements on SQLite and PostgreSQL, and one primary-key probe."""
-    touched = sorted({int(r[0]) for r in up.segments} | {int(i) for i in up.removed})
-    rows = _touched_walls(conn, robot_id, touched)
+@dataclass(frozen=True, slots=True)
+class UndoReads:
+    """What a delta's undo record reads before the delta is applied: the touched walls that exist
+    (``touched``: rows ``(id, x0, y0, x1, y1)``), whether the base version's log entry holds its body
+    (``base_logged``), and the map state's ``(stamp_s, pose, wall_time_s, centroids)`` (None before the
+    first upload; ``centroids`` the stored ``{"xy": ...}`` value, read only when ``base_logged`` is
+    false). PostgreSQL reads them in the upload's first round trip (:func:`server.pgrows.lock_and_read`)."""
+
+    touched: list[Any]
+    base_logged: bool
+    state: tuple[float, dict[str, float], float | None, dict[str, Any] | None] | None
+
+
+def capture_undo(conn: Connection, robot_id: int, up: MapUpload, reads: UndoReads | None = None) -> str:
+    """The undo record of delta ``up`` as JSON, read in ``conn``'s transaction before it is applied (or
+    from ``reads``, read already in that transaction): the touched walls as they are (``walls``: rows
+    ``[id, x0, y0, x1, y1]``; those the delta sends unchanged are left out), the touched ids that do not
+    exist yet (``absent``), and the small part of the map state (``stamp_s``, ``pose``,
+    ``wall_time_s``). The centroids only when the base version's own log entry does not hold them (a
+    snapshot is logged without its body): a delta's entry carries them all, and keeping them twice doubled
+    the log (8.3 of 17 KB a version on the simulator). O(walls in ``up``): without ``reads``, two
+    statements and one primary-key probe."""
+    touched = touched_ids(up)
+    if reads is None:
+        reads = _undo_reads(conn, robot_id, up, touched)
+    rows = reads.touched
     present = {int(r[0]) for r in rows}
     sent = {int(r[0]): (r[1], r[2], r[3], r[4]) for r in up.segments}
     # a wall the delta sends again unchanged needs no undo (a robot re-sending a window of walls: most)
     walls = [[int(i), x0, y0, x1, y1] for i, x0, y0, x1, y1 in rows if sent.get(int(i)) != (x0, y0, x1, y1)]
-    base_logged = conn.execute(
-        select(_LOG.c.body.is_not(None)).where(_LOG.c.robot_id == robot_id, _LOG.c.version == up.base_version)
-    ).scalar()
-    columns = [_STATE.c.stamp_s, _STATE.c.pose, _STATE.c.wall_time_s]
-    st = conn.execute(
-        select(*columns, *([] if base_logged else [_STATE.c.centroids])).where(_STATE.c.robot_id == robot_id)
-    ).first()
+    st = reads.state
     record: dict[str, Any] = {
         "walls": walls,
         "absent": [i for i in touched if i not in present],
@@ -73,9 +83,31 @@ def capture_undo(conn: Connection, robot_id: int, up: MapUpload) -> str:
         "pose": [st[1]["x_m"], st[1]["y_m"], st[1]["theta_rad"]] if st else [0.0, 0.0, 0.0],
         "wall_time_s": st[2] if st else None,
     }
-    if not base_logged:
+    if not reads.base_logged:
         record["centroids"] = list((st[3] or {}).get("xy", [])) if st else []
     return jsontext.dumps(record)
+
+
+def touched_ids(up: MapUpload) -> list[int]:
+    """The wall ids delta ``up`` sends or removes, sorted, each once."""
+    return sorted({int(r[0]) for r in up.segments} | {int(i) for i in up.removed})
+
+
+def _undo_reads(conn: Connection, robot_id: int, up: MapUpload, touched: list[int]) -> UndoReads:
+    rows = _touched_walls(conn, robot_id, touched)
+    base_logged = bool(
+        conn.execute(
+            select(_LOG.c.body.is_not(None)).where(
+                _LOG.c.robot_id == robot_id, _LOG.c.version == up.base_version
+            )
+        ).scalar()
+    )
+    columns = [_STATE.c.stamp_s, _STATE.c.pose, _STATE.c.wall_time_s]
+    st = conn.execute(
+        select(*columns, *([] if base_logged else [_STATE.c.centroids])).where(_STATE.c.robot_id == robot_id)
+    ).first()
+    state = None if st is None else (st[0], st[1], st[2], None if base_logged else st[3])
+    return UndoReads(rows, base_logged, state)
 
 
 #: the touched walls in one constant statement with the ids as one parameter (SQLAlchemy's expanding IN

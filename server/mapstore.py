@@ -26,7 +26,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from server import pgrows
 from server.errors import ConflictError, MapSessionMismatchError, NotFoundError
 from server.mapgraph import graph_columns
-from server.maphistory import capture_undo
+from server.maphistory import capture_undo, touched_ids
 from server.mapread import map_version, read_map  # the read side, importable from here as before
 from server.mapsessions import check_not_ended, start_session
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
@@ -229,7 +229,7 @@ def apply_upload(
     # per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts seconds, and
     # the row lock held all along stalled every write batch that touched the row (last-seen times). The
     # row itself is updated at the end of the transaction only. SQLite: its one write lock serialises.
-    reads = _lock_and_read(conn, robot_id, key, up.base_version is not None and max_walls is not None)
+    reads = _lock_and_read(conn, robot_id, key, up.base_version is not None and max_walls is not None, up)
     robot, seen = reads.robot, reads.seen
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
@@ -300,7 +300,7 @@ def apply_upload(
             )
         if max_walls is not None:
             check_wall_cap(conn, robot_id, up, max_walls, reads.walls)
-        undo = capture_undo(conn, robot_id, up)  # reads what the delta replaces: before the writes
+        undo = capture_undo(conn, robot_id, up, reads.undo)  # what the delta replaces: before the writes
     v = up.version
     rows = prepared or prepare_rows(robot_id, up)
     # the pose graph's rows; a delta's corrected keyframes move the stored poses first (server.mapgraph:
@@ -311,7 +311,7 @@ def apply_upload(
     # bounded sizes (docs/reliability/bounded.md), in the same transaction, after the pipelined writes
     # (these read rows): the trajectory thinned past its cap, the idempotency records trimmed now and then
     if rows.trajectory:
-        thin_trajectory(conn, robot_id)
+        thin_trajectory(conn, robot_id, over=reads.trajectory_over)
     if v % _TRIM_EVERY == 0:
         trim_upload_records(conn, robot_id)
     event = {
@@ -324,14 +324,23 @@ def apply_upload(
     )
 
 
-def _lock_and_read(conn: Connection, robot_id: int, key: str, count: bool) -> pgrows.UploadReads:
+def _lock_and_read(
+    conn: Connection, robot_id: int, key: str, count: bool, up: MapUpload
+) -> pgrows.UploadReads:
     """Serialise the robot's uploads, then read the robot's map version and session, the upload already
-    applied under ``key`` and (``count``) the walls stored. PostgreSQL: a per-robot advisory lock, not the
-    robot's row: a near-limit upload's transaction lasts seconds, and the row lock held all along stalled
-    every write batch that touched the row (last-seen times); the row itself is updated at the end of the
-    transaction only. SQLite: its one write lock serialises. Other databases: the robot's row lock."""
+    applied under ``key`` and (``count``) the walls stored; on PostgreSQL with a delta ``up`` also what its
+    undo record and the trajectory's cap read (:class:`server.pgrows.DeltaProbe`), in the same round trip.
+    PostgreSQL: a per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts
+    seconds, and the row lock held all along stalled every write batch that touched the row (last-seen
+    times); the row itself is updated at the end of the transaction only. SQLite: its one write lock
+    serialises. Other databases: the robot's row lock."""
     if conn.dialect.name == "postgresql":
-        return pgrows.lock_and_read(conn, _UPLOAD_LOCK_CLASS, robot_id, key, count)
+        probe = None
+        if up.base_version is not None:
+            probe = pgrows.DeltaProbe(
+                touched_ids(up), up.base_version, len(up.trajectory), MAX_TRAJECTORY_POSES
+            )
+        return pgrows.lock_and_read(conn, _UPLOAD_LOCK_CLASS, robot_id, key, count, probe)
     q = select(_ROBOTS.c.map_version, _ROBOTS.c.map_session).where(_ROBOTS.c.id == robot_id)
     if conn.dialect.name != "sqlite":
         q = q.with_for_update()
@@ -410,19 +419,26 @@ def _delete_ids(conn: Connection, table: Table, ids: list[int]) -> None:
         conn.execute(delete(table).where(table.c.id.in_(ids[start : start + _CHUNK_ROWS])))
 
 
-def thin_trajectory(conn: Connection, robot_id: int, max_poses: int = MAX_TRAJECTORY_POSES) -> int:
+def thin_trajectory(
+    conn: Connection, robot_id: int, max_poses: int = MAX_TRAJECTORY_POSES, *, over: bool | None = None
+) -> int:
     """Thin the robot's stored trajectory to at most ``max_poses`` poses
     (:func:`shared.protocol.thin_positions`: the newest half whole, older ones ever sparser); the poses
-    dropped. One index probe when it fits; O(max_poses) when it does not (once per ~max_poses / 4 poses
+    dropped. One index probe when it fits (none when the caller probed already: ``over``, whether it
+    holds more than ``max_poses``); O(max_poses) when it does not (once per ~max_poses / 4 poses
     stored)."""
-    over = conn.execute(
-        select(_TRAJ.c.id)
-        .where(_TRAJ.c.robot_id == robot_id)
-        .order_by(_TRAJ.c.id.desc())
-        .limit(1)
-        .offset(max_poses)
-    ).first()
     if over is None:
+        over = (
+            conn.execute(
+                select(_TRAJ.c.id)
+                .where(_TRAJ.c.robot_id == robot_id)
+                .order_by(_TRAJ.c.id.desc())
+                .limit(1)
+                .offset(max_poses)
+            ).first()
+            is not None
+        )
+    if not over:
         return 0
     ids = [
         int(r[0])

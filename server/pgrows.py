@@ -21,6 +21,7 @@ SQLite keeps its multi-row ``VALUES`` statements (:mod:`server.mapstore`): its d
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -31,8 +32,10 @@ from sqlalchemy import Connection
 from sqlalchemy.exc import DBAPIError
 
 from server import jsontext
+from server.maphistory import UndoReads
 
 __all__ = [
+    "DeltaProbe",
     "UploadReads",
     "delete_walls",
     "insert_trajectory",
@@ -85,39 +88,102 @@ _SEEN_SQL = "SELECT version, map_session FROM map_uploads WHERE robot_id = %s AN
 _COUNT_SQL = "SELECT count(*) FROM map_segments WHERE robot_id = %s"
 
 
+#: a delta's touched walls, the ids as one JSON parameter (a Python list is adapted element by element in
+#: Python: 0.4 ms a 200-wall delta under load)
+_TOUCHED_SQL = (
+    "SELECT segment_id, x0_m, y0_m, x1_m, y1_m FROM map_segments WHERE robot_id = %s "
+    "AND segment_id = ANY(ARRAY(SELECT json_array_elements_text(%s::json)::bigint))"
+)
+#: whether the base version's log entry holds its body, and the map state (its centroids only if not)
+_UNDO_STATE_SQL = (
+    "SELECT l.logged, s.stamp_s, s.pose::text, s.wall_time_s, "
+    "CASE WHEN l.logged THEN NULL ELSE s.centroids::text END FROM (SELECT EXISTS (SELECT 1 FROM map_deltas "
+    "WHERE robot_id = %s AND version = %s AND body IS NOT NULL) AS logged) AS l "
+    "LEFT JOIN map_states AS s ON s.robot_id = %s"
+)
+#: a pose at this offset from the newest means the trajectory will be over its cap after the insert
+_TRAJECTORY_PROBE_SQL = (
+    "SELECT id FROM trajectory_points WHERE robot_id = %s ORDER BY id DESC LIMIT 1 OFFSET %s"
+)
+
+
+@dataclass(frozen=True, slots=True)
+class DeltaProbe:
+    """What a delta's checks and bounds read besides the robot (:func:`lock_and_read`): its undo record's
+    walls (``touched``, :func:`server.maphistory.touched_ids`) against ``base_version``, and whether
+    ``new_poses`` more poses take the trajectory over ``max_poses``."""
+
+    touched: list[int]
+    base_version: int
+    new_poses: int
+    max_poses: int
+
+
 @dataclass(frozen=True, slots=True)
 class UploadReads:
     """What an upload reads before it writes: the robot's ``(map_version, map_session)`` (None: no such
     robot), the ``(version, map_session)`` an upload with the same idempotency key got (None: new), and
-    the walls stored now (None when not asked)."""
+    the walls stored now (None when not asked). With a :class:`DeltaProbe`: the undo record's reads
+    (``undo``) and whether the trajectory will be over its cap (``trajectory_over``); else None."""
 
     robot: tuple[int, str | None] | None
     seen: tuple[int, str | None] | None
     walls: int | None
+    undo: UndoReads | None = None
+    trajectory_over: bool | None = None
 
 
-def lock_and_read(conn: Connection, lock_class: int, robot_id: int, key: str, count: bool) -> UploadReads:
+def lock_and_read(
+    conn: Connection, lock_class: int, robot_id: int, key: str, count: bool, delta: DeltaProbe | None = None
+) -> UploadReads:
     """Take the robot's upload lock (a transaction advisory lock ``(lock_class, robot_id)``), then read
     what :class:`UploadReads` holds, in one round trip (pipeline mode): each statement runs after the one
-    before, so the reads see every upload committed before the lock was granted. O(walls) with ``count``,
-    else O(1)."""
+    before, so the reads see every upload committed before the lock was granted. A delta's reads
+    (``delta``) go in the same round trip; they are wasted only when the delta is then refused (a
+    conflict, a duplicate). O(walls) with ``count``, else O(walls in the delta)."""
+    rid = int(robot_id)
     pg = _driver(conn)
+    probe = delta is not None and delta.max_poses >= delta.new_poses
     with _driver_errors(), pg.pipeline():
-        curs = [pg.cursor() for _ in range(4 if count else 3)]
-        curs[0].execute(_LOCK_SQL, (lock_class, int(robot_id)))
-        curs[1].execute(_ROBOT_SQL, (int(robot_id),))
-        curs[2].execute(_SEEN_SQL, (int(robot_id), key))
+        curs = [pg.cursor() for _ in range(3 + count + 2 * (delta is not None) + probe)]
+        curs[0].execute(_LOCK_SQL, (lock_class, rid))
+        curs[1].execute(_ROBOT_SQL, (rid,))
+        curs[2].execute(_SEEN_SQL, (rid, key))
+        k = 3
         if count:
-            curs[3].execute(_COUNT_SQL, (int(robot_id),))
+            curs[k].execute(_COUNT_SQL, (rid,))
+            k += 1
+        if delta is not None:
+            curs[k].execute(_TOUCHED_SQL, (rid, jsontext.dumps(delta.touched)))
+            curs[k + 1].execute(_UNDO_STATE_SQL, (rid, delta.base_version, rid))
+            if probe:
+                curs[k + 2].execute(_TRAJECTORY_PROBE_SQL, (rid, delta.max_poses - delta.new_poses))
     robot, seen = curs[1].fetchone(), curs[2].fetchone()
     counted = curs[3].fetchone() if count else None
     walls = None if counted is None else int(counted[0])
+    undo, over = None, None
+    if delta is not None:
+        k = 3 + count
+        touched = curs[k].fetchall()
+        logged, stamp, pose, wall_time, centroids = curs[k + 1].fetchone() or (False, None, None, None, None)
+        state = None
+        if stamp is not None:
+            state = (
+                float(stamp),
+                json.loads(pose),
+                wall_time,
+                None if centroids is None else json.loads(centroids),
+            )
+        undo = UndoReads(touched, bool(logged), state)
+        over = curs[k + 2].fetchone() is not None if probe else True
     for cur in curs:
         cur.close()
     return UploadReads(
         None if robot is None else (int(robot[0]), robot[1]),
         None if seen is None else (int(seen[0]), seen[1]),
         walls,
+        undo,
+        over,
     )
 
 
