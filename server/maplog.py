@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Connection, Table, delete, insert, select
+from sqlalchemy import Connection, Table, bindparam, delete, insert, select
 from sqlalchemy.orm import Session
 
 from server import jsontext
@@ -24,6 +24,9 @@ __all__ = ["KEEP_VERSIONS", "LoggedUpload", "append", "chain_from", "clear", "re
 #: Versions kept per robot: 25 s of uploads at 10 Hz (the agent uploads at 2 Hz: two minutes).
 KEEP_VERSIONS = 256
 _LOG: Table = MapDeltaRecord.__table__  # type: ignore[assignment]
+#: built once: a statement built per upload is compiled from its cache key, made anew every time
+_INSERT = insert(_LOG)
+_TRIM = delete(_LOG).where(_LOG.c.robot_id == bindparam("log_robot"), _LOG.c.version <= bindparam("log_upto"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,10 +59,9 @@ def append(
         base, body = event["base_version"], jsontext.dumps(event)
     else:
         base, body = None, None
-    conn.execute(
-        insert(_LOG).values(robot_id=robot_id, version=version, base_version=base, body=body, undo=undo)
-    )
-    conn.execute(delete(_LOG).where(_LOG.c.robot_id == robot_id, _LOG.c.version <= version - keep))
+    row = {"robot_id": robot_id, "version": version, "base_version": base, "body": body, "undo": undo}
+    conn.execute(_INSERT, row)
+    conn.execute(_TRIM, {"log_robot": robot_id, "log_upto": version - keep})
     return LoggedUpload(version, base, body, event.get("map_session"))
 
 

@@ -20,7 +20,7 @@ from datetime import datetime
 from itertools import chain
 from typing import Any
 
-from sqlalchemy import Connection, Table, delete, insert, select, update
+from sqlalchemy import Connection, Table, bindparam, delete, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 
 from server import pgrows
@@ -70,6 +70,10 @@ _TRAJ: Table = TrajectoryPoint.__table__  # type: ignore[assignment]
 _STATE: Table = MapState.__table__  # type: ignore[assignment]
 _UPLOADS: Table = MapUploadRecord.__table__  # type: ignore[assignment]
 _ROBOTS: Table = Robot.__table__  # type: ignore[assignment]
+#: built once (a statement built per upload is compiled from a cache key made anew each time); the robot
+#: row's SET clause is the columns given with it
+_ROBOT_UPDATE = update(_ROBOTS).where(_ROBOTS.c.id == bindparam("robot_row"))
+_UPLOAD_INSERT = insert(_UPLOADS).inline()  # inline: no RETURNING of the new id (none is read)
 _COORDS = ("x0_m", "y0_m", "x1_m", "y1_m", "version")
 #: First key of the per-robot upload advisory lock on PostgreSQL ("LMUP"; the second key is the robot id).
 #: Distinct from the high half of server.migrate.SCHEMA_LOCK_KEY, so the two never collide.
@@ -400,7 +404,7 @@ def _write_rows(
         changes["last_seen_at"] = seen_at
     if up.status is not None:
         changes.update(status_columns(up.status))
-    conn.execute(update(_ROBOTS).where(_ROBOTS.c.id == robot_id).values(**changes))
+    conn.execute(_ROBOT_UPDATE, {"robot_row": robot_id, **changes})
     record = {
         "robot_id": robot_id,
         "idempotency_key": key,
@@ -411,7 +415,7 @@ def _write_rows(
         "n_removed": len(up.removed),
         "received_at": now,
     }
-    conn.execute(insert(_UPLOADS).inline(), record)  # inline: no RETURNING of the new id (none is read)
+    conn.execute(_UPLOAD_INSERT, record)
 
 
 def _delete_ids(conn: Connection, table: Table, ids: list[int]) -> None:
