@@ -92,7 +92,7 @@ _COUNT_SQL = "SELECT count(*) FROM map_segments WHERE robot_id = %s"
 #: Python: 0.4 ms a 200-wall delta under load)
 _TOUCHED_SQL = (
     "SELECT segment_id, x0_m, y0_m, x1_m, y1_m FROM map_segments WHERE robot_id = %s "
-    "AND segment_id = ANY(ARRAY(SELECT json_array_elements_text(%s::json)::bigint))"
+    "AND segment_id = ANY(ARRAY(SELECT json_array_elements_text(%s::json)::bigint)) ORDER BY segment_id"
 )
 #: whether the base version's log entry holds its body, and the map state (its centroids only if not)
 _UNDO_STATE_SQL = (

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from sqlalchemy import select, text
 from sqlalchemy.exc import DBAPIError
 
-from server import pgrows
+from server import maphistory, maplog, pgrows
+from server.maphistory import capture_undo
 from server.mapstore import apply_upload
 from server.models import MapSegment, TrajectoryPoint
 from server.schemas import MapUpload
@@ -119,6 +120,64 @@ def test_lock_and_read_answers_what_the_separate_reads_answer(live: Live) -> Non
     assert after == pgrows.UploadReads((7, None), (7, None), 2)
     assert other == pgrows.UploadReads((7, None), None, None)
     assert missing.robot is None
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    walls=st.dictionaries(st.integers(0, 2**40), st.tuples(_COORD, _COORD, _COORD, _COORD), max_size=30),
+    extra=st.lists(st.integers(0, 2**40), max_size=10),
+    poses=st.integers(0, 6),
+    cap=st.integers(0, 12),
+    snapshot_base=st.booleans(),
+)
+def test_a_deltas_reads_in_the_locks_round_trip_equal_the_separate_reads(
+    live: Live,
+    walls: dict[int, tuple[float, float, float, float]],
+    extra: list[int],
+    poses: int,
+    cap: int,
+    snapshot_base: bool,
+) -> None:
+    """The undo record's walls, log flag and map state, and the trajectory-cap probe, read in the lock's
+    pipeline, answer as :func:`server.maphistory.capture_undo`'s own reads and ``thin_trajectory``'s probe
+    (base logged as a snapshot, whose centroids the record then keeps, or as a delta)."""
+    _pg(live)
+    rid, _ = live.new_robot()
+    first = {
+        "version": 1,
+        "base_version": None,
+        "segments": [[k, *v] for k, v in walls.items()],
+        "centroids": [[0.5, -0.25]],
+        "trajectory": [[0.1 * i, 1.0, 2.0, 0.3] for i in range(4)],
+        "pose": [1.5, -2.0, 0.25],
+    }
+    second = {**first, "version": 2, "base_version": 1, "segments": first["segments"][:3], "trajectory": []}
+    with live.state.db.write_conn() as conn:
+        apply_upload(conn, rid, MapUpload.model_validate(first), "version-1", None, 20_000)
+    if not snapshot_base:  # the base version is a logged delta (its entry holds its body)
+        with live.state.db.write_conn() as conn:
+            applied = apply_upload(conn, rid, MapUpload.model_validate(second), "version-2", None, 20_000)
+            assert applied.event is not None
+            maplog.append(conn, rid, applied.event)
+    base = 1 if snapshot_base else 2
+    keys = sorted(walls)
+    delta = MapUpload.model_validate(
+        {
+            "version": base + 1,
+            "base_version": base,
+            "segments": [[k, 0.0, 0.0, 1.0, 1.0] for k in keys[: len(keys) // 2] + extra],
+            "removed": keys[len(keys) // 2 :],
+            "trajectory": [[9.0 + i, 0.0, 0.0, 0.0] for i in range(poses)],
+            "pose": [0, 0, 0],
+        }
+    )
+    probe = pgrows.DeltaProbe(maphistory.touched_ids(delta), base, poses, cap)
+    with live.state.db.write_conn() as conn:
+        reads = pgrows.lock_and_read(conn, 1, rid, "k", count=False, delta=probe)
+        assert reads.undo is not None
+        assert capture_undo(conn, rid, delta, reads.undo) == capture_undo(conn, rid, delta)
+        stored = conn.execute(select(TrajectoryPoint.id).where(TrajectoryPoint.robot_id == rid)).all()
+    assert reads.trajectory_over == (len(stored) + poses > cap)
 
 
 def test_a_failing_statement_in_a_pipeline_is_sqlalchemys_error_and_writes_nothing(live: Live) -> None:
