@@ -131,9 +131,11 @@ def _touched_walls(conn: Connection, robot_id: int, ids: list[int]) -> list[Any]
         return list(conn.exec_driver_sql(_TOUCHED_SQL[name], (int(robot_id), param)))
     rows: list[Any] = []
     for start in range(0, len(ids), _CHUNK):
-        q = select(_SEG.c.segment_id, _SEG.c.x0_m, _SEG.c.y0_m, _SEG.c.x1_m, _SEG.c.y1_m).where(
-            _SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(ids[start : start + _CHUNK])
-        ).order_by(_SEG.c.segment_id)
+        q = (
+            select(_SEG.c.segment_id, _SEG.c.x0_m, _SEG.c.y0_m, _SEG.c.x1_m, _SEG.c.y1_m)
+            .where(_SEG.c.robot_id == robot_id, _SEG.c.segment_id.in_(ids[start : start + _CHUNK]))
+            .order_by(_SEG.c.segment_id)
+        )
         rows.extend(conn.execute(q))
     return rows
 

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import functools
 import logging
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from datetime import datetime
 from itertools import chain
 from typing import Any
@@ -43,6 +44,7 @@ __all__ = [
     "check_wall_cap",
     "map_version",
     "prepare_rows",
+    "queue_upload_reads",
     "read_map",
     "status_columns",
     "thin_trajectory",
@@ -63,6 +65,8 @@ class AppliedUpload:
     new_session: bool = False
     #: a delta's undo record (:func:`server.maphistory.capture_undo`), logged with it
     undo: str | None = None
+    #: what :func:`apply_upload`'s ``also`` returned
+    extra: Any = None
 
 
 _SEG: Table = MapSegment.__table__  # type: ignore[assignment]
@@ -216,6 +220,9 @@ def apply_upload(
     max_walls: int | None = None,
     prepared: PreparedRows | None = None,
     actor: str = "robot",
+    *,
+    pending: pgrows.PendingReads | None = None,
+    also: Callable[[Connection, AppliedUpload], Any] | None = None,
 ) -> AppliedUpload:
     """Apply one upload in the caller's transaction (SQLAlchemy Core: a robot sends one every few hundred
     milliseconds); ``max_walls``: refuse (422, before writing) a delta after which the map would hold more
@@ -227,13 +234,21 @@ def apply_upload(
     Map sessions: a snapshot of a session that is not the robot's current one starts a new map (the current
     one is kept, :func:`server.mapsessions.start_session`; ``actor`` names the robot in the audit entry),
     whatever its version; a delta of another session is refused (409 ``map_session_mismatch``), and an
-    upload of a session that ended (409 ``map_session_ended``)."""
+    upload of a session that ended (409 ``map_session_ended``).
+
+    ``pending``: the lock and reads queued already in this transaction by :func:`queue_upload_reads`
+    (PostgreSQL's write batches queue every upload's in one round trip). ``also(conn, applied)``: more
+    writes of the upload (its delta-log entry, its notice), run with the upload's own writes (on
+    PostgreSQL in their round trip); its result is ``applied.extra``."""
     # Serialise the robot's uploads first: concurrent uploads of one robot (a retry racing its original)
     # queue here, so the idempotency check below sees every upload committed before it. PostgreSQL: a
     # per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts seconds, and
     # the row lock held all along stalled every write batch that touched the row (last-seen times). The
     # row itself is updated at the end of the transaction only. SQLite: its one write lock serialises.
-    reads = _lock_and_read(conn, robot_id, key, up.base_version is not None and max_walls is not None, up)
+    if pending is not None:
+        reads = pending.result()
+    else:
+        reads = _lock_and_read(conn, robot_id, key, _counts(up, max_walls), up)
     robot, seen = reads.robot, reads.seen
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
@@ -310,22 +325,48 @@ def apply_upload(
     # the pose graph's rows; a delta's corrected keyframes move the stored poses first (server.mapgraph:
     # it reads the stored keyframes, so before the pipelined writes, and before the delta's own poses)
     graph = graph_columns(conn, robot_id, up, whole=up.base_version is None)
+    event = {
+        "kind": "snapshot" if up.base_version is None else "delta",
+        "robot_id": robot_id,
+        **{name: getattr(up, name) for name in MAP_FIELDS},  # the lists themselves, not copies
+    }
+    applied = AppliedUpload(
+        MapUploadOut(version=v, duplicate=False, map_session=up.map_session), event, new_session, undo
+    )
     with pgrows.pipelined(conn):  # PostgreSQL: the writes below in one round trip
         _write_rows(conn, robot_id, up, rows, seen_at, key, graph)
+        extra = None if also is None else also(conn, applied)
     # bounded sizes (docs/reliability/bounded.md), in the same transaction, after the pipelined writes
     # (these read rows): the trajectory thinned past its cap, the idempotency records trimmed now and then
     if rows.trajectory:
         thin_trajectory(conn, robot_id, over=reads.trajectory_over)
     if v % _TRIM_EVERY == 0:
         trim_upload_records(conn, robot_id)
-    event = {
-        "kind": "snapshot" if up.base_version is None else "delta",
-        "robot_id": robot_id,
-        **{name: getattr(up, name) for name in MAP_FIELDS},  # the lists themselves, not copies
-    }
-    return AppliedUpload(
-        MapUploadOut(version=v, duplicate=False, map_session=up.map_session), event, new_session, undo
+    return applied if extra is None else replace(applied, extra=extra)
+
+
+def queue_upload_reads(
+    conn: Connection, robot_id: int, up: MapUpload, key: str, max_walls: int | None
+) -> pgrows.PendingReads | None:
+    """On PostgreSQL, queue the lock and the reads :func:`apply_upload` begins with in the pipeline open on
+    ``conn`` (:func:`server.pgrows.pipelined`), for ``apply_upload(..., pending=...)`` once it has synced;
+    elsewhere None (it reads them itself)."""
+    if conn.dialect.name != "postgresql":
+        return None
+    return pgrows.queue_lock_and_read(
+        conn, _UPLOAD_LOCK_CLASS, robot_id, key, _counts(up, max_walls), _delta_probe(up)
     )
+
+
+def _counts(up: MapUpload, max_walls: int | None) -> bool:
+    """Whether the upload's first reads count the stored walls (a delta under a wall cap)."""
+    return up.base_version is not None and max_walls is not None
+
+
+def _delta_probe(up: MapUpload) -> pgrows.DeltaProbe | None:
+    if up.base_version is None:
+        return None
+    return pgrows.DeltaProbe(touched_ids(up), up.base_version, len(up.trajectory), MAX_TRAJECTORY_POSES)
 
 
 def _lock_and_read(
@@ -339,12 +380,7 @@ def _lock_and_read(
     times); the row itself is updated at the end of the transaction only. SQLite: its one write lock
     serialises. Other databases: the robot's row lock."""
     if conn.dialect.name == "postgresql":
-        probe = None
-        if up.base_version is not None:
-            probe = pgrows.DeltaProbe(
-                touched_ids(up), up.base_version, len(up.trajectory), MAX_TRAJECTORY_POSES
-            )
-        return pgrows.lock_and_read(conn, _UPLOAD_LOCK_CLASS, robot_id, key, count, probe)
+        return pgrows.lock_and_read(conn, _UPLOAD_LOCK_CLASS, robot_id, key, count, _delta_probe(up))
     q = select(_ROBOTS.c.map_version, _ROBOTS.c.map_session).where(_ROBOTS.c.id == robot_id)
     if conn.dialect.name != "sqlite":
         q = q.with_for_update()

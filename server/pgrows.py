@@ -36,11 +36,13 @@ from server.maphistory import UndoReads
 
 __all__ = [
     "DeltaProbe",
+    "PendingReads",
     "UploadReads",
     "delete_walls",
     "insert_trajectory",
     "lock_and_read",
     "pipelined",
+    "queue_lock_and_read",
     "upsert_segments",
 ]
 
@@ -133,6 +135,77 @@ class UploadReads:
     trajectory_over: bool | None = None
 
 
+class PendingReads:
+    """An upload's lock and reads queued in a pipeline (:func:`queue_lock_and_read`); :meth:`result` once
+    the pipeline has synced (its block has ended)."""
+
+    __slots__ = ("_count", "_curs", "_delta", "_probe")
+
+    def __init__(self, curs: list[psycopg.Cursor[Any]], count: bool, delta: bool, probe: bool) -> None:
+        self._curs, self._count, self._delta, self._probe = curs, count, delta, probe
+
+    def result(self) -> UploadReads:
+        """The answers (the cursors are closed). O(rows read)."""
+        curs = self._curs
+        robot, seen = curs[1].fetchone(), curs[2].fetchone()
+        counted = curs[3].fetchone() if self._count else None
+        walls = None if counted is None else int(counted[0])
+        undo, over = None, None
+        if self._delta:
+            k = 3 + self._count
+            touched = curs[k].fetchall()
+            logged, stamp, pose, wall_time, centroids = curs[k + 1].fetchone() or (
+                False,
+                None,
+                None,
+                None,
+                None,
+            )
+            state = None
+            if stamp is not None:
+                state = (
+                    float(stamp),
+                    json.loads(pose),
+                    wall_time,
+                    None if centroids is None else json.loads(centroids),
+                )
+            undo = UndoReads(touched, bool(logged), state)
+            over = curs[k + 2].fetchone() is not None if self._probe else True
+        for cur in curs:
+            cur.close()
+        return UploadReads(
+            None if robot is None else (int(robot[0]), robot[1]),
+            None if seen is None else (int(seen[0]), seen[1]),
+            walls,
+            undo,
+            over,
+        )
+
+
+def queue_lock_and_read(
+    conn: Connection, lock_class: int, robot_id: int, key: str, count: bool, delta: DeltaProbe | None = None
+) -> PendingReads:
+    """Queue :func:`lock_and_read`'s statements in the pipeline open on ``conn`` (:func:`pipelined`):
+    the write batches queue every upload's lock and reads in one pipeline, one round trip for all."""
+    rid = int(robot_id)
+    pg = _driver(conn)
+    probe = delta is not None and delta.max_poses >= delta.new_poses
+    curs = [pg.cursor() for _ in range(3 + count + 2 * (delta is not None) + probe)]
+    curs[0].execute(_LOCK_SQL, (lock_class, rid))
+    curs[1].execute(_ROBOT_SQL, (rid,))
+    curs[2].execute(_SEEN_SQL, (rid, key))
+    k = 3
+    if count:
+        curs[k].execute(_COUNT_SQL, (rid,))
+        k += 1
+    if delta is not None:
+        curs[k].execute(_TOUCHED_SQL, (rid, jsontext.dumps(delta.touched)))
+        curs[k + 1].execute(_UNDO_STATE_SQL, (rid, delta.base_version, rid))
+        if probe:
+            curs[k + 2].execute(_TRAJECTORY_PROBE_SQL, (rid, delta.max_poses - delta.new_poses))
+    return PendingReads(curs, count, delta is not None, probe)
+
+
 def lock_and_read(
     conn: Connection, lock_class: int, robot_id: int, key: str, count: bool, delta: DeltaProbe | None = None
 ) -> UploadReads:
@@ -141,50 +214,9 @@ def lock_and_read(
     before, so the reads see every upload committed before the lock was granted. A delta's reads
     (``delta``) go in the same round trip; they are wasted only when the delta is then refused (a
     conflict, a duplicate). O(walls) with ``count``, else O(walls in the delta)."""
-    rid = int(robot_id)
-    pg = _driver(conn)
-    probe = delta is not None and delta.max_poses >= delta.new_poses
-    with _driver_errors(), pg.pipeline():
-        curs = [pg.cursor() for _ in range(3 + count + 2 * (delta is not None) + probe)]
-        curs[0].execute(_LOCK_SQL, (lock_class, rid))
-        curs[1].execute(_ROBOT_SQL, (rid,))
-        curs[2].execute(_SEEN_SQL, (rid, key))
-        k = 3
-        if count:
-            curs[k].execute(_COUNT_SQL, (rid,))
-            k += 1
-        if delta is not None:
-            curs[k].execute(_TOUCHED_SQL, (rid, jsontext.dumps(delta.touched)))
-            curs[k + 1].execute(_UNDO_STATE_SQL, (rid, delta.base_version, rid))
-            if probe:
-                curs[k + 2].execute(_TRAJECTORY_PROBE_SQL, (rid, delta.max_poses - delta.new_poses))
-    robot, seen = curs[1].fetchone(), curs[2].fetchone()
-    counted = curs[3].fetchone() if count else None
-    walls = None if counted is None else int(counted[0])
-    undo, over = None, None
-    if delta is not None:
-        k = 3 + count
-        touched = curs[k].fetchall()
-        logged, stamp, pose, wall_time, centroids = curs[k + 1].fetchone() or (False, None, None, None, None)
-        state = None
-        if stamp is not None:
-            state = (
-                float(stamp),
-                json.loads(pose),
-                wall_time,
-                None if centroids is None else json.loads(centroids),
-            )
-        undo = UndoReads(touched, bool(logged), state)
-        over = curs[k + 2].fetchone() is not None if probe else True
-    for cur in curs:
-        cur.close()
-    return UploadReads(
-        None if robot is None else (int(robot[0]), robot[1]),
-        None if seen is None else (int(seen[0]), seen[1]),
-        walls,
-        undo,
-        over,
-    )
+    with pipelined(conn):
+        pending = queue_lock_and_read(conn, lock_class, robot_id, key, count, delta)
+    return pending.result()
 
 
 @contextmanager

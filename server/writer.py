@@ -36,6 +36,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from server.database import Database
 from server.errors import ServerError, StorageFullError
+from server.pgrows import pipelined
 
 __all__ = ["PG_WRITERS", "WriteBatcher"]
 
@@ -55,10 +56,14 @@ _SLOW_BATCH_MS = 30.0
 
 
 class _Job(Generic[T]):
-    __slots__ = ("fn", "future")
+    __slots__ = ("fn", "future", "key", "prefetch")
 
-    def __init__(self, fn: Callable[[Connection], T]) -> None:
+    def __init__(
+        self, fn: Callable[[Connection], T], key: int, prefetch: Callable[[Connection], None] | None
+    ) -> None:
         self.fn = fn
+        self.key = key
+        self.prefetch = prefetch
         self.future: Future[T] = Future()
 
 
@@ -98,10 +103,23 @@ class WriteBatcher:
         """The writer thread that applies the jobs of ``key``."""
         return key % len(self._queues)
 
-    async def submit(self, fn: Callable[[Connection], T], *, heavy: bool = False, key: int = 0) -> T:
+    async def submit(
+        self,
+        fn: Callable[[Connection], T],
+        *,
+        heavy: bool = False,
+        key: int = 0,
+        prefetch: Callable[[Connection], None] | None = None,
+    ) -> T:
         """Run ``fn(conn)`` (on SQLite inline, once this process's write queue is free; else in the next
         batch of the writer thread of ``key``, the robot whose rows it writes); its result, or its error.
-        ``heavy``: a long job (many rows), kept off the event loop and out of the batches."""
+        ``heavy``: a long job (many rows), kept off the event loop and out of the batches.
+
+        ``prefetch(conn)``: in a batch, called before the batch's jobs run, inside one pipeline for the
+        whole batch (:func:`server.pgrows.pipelined`), to queue statements whose answers ``fn`` then
+        takes (an upload's lock and reads: one round trip for the batch instead of one per job). Only for
+        the first job of each key in a batch (a later one must read after the earlier one's writes), and
+        not at all inline or for a heavy job: ``fn`` must do its reads itself when it was not called."""
         while self.inline and not heavy:
             # Block the loop only when no job waits off the loop yet: behind a long write, each upload
             # arriving would otherwise block it again.
@@ -121,7 +139,7 @@ class WriteBatcher:
             await asyncio.shield(self._writable)
         if heavy:
             return await run_in_threadpool(self._alone, fn)
-        job: _Job[T] = _Job(fn)
+        job: _Job[T] = _Job(fn, key, prefetch)
         self._queues[self.shard(key)].put(job)
         return await asyncio.wrap_future(job.future)
 
@@ -161,6 +179,7 @@ class WriteBatcher:
         results: list[tuple[_Job[Any], Any, BaseException | None]] = []
         try:
             with self._db.write_conn() as conn:
+                _prefetch(conn, batch)
                 for job in batch:
                     try:
                         results.append((job, job.fn(conn), None))
@@ -189,6 +208,19 @@ class WriteBatcher:
             self.jobs += len(batch)
         for job, value, error in results:
             _settle(job, value, error)
+
+
+def _prefetch(conn: Connection, batch: list[_Job[Any]]) -> None:
+    """Call the batch's ``prefetch`` functions (the first job of each key only) in one pipeline."""
+    first: dict[int, _Job[Any]] = {}
+    for job in batch:
+        first.setdefault(job.key, job)
+    todo = [job.prefetch for job in first.values() if job.prefetch is not None]
+    if not todo:
+        return
+    with pipelined(conn):
+        for prefetch in todo:
+            prefetch(conn)
 
 
 def _settle(job: _Job[Any], value: Any, error: BaseException | None) -> None:

@@ -42,10 +42,10 @@ from server.maplog import LoggedUpload
 from server.maplog import append as log_upload
 from server.maplog import clear as clear_log
 from server.mapread import list_sessions, map_version, read_held
-from server.mapstore import AppliedUpload, apply_upload, prepare_rows
+from server.mapstore import AppliedUpload, apply_upload, prepare_rows, queue_upload_reads
 from server.mapstream import map_events
 from server.parsepool import UploadParser, parse_upload
-from server.pgrows import pipelined
+from server.pgrows import PendingReads
 from server.quota import UploadQuota
 from server.schemas import DB_INT_MAX, DbIdPath, MapHistoryOut, MapOut, MapSessionOut, MapUpload, MapUploadOut
 from shared.errors import InvalidInputError
@@ -131,18 +131,26 @@ async def upload_map(
     seen = state.last_seen(robot_id)
     rows = await run_in_threadpool(prepare_rows, robot_id, body, diff) if heavy else None  # before the writer
 
-    def write(conn: Connection) -> tuple[AppliedUpload, LoggedUpload | None]:
-        # the delta log and the notice to other processes commit with the map (server.maplog, server.hub)
-        applied = apply_upload(conn, robot_id, body, key, seen, cap, rows, who.actor)
-        if applied.event is None:
-            return applied, None
-        with pipelined(conn):  # PostgreSQL: these three or four writes in one round trip
-            if applied.new_session:  # the log holds the current session's uploads only: versions anew
-                clear_log(conn, robot_id)
-            state.hub.announce(conn, f"maps:{robot_id}", body.version)
-            return applied, log_upload(conn, robot_id, applied.event, undo=applied.undo)
+    queued: list[PendingReads | None] = [None]  # the lock and reads the write batch queued (PostgreSQL)
 
-    applied, logged = await state.writer.submit(write, heavy=heavy, key=robot_id)
+    def prefetch(conn: Connection) -> None:
+        queued[0] = queue_upload_reads(conn, robot_id, body, key, cap)
+
+    def also(conn: Connection, applied: AppliedUpload) -> LoggedUpload:
+        # the delta log and the notice to other processes commit with the map (server.maplog, server.hub),
+        # written with the map's rows (on PostgreSQL in their round trip)
+        if applied.new_session:  # the log holds the current session's uploads only: versions anew
+            clear_log(conn, robot_id)
+        state.hub.announce(conn, f"maps:{robot_id}", body.version)
+        assert applied.event is not None
+        return log_upload(conn, robot_id, applied.event, undo=applied.undo)
+
+    def write(conn: Connection) -> AppliedUpload:
+        pending, queued[0] = queued[0], None
+        return apply_upload(conn, robot_id, body, key, seen, cap, rows, who.actor, pending=pending, also=also)
+
+    applied = await state.writer.submit(write, heavy=heavy, key=robot_id, prefetch=prefetch)
+    logged: LoggedUpload | None = applied.extra
     if applied.new_session:  # versions count anew: a version kept from the old session is another map
         state.recent_maps.forget(robot_id)
     if logged is not None:
