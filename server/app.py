@@ -66,9 +66,8 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     if migrate:
         upgrade(db.engine)
     # PostgreSQL: writes are announced to the other server processes, whose listeners wake their waiters
-    state = AppState(
-        settings=settings, db=db, writer=WriteBatcher(db), hub=Hub(cross_process=not db.is_sqlite)
-    )
+    writer = WriteBatcher(db, writers=None if db.is_sqlite else settings.pg_writers)
+    state = AppState(settings=settings, db=db, writer=writer, hub=Hub(cross_process=not db.is_sqlite))
     listener = None if db.is_sqlite else NoticeListener(state.hub, psycopg_connector(db.url))
 
     @asynccontextmanager

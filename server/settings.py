@@ -38,6 +38,14 @@ class Settings(BaseSettings):
         "PostgreSQL in every other one through LISTEN/NOTIFY) and the notice listener resynchronises "
         "every waiter after it reconnects.",
     )
+    pg_writers: int = Field(
+        2,
+        ge=1,
+        le=16,
+        description="PostgreSQL: writer threads applying map uploads in group commits, each robot's always "
+        "on the same one (server.writer). More take more uploads/s but slow everything else that needs "
+        "the process's interpreter lock (control messages, long-polls). SQLite: always one.",
+    )
     online_window_s: float = Field(10.0, gt=0, description="A robot seen within this window is online.")
     rollout_tick_s: float = Field(
         1.0, gt=0, le=60, description="The rollout driver re-reads every active rollout this often (s)."

@@ -49,8 +49,12 @@ _STOP = object()
 #: for the GIL with the busy loop and held the write queue ~1 s each time under server_load (with every
 #: upload of that second waiting for it).
 INLINE_WAIT_S = 0.05
-#: Writer threads on a database other than SQLite (each holds one connection of the pool while it writes).
-PG_WRITERS = 4
+#: Writer threads on a database other than SQLite by default (each holds one connection of the pool while it
+#: writes; the server's setting ``pg_writers``). More threads wait for the database side by side but compete
+#: for the GIL with everything else: under ``benchmarks/server_load.py`` (100 robots, PostgreSQL) 1, 2 and 4
+#: threads gave 138-152, 152-155 and 154-182 uploads/s, with a control message reaching its long-poll in
+#: 42, 88-104 and 293-381 ms (median).
+PG_WRITERS = 2
 #: A write batch slower than this is logged (debug level), in milliseconds.
 _SLOW_BATCH_MS = 30.0
 

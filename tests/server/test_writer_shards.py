@@ -95,3 +95,56 @@ def test_the_last_seen_flush_writes_one_shard_at_a_time(tmp_path: Path) -> None:
     finally:
         writer.close()
         db.dispose()
+
+
+def test_a_batch_prefetches_the_first_job_of_each_key_in_one_pipeline(pg: Database) -> None:
+    """Jobs queued while the writer is busy form one batch; its prefetches run before any job, for the
+    first job of each key only (a later job of the same key must read after the earlier one's writes)."""
+    writer = WriteBatcher(pg, writers=1)
+    calls: list[str] = []
+    gate, inside = threading.Event(), threading.Event()
+
+    def blocker(conn: Connection) -> None:
+        inside.set()
+        gate.wait(30)  # holds the writer thread until every job below is queued
+
+    def job(name: str) -> Callable[[Connection], str]:
+        def fn(conn: Connection) -> str:
+            calls.append(f"run {name}")
+            return name
+
+        return fn
+
+    def pre(name: str) -> Callable[[Connection], None]:
+        def fn(conn: Connection) -> None:
+            conn.exec_driver_sql("SELECT 1")  # a statement in the batch's pipeline
+            calls.append(f"prefetch {name}")
+
+        return fn
+
+    async def go() -> list[str]:
+        first = asyncio.ensure_future(writer.submit(blocker))
+        assert await asyncio.get_running_loop().run_in_executor(None, inside.wait, 30)  # in its own batch
+        names = [("a1", 1), ("b1", 2), ("a2", 1), ("c1", 3)]
+        jobs = [writer.submit(job(n), key=k, prefetch=pre(n)) for n, k in names]
+        plain = writer.submit(job("plain"), key=4)
+        waiting = asyncio.gather(*jobs, plain)
+        await asyncio.sleep(0)  # one loop turn: each submission above has queued its job
+        gate.set()
+        await first
+        return list(await waiting)
+
+    try:
+        assert asyncio.run(go()) == ["a1", "b1", "a2", "c1", "plain"]
+    finally:
+        writer.close()
+    assert calls == [
+        "prefetch a1",
+        "prefetch b1",
+        "prefetch c1",
+        "run a1",
+        "run b1",
+        "run a2",
+        "run c1",
+        "run plain",
+    ]
