@@ -162,7 +162,7 @@ class PendingReads:
                 None,
             )
             state = None
-            if stamp is not None:
+            if stamp is not None and pose is not None:  # a map state row (its columns are NOT NULL)
                 state = (
                     float(stamp),
                     json.loads(pose),

@@ -7,6 +7,8 @@ stored map (the property test runs on both backends)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -143,7 +145,7 @@ def test_a_deltas_reads_in_the_locks_round_trip_equal_the_separate_reads(
     (base logged as a snapshot, whose centroids the record then keeps, or as a delta)."""
     _pg(live)
     rid, _ = live.new_robot()
-    first = {
+    first: dict[str, Any] = {
         "version": 1,
         "base_version": None,
         "segments": [[k, *v] for k, v in walls.items()],

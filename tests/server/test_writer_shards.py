@@ -11,7 +11,7 @@ from datetime import datetime
 from pathlib import Path
 
 import pytest
-from sqlalchemy import Connection, select, text
+from sqlalchemy import Connection, insert, select, text
 
 from server.database import Database
 from server.deps import AppState
@@ -79,7 +79,7 @@ def test_the_last_seen_flush_writes_one_shard_at_a_time(tmp_path: Path) -> None:
     try:
         with db.write_conn() as conn:
             for i in range(8):
-                conn.execute(Robot.__table__.insert().values(name=f"r{i}", token_hash=f"{i:064d}"))
+                conn.execute(insert(Robot).values(name=f"r{i}", token_hash=f"{i:064d}"))
         with db.read() as s:
             ids = sorted(s.scalars(select(Robot.id)))
         for rid in ids:
