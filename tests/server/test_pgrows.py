@@ -197,3 +197,24 @@ def test_a_failing_statement_in_a_pipeline_is_sqlalchemys_error_and_writes_nothi
     assert _walls(live, rid) == []
     with live.state.db.write_conn() as conn:  # the pool's connection is usable again
         assert conn.execute(text("SELECT 1")).scalar() == 1
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    floats=st.lists(st.floats(allow_nan=False, allow_infinity=False), max_size=50),
+    ints=st.lists(st.integers(-(2**63), 2**63 - 1), max_size=50),
+)
+def test_array_text_reads_back_as_the_same_values(live: Live, floats: list[float], ints: list[int]) -> None:
+    """Any finite double (subnormals, -0.0, the largest) and any bigint, through the text form the write
+    statements send: the very same values come back."""
+    _pg(live)
+    with live.state.db.read() as s:
+        got_f, got_i = (
+            s.connection()
+            .exec_driver_sql(
+                "SELECT %s::float8[], %s::bigint[]", (pgrows.array_text(floats), pgrows.array_text(ints))
+            )
+            .one()
+        )
+    assert [float(x).hex() for x in got_f] == [x.hex() for x in floats]  # -0.0 keeps its sign
+    assert list(got_i) == ints
