@@ -89,11 +89,13 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
             await run_in_threadpool(driver.release)
         except Exception:  # the leases then run out by themselves (rollout_lease_s)
             log.exception("could not release this process's rollout leases")
+        # the writer threads first (they finish the jobs queued): the flush below writes every robot's row
+        # in one transaction, which must not wait for a batch holding some of those rows
+        await run_in_threadpool(state.writer.close)
         try:
             await run_in_threadpool(state.flush_seen)
         except StorageFullError as exc:  # the last-seen times are a convenience: stop anyway
             log.warning("robots' last-seen times not recorded at shutdown: %s", exc)
-        await run_in_threadpool(state.writer.close)
         await run_in_threadpool(parser.close)
         db.dispose()
 
