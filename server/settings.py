@@ -39,7 +39,7 @@ class Settings(BaseSettings):
         "every waiter after it reconnects.",
     )
     pg_writers: int = Field(
-        2,
+        1,
         ge=1,
         le=16,
         description="PostgreSQL: writer threads applying map uploads in group commits, each robot's always "

@@ -51,10 +51,11 @@ _STOP = object()
 INLINE_WAIT_S = 0.05
 #: Writer threads on a database other than SQLite by default (each holds one connection of the pool while it
 #: writes; the server's setting ``pg_writers``). More threads wait for the database side by side but compete
-#: for the GIL with everything else: under ``benchmarks/server_load.py`` (100 robots, PostgreSQL) 1, 2 and 4
-#: threads gave 138-152, 152-155 and 154-182 uploads/s, with a control message reaching its long-poll in
-#: 42, 88-104 and 293-381 ms (median).
-PG_WRITERS = 2
+#: for the GIL with everything else: under ``benchmarks/server_load.py`` (100 robots, PostgreSQL, one
+#: process) 1 and 2 threads gave 161-164 and 172 uploads/s with a control message reaching its long-poll in
+#: 44-49 and 82-96 ms (median); two processes of 1 thread each took 196 uploads/s (messages 51 ms), of 2
+#: each 190 (72 ms). One keeps control messages within their 50 ms; more processes add uploads/s.
+PG_WRITERS = 1
 #: A write batch slower than this is logged (debug level), in milliseconds.
 _SLOW_BATCH_MS = 30.0
 

@@ -18,7 +18,7 @@ from server.deps import AppState
 from server.migrate import upgrade
 from server.models import Robot
 from server.settings import Settings
-from server.writer import PG_WRITERS, WriteBatcher
+from server.writer import WriteBatcher
 from tests.server.live import database_url
 
 
@@ -40,28 +40,31 @@ def _job(k: int, n: int, log: list[tuple[int, int, int]]) -> Callable[[Connectio
     return job
 
 
+WRITERS = 4
+
+
 def test_a_keys_jobs_run_on_one_thread_in_order_and_keys_spread(pg: Database) -> None:
-    writer = WriteBatcher(pg)
-    assert writer.shards == PG_WRITERS > 1
+    writer = WriteBatcher(pg, writers=WRITERS)
+    assert writer.shards == WRITERS
     log: list[tuple[int, int, int]] = []
 
     async def go() -> list[int]:
-        jobs = [writer.submit(_job(k, n, log), key=k) for n in range(10) for k in range(2 * PG_WRITERS)]
+        jobs = [writer.submit(_job(k, n, log), key=k) for n in range(10) for k in range(2 * WRITERS)]
         return await asyncio.gather(*jobs)
 
     try:
-        assert asyncio.run(go()) == [n for n in range(10) for _ in range(2 * PG_WRITERS)]
+        assert asyncio.run(go()) == [n for n in range(10) for _ in range(2 * WRITERS)]
     finally:
         writer.close()
-    threads = {k: {ident for kk, _, ident in log if kk == k} for k in range(2 * PG_WRITERS)}
+    threads = {k: {ident for kk, _, ident in log if kk == k} for k in range(2 * WRITERS)}
     assert all(len(t) == 1 for t in threads.values())  # one thread per key
-    assert len({next(iter(threads[k])) for k in range(PG_WRITERS)}) == PG_WRITERS  # keys spread
-    for k in range(2 * PG_WRITERS):
-        assert threads[k] == threads[k % PG_WRITERS]  # same shard, same thread
+    assert len({next(iter(threads[k])) for k in range(WRITERS)}) == WRITERS  # keys spread
+    for k in range(2 * WRITERS):
+        assert threads[k] == threads[k % WRITERS]  # same shard, same thread
         assert [n for kk, n, _ in log if kk == k] == list(range(10))  # in the order submitted
     with pg.read() as s:
         stored = s.execute(text("SELECT k, n FROM t ORDER BY id")).all()
-    for k in range(2 * PG_WRITERS):  # committed in that order too
+    for k in range(2 * WRITERS):  # committed in that order too
         assert [n for kk, n in stored if kk == k] == list(range(10))
 
 
@@ -74,7 +77,7 @@ def test_the_last_seen_flush_writes_one_shard_at_a_time(tmp_path: Path) -> None:
     url = database_url("postgresql", tmp_path)
     db = Database(url)
     upgrade(db.engine)
-    writer = WriteBatcher(db)
+    writer = WriteBatcher(db, writers=WRITERS)
     state = AppState(settings=Settings(database_url=url), db=db, writer=writer)
     try:
         with db.write_conn() as conn:
