@@ -236,6 +236,14 @@ def _delete_ids(conn: Connection, table: Table, ids: list[int]) -> None:
         conn.execute(delete(table).where(table.c.id.in_(ids[start : start + _CHUNK_ROWS])))
 
 
+def _newest_id_past(conn: Connection, table: Table, robot_id: int, skip: int) -> int | None:
+    """The id of the robot's row in ``table`` that has ``skip`` newer ones (None: there are not that many).
+    One index probe."""
+    newest_first = select(table.c.id).where(table.c.robot_id == robot_id).order_by(table.c.id.desc())
+    got = conn.execute(newest_first.limit(1).offset(skip)).scalar()
+    return None if got is None else int(got)
+
+
 def thin_trajectory(
     conn: Connection, robot_id: int, max_poses: int = MAX_TRAJECTORY_POSES, *, over: bool | None = None
 ) -> int:
@@ -245,16 +253,7 @@ def thin_trajectory(
     holds more than ``max_poses``); O(max_poses) when it does not (once per ~max_poses / 4 poses
     stored)."""
     if over is None:
-        over = (
-            conn.execute(
-                select(_TRAJ.c.id)
-                .where(_TRAJ.c.robot_id == robot_id)
-                .order_by(_TRAJ.c.id.desc())
-                .limit(1)
-                .offset(max_poses)
-            ).first()
-            is not None
-        )
+        over = _newest_id_past(conn, _TRAJ, robot_id, max_poses) is not None
     if not over:
         return 0
     ids = [
@@ -268,13 +267,7 @@ def thin_trajectory(
 
 def trim_upload_records(conn: Connection, robot_id: int, keep: int = KEEP_UPLOAD_RECORDS) -> None:
     """Drop the robot's idempotency records older than its last ``keep`` (:data:`KEEP_UPLOAD_RECORDS`)."""
-    edge = conn.execute(
-        select(_UPLOADS.c.id)
-        .where(_UPLOADS.c.robot_id == robot_id)
-        .order_by(_UPLOADS.c.id.desc())
-        .limit(1)
-        .offset(keep)
-    ).scalar()
+    edge = _newest_id_past(conn, _UPLOADS, robot_id, keep)
     if edge is not None:
         conn.execute(delete(_UPLOADS).where(_UPLOADS.c.robot_id == robot_id, _UPLOADS.c.id <= edge))
 
