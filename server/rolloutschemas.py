@@ -7,7 +7,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from server.schemas import DB_INT_MAX
+from server.schemas import DB_ID_MAX
 from shared.kernels import Stage
 from shared.protocol import KERNEL_NAME_MAX_LENGTH
 
@@ -26,7 +26,7 @@ class RolloutIn(BaseModel):
     name: str = Field(min_length=1, max_length=KERNEL_NAME_MAX_LENGTH)
     version: str = Field(min_length=1, max_length=32)
     sha256: str = Field(pattern=SHA256_PATTERN, description="The uploaded artifact's sha256 (64 hex digits).")
-    robots: list[Annotated[int, Field(ge=0, le=DB_INT_MAX)]] | None = Field(
+    robots: list[Annotated[int, Field(ge=0, le=DB_ID_MAX)]] | None = Field(
         None, min_length=1, max_length=10_000, description="Robot ids in rollout order; null: all robots."
     )
     canaries: int = Field(1, ge=1, le=10_000, description="Robots updated first, alone; any failure stops.")

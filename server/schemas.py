@@ -54,8 +54,11 @@ NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._ -]{0,99}$"
 #: Largest integer a database column holds (signed 64 bits). Ids, sequence numbers, versions and counts in
 #: requests are bounded by it, so an oversized number is a 422, not a database driver's overflow (500).
 DB_INT_MAX = INT64_MAX
+#: Largest id or message number: those columns are ``Integer`` (signed 32 bits on PostgreSQL), and a larger
+#: one in a request was the driver's overflow, a 500 (GET /robots/1099511627776 on PostgreSQL).
+DB_ID_MAX = 2**31 - 1
 #: An id or sequence number in a URL path.
-DbIdPath = Annotated[int, Path(ge=0, le=DB_INT_MAX)]
+DbIdPath = Annotated[int, Path(ge=0, le=DB_ID_MAX)]
 
 
 class _In(BaseModel):

@@ -36,7 +36,7 @@ from server.models import Message, Robot, utcnow
 from server.msgqueue import queue_message
 from server.pollsweep import message_topic
 from server.routers.robots import get_robot
-from server.schemas import DB_INT_MAX, AckIn, DbIdPath, MessageList, MessageOut
+from server.schemas import DB_ID_MAX, AckIn, DbIdPath, MessageList, MessageOut
 from shared.control import (
     MAX_MESSAGE_BYTES,
     ControlMessage,
@@ -191,7 +191,7 @@ async def list_messages(
     request: Request,
     who: Annotated[Principal, Depends(robot_access)],
     state: StateDep,
-    after: Annotated[int, Query(ge=0, le=DB_INT_MAX, description="Return messages with seq above this.")] = 0,
+    after: Annotated[int, Query(ge=0, le=DB_ID_MAX, description="Return messages with seq above this.")] = 0,
     wait: Annotated[float, Query(ge=0, description="Long-poll: wait up to this many seconds.")] = 0.0,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> dict[str, object]:

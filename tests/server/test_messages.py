@@ -174,3 +174,22 @@ def test_non_utf8_message_is_refused(live: Live) -> None:
     )
     r = _post(live, rid, body.encode("latin-1"))
     assert r.status_code == 422 and "UTF-8" in r.json()["detail"]
+
+
+def test_ids_and_numbers_beyond_the_columns_range_are_refused_not_a_server_error(live: Live) -> None:
+    """Ids and message numbers are 32-bit columns: a larger one is a 422 naming the parameter, on both
+    backends (PostgreSQL overflowed in the driver: a 500)."""
+    rid, token = live.new_robot()
+    big = 2**40
+    with live.operator() as op:
+        for path in [f"/robots/{big}", f"/robots/{big}/messages", f"/robots/{big}/maps/latest"]:
+            r = op.get(path)
+            assert r.status_code == 422, (path, r.text)
+            assert "robot_id" in r.text
+    with live.client(token) as robot:
+        r = robot.get(f"/robots/{rid}/messages", params={"after": big, "wait": 0.2})
+        assert r.status_code == 422 and "after" in r.text, r.text
+        r = robot.get(f"/robots/{rid}/messages/{big}")
+        assert r.status_code == 422 and "seq" in r.text, r.text
+        r = robot.get(f"/robots/{rid}/messages", params={"after": 2**31 - 1, "wait": 0.2})
+        assert r.status_code == 200, r.text  # the largest number the column holds is fine
