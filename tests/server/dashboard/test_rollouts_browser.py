@@ -113,12 +113,22 @@ def test_start_pause_resume_abort_from_the_page(live: Live, page: Any) -> None:
 
 
 def test_the_form_says_what_is_wrong(live: Live, page: Any) -> None:
+    upload_kernel(live, generate_keypair())  # the form is drawn only with a kernel and a robot to offer
+    SimRobot(live)
+    if not page.context.cookies():  # this module's page is logged in once, by whichever test runs first
+        login(page, live)
+    page.goto(live.base_url + "/#/robots")
     page.goto(live.base_url + "/#/rollouts")
-    for box in page.locator('[data-testid^="rollout-robot-"]').all():
+    # the form arrives after the page's kernels and robots load, its boxes checked: wait for it before
+    # unchecking them, or the boxes unchecked are none and the robots all go in the rollout
+    expect(page.get_by_test_id("rollout-start")).to_be_visible()
+    boxes = page.locator('input[type="checkbox"][data-testid^="rollout-robot-"]')
+    assert boxes.count() >= 1
+    for box in boxes.all():
         box.uncheck()
     page.get_by_test_id("rollout-start").click()
     expect(page.get_by_test_id("rollout-error")).to_contain_text("Choose at least one robot")
-    page.locator('[data-testid^="rollout-robot-"]').first.check()
+    boxes.first.check()
     page.get_by_test_id("rollout-canaries").fill("5")
     page.get_by_test_id("rollout-start").click()
     expect(page.get_by_test_id("rollout-error")).to_contain_text(
