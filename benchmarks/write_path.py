@@ -5,7 +5,9 @@ send a snapshot, then ``--uploads`` deltas of ``--segments`` walls (ids sliding 
 ``benchmarks/server_load.py``: 1/20 of the walls new, as many removed, 5 poses). Prints per backend the
 median and p99 wall time of one upload's transaction, its CPU time in this process (thread time: Python,
 driver and SQLAlchemy; on PostgreSQL the database's own CPU is in another process and not counted), and
-the uploads/s of one writer.
+the uploads/s of one writer. ``--stored-poses`` and ``--stored-walls`` give each robot a trajectory and
+walls stored before the deltas (the snapshot brings them), as after a while of driving: the costs that grow
+with what is stored show there (the trajectory's cap is 8,000 poses).
 
 Usage: ``python benchmarks/write_path.py [--pg postgresql://USER@HOST/DB]`` (the PostgreSQL database is
 emptied: its public schema is dropped and made again). Exit 0 when it ran (figures, not pass/fail).
@@ -42,7 +44,11 @@ except ImportError:  # the code before issue 22 item 3 (to measure it with PYTHO
 _ROBOTS_T: Any = Robot.__table__
 
 
-def _payloads(n_uploads: int, segments: int, seed: int) -> list[bytes]:
+def _payloads(
+    n_uploads: int, segments: int, seed: int, stored_poses: int = 0, stored_walls: int = 0
+) -> list[bytes]:
+    """The snapshot, then ``n_uploads`` deltas; the snapshot also brings ``stored_poses`` poses and
+    ``stored_walls`` walls that no delta touches (ids from 10**9): a robot that has run for a while."""
     rng = random.Random(seed)
     walls: list[list[float]] = []
     step, out = max(1, segments // 20), []
@@ -61,6 +67,12 @@ def _payloads(n_uploads: int, segments: int, seed: int) -> list[bytes]:
             "pose": [1.0, 2.0, 0.1],
             "status": {"mode": "online", "step_ms": 1.2},
         }
+        if k == 0:
+            body["segments"] = [
+                *walls[:segments],
+                *([10**9 + i, 0.0, 0.0, 1.0, 1.0] for i in range(stored_walls)),
+            ]
+            body["trajectory"] = [[j * 1e-5, 0.0, 0.0, 0.0] for j in range(stored_poses)]
         out.append(json.dumps(body).encode())
     return out
 
@@ -77,7 +89,15 @@ def _fresh(url: str, tmp: Path) -> Database:
     return db
 
 
-def measure(url: str, robots: int, uploads: int, segments: int, tmp: Path) -> dict[str, Any]:
+def measure(
+    url: str,
+    robots: int,
+    uploads: int,
+    segments: int,
+    tmp: Path,
+    stored_poses: int = 0,
+    stored_walls: int = 0,
+) -> dict[str, Any]:
     """Apply every robot's uploads, robot after robot in turn; the figures of the deltas."""
     db = _fresh(url, tmp)
     hub = Hub(cross_process=not db.is_sqlite)
@@ -88,15 +108,15 @@ def measure(url: str, robots: int, uploads: int, segments: int, tmp: Path) -> di
                 insert(_ROBOTS_T).values(name=f"wp-{i}", token_hash=f"{i:064d}").returning(_ROBOTS_T.c.id)
             )
             ids.append(int(r.scalar_one()))
-    bodies = _payloads(uploads, segments, seed=1)
+    bodies = _payloads(uploads, segments, seed=1, stored_poses=stored_poses, stored_walls=stored_walls)
     wall_s: list[float] = []
     cpu_s: list[float] = []
     for k, raw in enumerate(bodies):
         for rid in ids:
-            up = parse_upload(raw, rid, 20_000, 1000.0)
+            up = parse_upload(raw, rid, 200_000, 1000.0)
             t0, c0 = time.perf_counter(), time.thread_time()
             with db.write_conn() as conn:
-                applied = apply_upload(conn, rid, up, f"version-{up.version}", None, 20_000)
+                applied = apply_upload(conn, rid, up, f"version-{up.version}", None, 200_000)
                 assert applied.event is not None
                 with pipelined(conn):  # as server/routers/maps.py does
                     hub.announce(conn, f"maps:{rid}", up.version)
@@ -124,12 +144,29 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--robots", type=int, default=10)
     p.add_argument("--uploads", type=int, default=60, help="deltas per robot")
     p.add_argument("--segments", type=int, default=200)
+    p.add_argument(
+        "--stored-poses",
+        type=int,
+        default=0,
+        help="poses each robot stores before the deltas (a full trajectory: 7000; the cap is 8000) [0]",
+    )
+    p.add_argument("--stored-walls", type=int, default=0, help="walls no delta touches, stored before [0]")
     p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     args = p.parse_args(argv)
     results = []
     with tempfile.TemporaryDirectory() as tmp:
         for url in ["sqlite", *([args.pg] if args.pg else [])]:
-            results.append(measure(url, args.robots, args.uploads, args.segments, Path(tmp)))
+            results.append(
+                measure(
+                    url,
+                    args.robots,
+                    args.uploads,
+                    args.segments,
+                    Path(tmp),
+                    args.stored_poses,
+                    args.stored_walls,
+                )
+            )
     keys = list(results[0])
     print(" | ".join(keys))
     for r in results:

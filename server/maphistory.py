@@ -34,7 +34,15 @@ from server.maplog import KEEP_VERSIONS
 from server.models import MapDeltaRecord, MapSegment, MapState, Robot, TrajectoryPoint
 from server.schemas import MapHistoryOut, MapHistoryVersion, MapOut, MapUpload
 
-__all__ = ["UndoReads", "capture_undo", "map_version", "read_history", "read_version", "touched_ids"]
+__all__ = [
+    "UndoReads",
+    "capture_undo",
+    "map_version",
+    "read_history",
+    "read_undo",
+    "read_version",
+    "touched_ids",
+]
 
 _LOG: Table = MapDeltaRecord.__table__  # type: ignore[assignment]
 _SEG: Table = MapSegment.__table__  # type: ignore[assignment]
@@ -86,6 +94,12 @@ def capture_undo(conn: Connection, robot_id: int, up: MapUpload, reads: UndoRead
     if not reads.base_logged:
         record["centroids"] = list((st[3] or {}).get("xy", [])) if st else []
     return jsontext.dumps(record)
+
+
+def read_undo(conn: Connection, robot_id: int, up: MapUpload) -> UndoReads:
+    """What delta ``up``'s undo record reads (:class:`UndoReads`), read in ``conn``'s transaction: two
+    statements and one primary-key probe. O(walls in ``up``)."""
+    return _undo_reads(conn, robot_id, up, touched_ids(up))
 
 
 def touched_ids(up: MapUpload) -> list[int]:

@@ -19,6 +19,7 @@ from sqlalchemy import Connection, Table, bindparam, delete, insert, select, upd
 from sqlalchemy.dialects import postgresql, sqlite
 
 from server import pgrows
+from server.mapcounts import Counts
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
 from server.schemas import MapUpload
 from server.snapdiff import SnapshotDiff
@@ -180,10 +181,12 @@ def write_rows(
     seen_at: datetime | None,
     key: str,
     graph: dict[str, Any],
+    counts: Counts,
 ) -> None:
     """The upload's writes, after its checks: the delta's removed walls, the walls and poses, the map
-    state (with the pose graph's columns ``graph``), the robot row, the upload record. No statement here
-    returns rows (PostgreSQL pipelines them)."""
+    state (with the pose graph's columns ``graph`` and the walls and poses stored after the upload,
+    ``counts``: :mod:`server.mapcounts`), the robot row, the upload record. No statement here returns
+    rows (PostgreSQL pipelines them)."""
     v = up.version
     if up.base_version is not None:
         delete_walls(conn, robot_id, up.removed)
@@ -198,7 +201,17 @@ def write_rows(
         conn,
         _STATE,
         ["robot_id"],
-        ("version", "stamp_s", "centroids", "pose", "wall_time_s", "updated_at", *graph),
+        (
+            "version",
+            "stamp_s",
+            "centroids",
+            "pose",
+            "wall_time_s",
+            "updated_at",
+            "n_walls",
+            "n_poses",
+            *graph,
+        ),
         [
             {
                 "robot_id": robot_id,
@@ -208,6 +221,8 @@ def write_rows(
                 "pose": pose,
                 "wall_time_s": up.wall_time_s,
                 "updated_at": now,
+                "n_walls": counts.walls,
+                "n_poses": counts.poses,
                 **graph,
             }
         ],
@@ -245,15 +260,16 @@ def _newest_id_past(conn: Connection, table: Table, robot_id: int, skip: int) ->
 
 
 def thin_trajectory(
-    conn: Connection, robot_id: int, max_poses: int = MAX_TRAJECTORY_POSES, *, over: bool | None = None
+    conn: Connection, robot_id: int, max_poses: int = MAX_TRAJECTORY_POSES, *, poses: int | None = None
 ) -> int:
     """Thin the robot's stored trajectory to at most ``max_poses`` poses
-    (:func:`shared.protocol.thin_positions`: the newest half whole, older ones ever sparser); the poses
-    dropped. One index probe when it fits (none when the caller probed already: ``over``, whether it
-    holds more than ``max_poses``); O(max_poses) when it does not (once per ~max_poses / 4 poses
-    stored)."""
-    if over is None:
-        over = _newest_id_past(conn, _TRAJ, robot_id, max_poses) is not None
+    (:func:`shared.protocol.thin_positions`: the newest half whole, older ones ever sparser), and store
+    the poses left in ``map_states.n_poses`` (:mod:`server.mapcounts`); the poses dropped. ``poses``: the
+    poses stored (from ``map_states``), nothing read when they fit; without it one index probe. O(max_poses)
+    when it does not fit (once per ~max_poses / 4 poses stored)."""
+    over = (
+        _newest_id_past(conn, _TRAJ, robot_id, max_poses) is not None if poses is None else poses > max_poses
+    )
     if not over:
         return 0
     ids = [
@@ -262,6 +278,7 @@ def thin_trajectory(
     ]
     drop = [ids[i] for i in thin_positions(len(ids), max_poses)]
     _delete_ids(conn, _TRAJ, drop)
+    conn.execute(update(_STATE).where(_STATE.c.robot_id == robot_id).values(n_poses=len(ids) - len(drop)))
     return len(drop)
 
 

@@ -24,8 +24,9 @@ from sqlalchemy import Connection, Table, delete, select
 
 from server import pgrows
 from server.errors import ConflictError, MapSessionMismatchError, NotFoundError
+from server.mapcounts import Counts, reconcile, walls_after_delta, walls_of_snapshot
 from server.mapgraph import graph_columns
-from server.maphistory import capture_undo, touched_ids
+from server.maphistory import capture_undo, read_undo, touched_ids
 from server.mapread import map_version, read_map  # the read side, importable from here as before
 from server.maprows import (  # the rows' writes, importable from here as before
     KEEP_UPLOAD_RECORDS,
@@ -121,17 +122,16 @@ def apply_upload(
     # per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts seconds, and
     # the row lock held all along stalled every write batch that touched the row (last-seen times). The
     # row itself is updated at the end of the transaction only. SQLite: its one write lock serialises.
-    if pending is not None:
-        reads = pending.result()
-    else:
-        reads = _lock_and_read(conn, robot_id, key, _counts(up, max_walls), up)
-    robot, seen = reads.robot, reads.seen
+    reads = pending.result() if pending is not None else _lock_and_read(conn, robot_id, key, up)
+    robot, seen, stored = reads.robot, reads.seen, reads.counts
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
     if seen is not None:  # answered with the session it was applied in: the robot checks it is its own
         return AppliedUpload(MapUploadOut(version=seen[0], duplicate=True, map_session=seen[1]), None)
     current, session = robot[0], robot[1]
     new_session, undo = up.map_session != session, None
+    # the walls and poses stored after the upload (server.mapcounts): poses kept, before the upload's own
+    walls_after, poses_kept = stored.walls, stored.poses
     if new_session:
         check_not_ended(conn, robot_id, up.map_session, session)
     if up.base_version is None and new_session:
@@ -152,6 +152,7 @@ def apply_upload(
             prepared = prepare_rows(robot_id, up)  # the diff was against the other session's map
         conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id))
         conn.execute(delete(_TRAJ).where(_TRAJ.c.robot_id == robot_id))
+        walls_after, poses_kept = walls_of_snapshot(up), 0
     elif up.base_version is None:
         if up.version <= current:
             raise ConflictError(
@@ -177,6 +178,8 @@ def apply_upload(
             conn.execute(delete(_SEG).where(_SEG.c.robot_id == robot_id))
         if prepared is None or prepared.replace_trajectory:
             conn.execute(delete(_TRAJ).where(_TRAJ.c.robot_id == robot_id))
+            poses_kept = 0
+        walls_after = walls_of_snapshot(up)  # whole or as a diff, the map becomes the snapshot's walls
     else:
         if new_session:
             raise MapSessionMismatchError(
@@ -193,11 +196,14 @@ def apply_upload(
                 current_session=session,
                 current_stamp_s=_stamp(conn, robot_id),
             )
+        undo_reads = reads.undo if reads.undo is not None else read_undo(conn, robot_id, up)
+        walls_after = walls_after_delta(stored.walls, up, (r[0] for r in undo_reads.touched))
         if max_walls is not None:
-            check_wall_cap(conn, robot_id, up, max_walls, reads.walls)
-        undo = capture_undo(conn, robot_id, up, reads.undo)  # what the delta replaces: before the writes
+            check_wall_cap(conn, robot_id, up, max_walls, stored.walls, after=walls_after)
+        undo = capture_undo(conn, robot_id, up, undo_reads)  # what the delta replaces: before the writes
     v = up.version
     rows = prepared or prepare_rows(robot_id, up)
+    counts = Counts(walls_after, poses_kept + len(rows.trajectory))
     # the pose graph's rows; a delta's corrected keyframes move the stored poses first (server.mapgraph:
     # it reads the stored keyframes, so before the pipelined writes, and before the delta's own poses)
     graph = graph_columns(conn, robot_id, up, whole=up.base_version is None)
@@ -210,64 +216,65 @@ def apply_upload(
         MapUploadOut(version=v, duplicate=False, map_session=up.map_session), event, new_session, undo
     )
     with pgrows.pipelined(conn):  # PostgreSQL: the writes below in one round trip
-        write_rows(conn, robot_id, up, rows, seen_at, key, graph)
+        write_rows(conn, robot_id, up, rows, seen_at, key, graph, counts)
         extra = None if also is None else also(conn, applied)
     # bounded sizes (docs/reliability/bounded.md), in the same transaction, after the pipelined writes
     # (these read rows): the trajectory thinned past its cap, the idempotency records trimmed now and then
-    if rows.trajectory:
-        thin_trajectory(conn, robot_id, over=reads.trajectory_over)
+    if counts.poses > MAX_TRAJECTORY_POSES:
+        dropped = thin_trajectory(conn, robot_id, poses=counts.poses)
+        counts = Counts(counts.walls, counts.poses - dropped)
     if v % _TRIM_EVERY == 0:
         trim_upload_records(conn, robot_id)
+        reconcile(conn, robot_id, counts)  # the counts checked against the rows now and then
     return applied if extra is None else replace(applied, extra=extra)
 
 
 def queue_upload_reads(
-    conn: Connection, robot_id: int, up: MapUpload, key: str, max_walls: int | None
+    conn: Connection, robot_id: int, up: MapUpload, key: str
 ) -> pgrows.PendingReads | None:
     """On PostgreSQL, queue the lock and the reads :func:`apply_upload` begins with in the pipeline open on
     ``conn`` (:func:`server.pgrows.pipelined`), for ``apply_upload(..., pending=...)`` once it has synced;
     elsewhere None (it reads them itself)."""
     if conn.dialect.name != "postgresql":
         return None
-    return pgrows.queue_lock_and_read(
-        conn, _UPLOAD_LOCK_CLASS, robot_id, key, _counts(up, max_walls), _delta_probe(up)
-    )
-
-
-def _counts(up: MapUpload, max_walls: int | None) -> bool:
-    """Whether the upload's first reads count the stored walls (a delta under a wall cap)."""
-    return up.base_version is not None and max_walls is not None
+    return pgrows.queue_lock_and_read(conn, _UPLOAD_LOCK_CLASS, robot_id, key, _delta_probe(up))
 
 
 def _delta_probe(up: MapUpload) -> pgrows.DeltaProbe | None:
     if up.base_version is None:
         return None
-    return pgrows.DeltaProbe(touched_ids(up), up.base_version, len(up.trajectory), MAX_TRAJECTORY_POSES)
+    return pgrows.DeltaProbe(touched_ids(up), up.base_version)
 
 
-def _lock_and_read(
-    conn: Connection, robot_id: int, key: str, count: bool, up: MapUpload
-) -> pgrows.UploadReads:
-    """Serialise the robot's uploads, then read the robot's map version and session, the upload already
-    applied under ``key`` and (``count``) the walls stored; on PostgreSQL with a delta ``up`` also what its
-    undo record and the trajectory's cap read (:class:`server.pgrows.DeltaProbe`), in the same round trip.
+def _lock_and_read(conn: Connection, robot_id: int, key: str, up: MapUpload) -> pgrows.UploadReads:
+    """Serialise the robot's uploads, then read the robot's map version and session, its walls and poses
+    stored (:mod:`server.mapcounts`) and the upload already applied under ``key``; on PostgreSQL with a
+    delta ``up`` also what its undo record reads (:class:`server.pgrows.DeltaProbe`), in the same round trip.
     PostgreSQL: a per-robot advisory lock, not the robot's row: a near-limit upload's transaction lasts
     seconds, and the row lock held all along stalled every write batch that touched the row (last-seen
     times); the row itself is updated at the end of the transaction only. SQLite: its one write lock
     serialises. Other databases: the robot's row lock."""
     if conn.dialect.name == "postgresql":
-        return pgrows.lock_and_read(conn, _UPLOAD_LOCK_CLASS, robot_id, key, count, _delta_probe(up))
-    q = select(_ROBOTS.c.map_version, _ROBOTS.c.map_session).where(_ROBOTS.c.id == robot_id)
+        return pgrows.lock_and_read(conn, _UPLOAD_LOCK_CLASS, robot_id, key, _delta_probe(up))
+    q = (
+        select(_ROBOTS.c.map_version, _ROBOTS.c.map_session, _STATE.c.n_walls, _STATE.c.n_poses)
+        .select_from(_ROBOTS.outerjoin(_STATE, _STATE.c.robot_id == _ROBOTS.c.id))
+        .where(_ROBOTS.c.id == robot_id)
+    )
     if conn.dialect.name != "sqlite":
-        q = q.with_for_update()
+        q = q.with_for_update(of=_ROBOTS)
     robot = conn.execute(q).first()
     seen = conn.execute(
         select(_UPLOADS.c.version, _UPLOADS.c.map_session).where(
             _UPLOADS.c.robot_id == robot_id, _UPLOADS.c.idempotency_key == key
         )
     ).first()
+    if robot is None:
+        return pgrows.UploadReads(None, None if seen is None else (seen[0], seen[1]))
     return pgrows.UploadReads(
-        None if robot is None else (robot[0], robot[1]), None if seen is None else (seen[0], seen[1]), None
+        (robot[0], robot[1]),
+        None if seen is None else (seen[0], seen[1]),
+        Counts(int(robot[2] or 0), int(robot[3] or 0)),
     )
 
 

@@ -193,6 +193,11 @@ class MapState(Base):
     loop_closures: Mapped[dict[str, Any] | None] = mapped_column(JSON, default=None)
     #: The covariance of ``pose``, 3x3 over (x_m, y_m, theta_rad) (None: the robot did not send one).
     pose_covariance: Mapped[list[list[float]] | None] = mapped_column(JSON, default=None)
+    #: The robot's rows in ``map_segments`` and ``trajectory_points``, kept with every write of them in the
+    #: same transaction (:mod:`server.mapcounts`): the wall cap and the trajectory's cap read them in O(1)
+    #: where counting the rows cost O(rows) at every upload (6 ms at a full trajectory).
+    n_walls: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    n_poses: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
 
 
 class MapSegment(Base):

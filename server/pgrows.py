@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import psycopg
@@ -33,6 +33,7 @@ from sqlalchemy import Connection
 from sqlalchemy.exc import DBAPIError
 
 from server import jsontext
+from server.mapcounts import Counts
 from server.maphistory import UndoReads
 
 __all__ = [
@@ -105,9 +106,12 @@ def delete_walls(conn: Connection, robot_id: int, ids: Sequence[int]) -> None:
 
 
 _LOCK_SQL = "SELECT pg_advisory_xact_lock(%s, %s)"
-_ROBOT_SQL = "SELECT map_version, map_session FROM robots WHERE id = %s"
+#: the robot's map version and session, and its stored walls and poses (:mod:`server.mapcounts`)
+_ROBOT_SQL = (
+    "SELECT r.map_version, r.map_session, s.n_walls, s.n_poses FROM robots AS r "
+    "LEFT JOIN map_states AS s ON s.robot_id = r.id WHERE r.id = %s"
+)
 _SEEN_SQL = "SELECT version, map_session FROM map_uploads WHERE robot_id = %s AND idempotency_key = %s"
-_COUNT_SQL = "SELECT count(*) FROM map_segments WHERE robot_id = %s"
 
 
 #: a delta's touched walls, the ids as one array's text (:func:`array_text`: a Python list is adapted
@@ -123,64 +127,48 @@ _UNDO_STATE_SQL = (
     "WHERE robot_id = %s AND version = %s AND body IS NOT NULL) AS logged) AS l "
     "LEFT JOIN map_states AS s ON s.robot_id = %s"
 )
-#: a pose at this offset from the newest means the trajectory will be over its cap after the insert
-_TRAJECTORY_PROBE_SQL = (
-    "SELECT id FROM trajectory_points WHERE robot_id = %s ORDER BY id DESC LIMIT 1 OFFSET %s"
-)
 
 
 @dataclass(frozen=True, slots=True)
 class DeltaProbe:
-    """What a delta's checks and bounds read besides the robot (:func:`lock_and_read`): its undo record's
-    walls (``touched``, :func:`server.maphistory.touched_ids`) against ``base_version``, and whether
-    ``new_poses`` more poses take the trajectory over ``max_poses``."""
+    """What a delta's undo record reads besides the robot (:func:`lock_and_read`): the walls it touches
+    (``touched``, :func:`server.maphistory.touched_ids`), and whether the log holds ``base_version``'s
+    body."""
 
     touched: list[int]
     base_version: int
-    new_poses: int
-    max_poses: int
 
 
 @dataclass(frozen=True, slots=True)
 class UploadReads:
     """What an upload reads before it writes: the robot's ``(map_version, map_session)`` (None: no such
-    robot), the ``(version, map_session)`` an upload with the same idempotency key got (None: new), and
-    the walls stored now (None when not asked). With a :class:`DeltaProbe`: the undo record's reads
-    (``undo``) and whether the trajectory will be over its cap (``trajectory_over``); else None."""
+    robot), the ``(version, map_session)`` an upload with the same idempotency key got (None: new), the
+    walls and poses stored now (:class:`server.mapcounts.Counts`), and with a :class:`DeltaProbe` the undo
+    record's reads (``undo``; else None)."""
 
     robot: tuple[int, str | None] | None
     seen: tuple[int, str | None] | None
-    walls: int | None
+    counts: Counts = field(default_factory=Counts)
     undo: UndoReads | None = None
-    trajectory_over: bool | None = None
 
 
 class PendingReads:
     """An upload's lock and reads queued in a pipeline (:func:`queue_lock_and_read`); :meth:`result` once
     the pipeline has synced (its block has ended)."""
 
-    __slots__ = ("_count", "_curs", "_delta", "_probe")
+    __slots__ = ("_curs", "_delta")
 
-    def __init__(self, curs: list[psycopg.Cursor[Any]], count: bool, delta: bool, probe: bool) -> None:
-        self._curs, self._count, self._delta, self._probe = curs, count, delta, probe
+    def __init__(self, curs: list[psycopg.Cursor[Any]], delta: bool) -> None:
+        self._curs, self._delta = curs, delta
 
     def result(self) -> UploadReads:
         """The answers (the cursors are closed). O(rows read)."""
         curs = self._curs
         robot, seen = curs[1].fetchone(), curs[2].fetchone()
-        counted = curs[3].fetchone() if self._count else None
-        walls = None if counted is None else int(counted[0])
-        undo, over = None, None
+        undo = None
         if self._delta:
-            k = 3 + self._count
-            touched = curs[k].fetchall()
-            logged, stamp, pose, wall_time, centroids = curs[k + 1].fetchone() or (
-                False,
-                None,
-                None,
-                None,
-                None,
-            )
+            touched = curs[3].fetchall()
+            logged, stamp, pose, wall_time, centroids = curs[4].fetchone() or (False, None, None, None, None)
             state = None
             if stamp is not None and pose is not None:  # a map state row (its columns are NOT NULL)
                 state = (
@@ -190,52 +178,45 @@ class PendingReads:
                     None if centroids is None else json.loads(centroids),
                 )
             undo = UndoReads(touched, bool(logged), state)
-            over = curs[k + 2].fetchone() is not None if self._probe else True
         for cur in curs:
             cur.close()
+        if robot is None:
+            return UploadReads(None, None if seen is None else (int(seen[0]), seen[1]))
         return UploadReads(
-            None if robot is None else (int(robot[0]), robot[1]),
+            (int(robot[0]), robot[1]),
             None if seen is None else (int(seen[0]), seen[1]),
-            walls,
+            Counts(int(robot[2] or 0), int(robot[3] or 0)),
             undo,
-            over,
         )
 
 
 def queue_lock_and_read(
-    conn: Connection, lock_class: int, robot_id: int, key: str, count: bool, delta: DeltaProbe | None = None
+    conn: Connection, lock_class: int, robot_id: int, key: str, delta: DeltaProbe | None = None
 ) -> PendingReads:
     """Queue :func:`lock_and_read`'s statements in the pipeline open on ``conn`` (:func:`pipelined`):
     the write batches queue every upload's lock and reads in one pipeline, one round trip for all."""
     rid = int(robot_id)
     pg = _driver(conn)
-    probe = delta is not None and delta.max_poses >= delta.new_poses
-    curs = [pg.cursor() for _ in range(3 + count + 2 * (delta is not None) + probe)]
+    curs = [pg.cursor() for _ in range(3 + 2 * (delta is not None))]
     curs[0].execute(_LOCK_SQL, (lock_class, rid))
     curs[1].execute(_ROBOT_SQL, (rid,))
     curs[2].execute(_SEEN_SQL, (rid, key))
-    k = 3
-    if count:
-        curs[k].execute(_COUNT_SQL, (rid,))
-        k += 1
     if delta is not None:
-        curs[k].execute(_TOUCHED_SQL, (rid, array_text(delta.touched)))
-        curs[k + 1].execute(_UNDO_STATE_SQL, (rid, delta.base_version, rid))
-        if probe:
-            curs[k + 2].execute(_TRAJECTORY_PROBE_SQL, (rid, delta.max_poses - delta.new_poses))
-    return PendingReads(curs, count, delta is not None, probe)
+        curs[3].execute(_TOUCHED_SQL, (rid, array_text(delta.touched)))
+        curs[4].execute(_UNDO_STATE_SQL, (rid, delta.base_version, rid))
+    return PendingReads(curs, delta is not None)
 
 
 def lock_and_read(
-    conn: Connection, lock_class: int, robot_id: int, key: str, count: bool, delta: DeltaProbe | None = None
+    conn: Connection, lock_class: int, robot_id: int, key: str, delta: DeltaProbe | None = None
 ) -> UploadReads:
     """Take the robot's upload lock (a transaction advisory lock ``(lock_class, robot_id)``), then read
     what :class:`UploadReads` holds, in one round trip (pipeline mode): each statement runs after the one
     before, so the reads see every upload committed before the lock was granted. A delta's reads
     (``delta``) go in the same round trip; they are wasted only when the delta is then refused (a
-    conflict, a duplicate). O(walls) with ``count``, else O(walls in the delta)."""
+    conflict, a duplicate). O(walls in the delta): primary-key probes only."""
     with pipelined(conn):
-        pending = queue_lock_and_read(conn, lock_class, robot_id, key, count, delta)
+        pending = queue_lock_and_read(conn, lock_class, robot_id, key, delta)
     return pending.result()
 
 

@@ -47,15 +47,24 @@ def _walls_after(
 
 
 def check_wall_cap(
-    conn: Connection | None, robot_id: int, up: MapUpload, cap: int, stored: int | None = None
+    conn: Connection | None,
+    robot_id: int,
+    up: MapUpload,
+    cap: int,
+    stored: int | None = None,
+    *,
+    after: int | None = None,
 ) -> None:
     """Refuse (422) an upload after which the robot's map would hold more than ``cap`` walls, unless it
     shrinks a map that is over the cap already. ``conn`` None: only what the body alone shows (a
-    snapshot's walls), no database. ``stored``: the robot's walls stored now, if read already."""
+    snapshot's walls), no database. ``stored``: the robot's walls stored now, if read already; ``after``:
+    with ``stored``, the walls after the upload (:mod:`server.mapcounts`), so nothing is counted."""
     if up.base_version is None:
         before, after = 0, len({int(r[0]) for r in up.segments})
     elif conn is None:
         return
+    elif stored is not None and after is not None:
+        before = stored
     else:
         before, after = _walls_after(conn, robot_id, up, cap, stored)
     if after > cap and after > before:

@@ -134,7 +134,7 @@ async def upload_map(
     queued: list[PendingReads | None] = [None]  # the lock and reads the write batch queued (PostgreSQL)
 
     def prefetch(conn: Connection) -> None:
-        queued[0] = queue_upload_reads(conn, robot_id, body, key, cap)
+        queued[0] = queue_upload_reads(conn, robot_id, body, key)
 
     def also(conn: Connection, applied: AppliedUpload) -> LoggedUpload:
         # the delta log and the notice to other processes commit with the map (server.maplog, server.hub),

@@ -16,6 +16,7 @@ from sqlalchemy import select, text
 from sqlalchemy.exc import DBAPIError
 
 from server import maphistory, maplog, pgrows
+from server.mapcounts import Counts, count_rows
 from server.maphistory import capture_undo
 from server.mapstore import apply_upload
 from server.models import MapSegment, TrajectoryPoint
@@ -112,15 +113,15 @@ def test_lock_and_read_answers_what_the_separate_reads_answer(live: Live) -> Non
         }
     )
     with live.state.db.write_conn() as conn:
-        before = pgrows.lock_and_read(conn, 1, rid, "k-7", count=True)
+        before = pgrows.lock_and_read(conn, 1, rid, "k-7")
         apply_upload(conn, rid, up, "k-7", None, 20_000)
-    assert before == pgrows.UploadReads((0, None), None, 0)
+    assert before == pgrows.UploadReads((0, None), None, Counts(0, 0))
     with live.state.db.write_conn() as conn:
-        after = pgrows.lock_and_read(conn, 1, rid, "k-7", count=True)
-        other = pgrows.lock_and_read(conn, 1, rid, "k-8", count=False)
-        missing = pgrows.lock_and_read(conn, 1, 2**31 - 1, "k-7", count=False)
-    assert after == pgrows.UploadReads((7, None), (7, None), 2)
-    assert other == pgrows.UploadReads((7, None), None, None)
+        after = pgrows.lock_and_read(conn, 1, rid, "k-7")
+        other = pgrows.lock_and_read(conn, 1, rid, "k-8")
+        missing = pgrows.lock_and_read(conn, 1, 2**31 - 1, "k-7")
+    assert after == pgrows.UploadReads((7, None), (7, None), Counts(2, 0))
+    assert other == pgrows.UploadReads((7, None), None, Counts(2, 0))
     assert missing.robot is None
 
 
@@ -128,21 +129,17 @@ def test_lock_and_read_answers_what_the_separate_reads_answer(live: Live) -> Non
 @given(
     walls=st.dictionaries(st.integers(0, 2**40), st.tuples(_COORD, _COORD, _COORD, _COORD), max_size=30),
     extra=st.lists(st.integers(0, 2**40), max_size=10),
-    poses=st.integers(0, 6),
-    cap=st.integers(0, 12),
     snapshot_base=st.booleans(),
 )
 def test_a_deltas_reads_in_the_locks_round_trip_equal_the_separate_reads(
     live: Live,
     walls: dict[int, tuple[float, float, float, float]],
     extra: list[int],
-    poses: int,
-    cap: int,
     snapshot_base: bool,
 ) -> None:
-    """The undo record's walls, log flag and map state, and the trajectory-cap probe, read in the lock's
-    pipeline, answer as :func:`server.maphistory.capture_undo`'s own reads and ``thin_trajectory``'s probe
-    (base logged as a snapshot, whose centroids the record then keeps, or as a delta)."""
+    """The undo record's walls, log flag and map state, read in the lock's pipeline, answer as
+    :func:`server.maphistory.capture_undo`'s own reads (base logged as a snapshot, whose centroids the
+    record then keeps, or as a delta); the stored counts read with the robot are the rows'."""
     _pg(live)
     rid, _ = live.new_robot()
     first: dict[str, Any] = {
@@ -169,17 +166,15 @@ def test_a_deltas_reads_in_the_locks_round_trip_equal_the_separate_reads(
             "base_version": base,
             "segments": [[k, 0.0, 0.0, 1.0, 1.0] for k in keys[: len(keys) // 2] + extra],
             "removed": keys[len(keys) // 2 :],
-            "trajectory": [[9.0 + i, 0.0, 0.0, 0.0] for i in range(poses)],
             "pose": [0, 0, 0],
         }
     )
-    probe = pgrows.DeltaProbe(maphistory.touched_ids(delta), base, poses, cap)
+    probe = pgrows.DeltaProbe(maphistory.touched_ids(delta), base)
     with live.state.db.write_conn() as conn:
-        reads = pgrows.lock_and_read(conn, 1, rid, "k", count=False, delta=probe)
+        reads = pgrows.lock_and_read(conn, 1, rid, "k", delta=probe)
         assert reads.undo is not None
         assert capture_undo(conn, rid, delta, reads.undo) == capture_undo(conn, rid, delta)
-        stored = conn.execute(select(TrajectoryPoint.id).where(TrajectoryPoint.robot_id == rid)).all()
-    assert reads.trajectory_over == (len(stored) + poses > cap)
+        assert reads.counts == count_rows(conn, rid)
 
 
 def test_a_failing_statement_in_a_pipeline_is_sqlalchemys_error_and_writes_nothing(live: Live) -> None:
