@@ -57,6 +57,13 @@ class Config:
     messages: int = field(default=50, metadata={"help": "control messages posted during the load"})
     port: int = field(default=0, metadata={"help": "server port (0: a free one)"})
     sample_s: float = field(default=5.0, metadata={"help": "period of the server RSS samples (s)"})
+    stored_poses: int = field(
+        default=0,
+        metadata={
+            "help": "poses each robot's map holds before the load, sent in a snapshot first (a robot "
+            "that has driven a while; the server keeps at most 8000)"
+        },
+    )
 
 
 @dataclass
@@ -224,12 +231,22 @@ class Load:
             self.res.error(kind, f"HTTP {r.status_code} {r.text[:120]}")
         return r
 
+    async def prefill(self, robot: Robot, client: httpx.AsyncClient) -> None:
+        """Before the load: ``robot``'s snapshot (version 1) with ``stored_poses`` poses."""
+        body = self.payload(0, 1, True, random.Random(-1 - robot.id))
+        body["trajectory"] = [[j * 1e-5, 0.0, 0.0, 0.0] for j in range(self.cfg.stored_poses)]
+        headers = {"Authorization": f"Bearer {robot.token}"}
+        r = await client.post(self.at(robot, f"/robots/{robot.id}/maps"), json=body, headers=headers)
+        if not r.is_success:
+            raise SetupError(f"robot {robot.id}'s first snapshot got HTTP {r.status_code}: {r.text[:200]}")
+        robot.version = 1
+
     async def uploader(self, robot: Robot, client: httpx.AsyncClient) -> None:
         """Robot ``robot``'s uploads, one per period. An upload that got no answer is sent again as it was
         (same body, same idempotency key: the server may have applied it), as the agent does."""
         idx, period, path = self.robots.index(robot), self.cfg.period_s, f"/robots/{robot.id}/maps"
         rng, start = random.Random(idx), self.t0 + idx * period / len(self.robots)
-        version, snapshot, k = 0, True, 0
+        version, snapshot, k = robot.version, robot.version == 0, 0
         headers = {"Authorization": f"Bearer {robot.token}", "Content-Type": "application/json"}
         unanswered: tuple[bytes, str] | None = None
         while (slot := start + k * period) < self.end:
@@ -338,6 +355,8 @@ class Load:
         async with contextlib.AsyncExitStack() as stack:
             new = (httpx.AsyncClient(timeout=LONG_POLL_S + 15) for _ in range(len(self.robots) + 1))
             *clients, op = [await stack.enter_async_context(c) for c in new]
+            if self.cfg.stored_poses:
+                await asyncio.gather(*(self.prefill(r, c) for r, c in zip(self.robots, clients, strict=True)))
             ready = asyncio.Event()
             tasks = [asyncio.create_task(self.subscriber(op, ready))]
             await asyncio.wait_for(ready.wait(), 30)  # the first snapshot arrived: the stream is open
