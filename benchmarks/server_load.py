@@ -57,6 +57,13 @@ class Config:
     messages: int = field(default=50, metadata={"help": "control messages posted during the load"})
     port: int = field(default=0, metadata={"help": "server port (0: a free one)"})
     sample_s: float = field(default=5.0, metadata={"help": "period of the server RSS samples (s)"})
+    moved_share: float = field(
+        default=0.0,
+        metadata={
+            "help": "share of each delta's walls moved since the robot last sent them (0..1); the others are "
+            "sent again as they were, which the server does not write again; 1: every wall written"
+        },
+    )
     stored_poses: int = field(
         default=0,
         metadata={
@@ -199,16 +206,20 @@ class Load:
         return self.bases[(robot.home + int(other)) % len(self.bases)] + path
 
     def payload(self, k: int, version: int, snapshot: bool, rng: random.Random) -> dict[str, Any]:
-        """Upload ``k``: ``segments`` walls, ids sliding by 1/20 per upload (the rest removed), 5 poses."""
+        """Upload ``k``: ``segments`` walls, ids sliding by 1/20 per upload (the rest removed), 5 poses;
+        the first ``moved_share`` of them moved by k mm since upload ``k - 1`` sent them."""
         n, step = self.cfg.segments, max(1, self.cfg.segments // 20)
         first, t = k * step, k * self.cfg.period_s
         while len(self.walls) < first + n:
             self.walls.append([float(len(self.walls)), *(round(rng.uniform(-20, 20), 3) for _ in range(4))])
+        walls = self.walls[first : first + n]
+        if moved := round(self.cfg.moved_share * n):
+            walls = [[w[0], *(c + 0.001 * k for c in w[1:])] for w in walls[:moved]] + walls[moved:]
         return {
             "version": version,
             "base_version": None if snapshot else version - 1,
             "stamp_s": t,
-            "segments": self.walls[first : first + n],
+            "segments": walls,
             "removed": [] if snapshot else list(range(max(0, first - step), first)),
             "centroids": [[rng.uniform(-20, 20), rng.uniform(-20, 20)] for _ in range(20)],
             "trajectory": [[t + j * 0.1, 1.0 + j, 2.0, 0.1] for j in range(5)],
@@ -488,6 +499,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("httpx").setLevel(logging.WARNING)
     if min(a.robots, a.period_s, a.duration_s, a.segments, a.sample_s) <= 0 or a.messages < 0:
         p.error("--robots, --period-s, --duration-s, --segments and --sample-s must be positive")
+    if not 0 <= a.moved_share <= 1:
+        p.error(f"--moved-share {a.moved_share}: expected a share in 0..1")
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # a KeyboardInterrupt: the server is stopped
     try:
         data, table = run(Config(**{f.name: getattr(a, f.name) for f in fields(Config)}), console)

@@ -45,10 +45,12 @@ _ROBOTS_T: Any = Robot.__table__
 
 
 def _payloads(
-    n_uploads: int, segments: int, seed: int, stored_poses: int = 0, stored_walls: int = 0
+    n_uploads: int, segments: int, seed: int, stored_poses: int = 0, stored_walls: int = 0, moved: float = 0.0
 ) -> list[bytes]:
     """The snapshot, then ``n_uploads`` deltas; the snapshot also brings ``stored_poses`` poses and
-    ``stored_walls`` walls that no delta touches (ids from 10**9): a robot that has run for a while."""
+    ``stored_walls`` walls that no delta touches (ids from 10**9): a robot that has run for a while. The
+    first ``moved`` share of a delta's walls are moved by k mm since the delta before sent them (the rest
+    are sent again as they were, which the server does not write again)."""
     rng = random.Random(seed)
     walls: list[list[float]] = []
     step, out = max(1, segments // 20), []
@@ -60,7 +62,10 @@ def _payloads(
             "version": k + 1,
             "base_version": None if k == 0 else k,
             "stamp_s": k * 0.5,
-            "segments": walls[first : first + segments],
+            "segments": [
+                [w[0], *(c + 0.001 * k for c in w[1:])] if j < round(moved * segments) else w
+                for j, w in enumerate(walls[first : first + segments])
+            ],
             "removed": [] if k == 0 else list(range(max(0, first - step), first)),
             "centroids": [[rng.uniform(-20, 20), rng.uniform(-20, 20)] for _ in range(20)],
             "trajectory": [[k * 0.5 + j * 0.1, 1.0 + j, 2.0, 0.1] for j in range(5)],
@@ -97,6 +102,7 @@ def measure(
     tmp: Path,
     stored_poses: int = 0,
     stored_walls: int = 0,
+    moved: float = 0.0,
 ) -> dict[str, Any]:
     """Apply every robot's uploads, robot after robot in turn; the figures of the deltas."""
     db = _fresh(url, tmp)
@@ -108,7 +114,7 @@ def measure(
                 insert(_ROBOTS_T).values(name=f"wp-{i}", token_hash=f"{i:064d}").returning(_ROBOTS_T.c.id)
             )
             ids.append(int(r.scalar_one()))
-    bodies = _payloads(uploads, segments, seed=1, stored_poses=stored_poses, stored_walls=stored_walls)
+    bodies = _payloads(uploads, segments, 1, stored_poses, stored_walls, moved)
     wall_s: list[float] = []
     cpu_s: list[float] = []
     for k, raw in enumerate(bodies):
@@ -151,6 +157,12 @@ def main(argv: list[str] | None = None) -> int:
         help="poses each robot stores before the deltas (a full trajectory: 7000; the cap is 8000) [0]",
     )
     p.add_argument("--stored-walls", type=int, default=0, help="walls no delta touches, stored before [0]")
+    p.add_argument(
+        "--moved-share",
+        type=float,
+        default=0.0,
+        help="share of a delta's walls moved since the last (0..1; 1: every wall written) [0]",
+    )
     p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     args = p.parse_args(argv)
     results = []
@@ -165,6 +177,7 @@ def main(argv: list[str] | None = None) -> int:
                     Path(tmp),
                     args.stored_poses,
                     args.stored_walls,
+                    args.moved_share,
                 )
             )
     keys = list(results[0])

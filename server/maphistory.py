@@ -42,6 +42,7 @@ __all__ = [
     "read_undo",
     "read_version",
     "touched_ids",
+    "undo_record",
 ]
 
 _LOG: Table = MapDeltaRecord.__table__  # type: ignore[assignment]
@@ -68,21 +69,34 @@ class UndoReads:
 
 def capture_undo(conn: Connection, robot_id: int, up: MapUpload, reads: UndoReads | None = None) -> str:
     """The undo record of delta ``up`` as JSON, read in ``conn``'s transaction before it is applied (or
-    from ``reads``, read already in that transaction): the touched walls as they are (``walls``: rows
-    ``[id, x0, y0, x1, y1]``; those the delta sends unchanged are left out), the touched ids that do not
-    exist yet (``absent``), and the small part of the map state (``stamp_s``, ``pose``,
-    ``wall_time_s``). The centroids only when the base version's own log entry does not hold them (a
-    snapshot is logged without its body): a delta's entry carries them all, and keeping them twice doubled
-    the log (8.3 of 17 KB a version on the simulator). O(walls in ``up``): without ``reads``, two
-    statements and one primary-key probe."""
+    from ``reads``, read already in that transaction): see :func:`undo_record`. O(walls in ``up``):
+    without ``reads``, two statements and one primary-key probe."""
+    return undo_record(up, reads if reads is not None else read_undo(conn, robot_id, up))[0]
+
+
+def undo_record(up: MapUpload, reads: UndoReads) -> tuple[str, frozenset[int]]:
+    """The undo record of delta ``up`` as JSON, from what it read before the delta is applied: the touched
+    walls as they are (``walls``: rows ``[id, x0, y0, x1, y1]``; those the delta sends unchanged are left
+    out), the touched ids that do not exist yet (``absent``), and the small part of the map state
+    (``stamp_s``, ``pose``, ``wall_time_s``). The centroids only when the base version's own log entry
+    does not hold them (a snapshot is logged without its body): a delta's entry carries them all, and
+    keeping them twice doubled the log (8.3 of 17 KB a version on the simulator).
+
+    And the ids of the walls the delta sends exactly as they are stored (a wall sent twice counts with
+    its last row) and does not remove: writing them again would change nothing but the database's work (a
+    robot re-sending its window of walls sends mostly these), so :func:`server.mapstore.apply_upload`
+    leaves them out of its writes. O(walls in ``up``)."""
     touched = touched_ids(up)
-    if reads is None:
-        reads = _undo_reads(conn, robot_id, up, touched)
-    rows = reads.touched
-    present = {int(r[0]) for r in rows}
+    present = {int(r[0]) for r in reads.touched}
     sent = {int(r[0]): (r[1], r[2], r[3], r[4]) for r in up.segments}
-    # a wall the delta sends again unchanged needs no undo (a robot re-sending a window of walls: most)
-    walls = [[int(i), x0, y0, x1, y1] for i, x0, y0, x1, y1 in rows if sent.get(int(i)) != (x0, y0, x1, y1)]
+    removed = set(up.removed)
+    walls: list[list[Any]] = []
+    same: list[int] = []
+    for i, x0, y0, x1, y1 in reads.touched:
+        if sent.get(int(i)) != (x0, y0, x1, y1):
+            walls.append([int(i), x0, y0, x1, y1])
+        elif int(i) not in removed:
+            same.append(int(i))
     st = reads.state
     record: dict[str, Any] = {
         "walls": walls,
@@ -93,7 +107,7 @@ def capture_undo(conn: Connection, robot_id: int, up: MapUpload, reads: UndoRead
     }
     if not reads.base_logged:
         record["centroids"] = list((st[3] or {}).get("xy", [])) if st else []
-    return jsontext.dumps(record)
+    return jsontext.dumps(record), frozenset(same)
 
 
 def read_undo(conn: Connection, robot_id: int, up: MapUpload) -> UndoReads:

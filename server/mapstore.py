@@ -26,7 +26,7 @@ from server import pgrows
 from server.errors import ConflictError, MapSessionMismatchError, NotFoundError
 from server.mapcounts import Counts, reconcile, walls_after_delta, walls_of_snapshot
 from server.mapgraph import graph_columns
-from server.maphistory import capture_undo, read_undo, touched_ids
+from server.maphistory import read_undo, touched_ids, undo_record
 from server.mapread import map_version, read_map  # the read side, importable from here as before
 from server.maprows import (  # the rows' writes, importable from here as before
     KEEP_UPLOAD_RECORDS,
@@ -129,7 +129,7 @@ def apply_upload(
     if seen is not None:  # answered with the session it was applied in: the robot checks it is its own
         return AppliedUpload(MapUploadOut(version=seen[0], duplicate=True, map_session=seen[1]), None)
     current, session = robot[0], robot[1]
-    new_session, undo = up.map_session != session, None
+    new_session, undo, same = up.map_session != session, None, frozenset[int]()
     # the walls and poses stored after the upload (server.mapcounts): poses kept, before the upload's own
     walls_after, poses_kept = stored.walls, stored.poses
     if new_session:
@@ -200,9 +200,12 @@ def apply_upload(
         walls_after = walls_after_delta(stored.walls, up, (r[0] for r in undo_reads.touched))
         if max_walls is not None:
             check_wall_cap(conn, robot_id, up, max_walls, stored.walls, after=walls_after)
-        undo = capture_undo(conn, robot_id, up, undo_reads)  # what the delta replaces: before the writes
+        # what the delta replaces (read before the writes), and the walls it sends as they are stored
+        undo, same = undo_record(up, undo_reads)
     v = up.version
     rows = prepared or prepare_rows(robot_id, up)
+    if same:  # walls the delta sends again as they are stored are not written again
+        rows = replace(rows, segments=[r for r in rows.segments if r[1] not in same])
     counts = Counts(walls_after, poses_kept + len(rows.trajectory))
     # the pose graph's rows; a delta's corrected keyframes move the stored poses first (server.mapgraph:
     # it reads the stored keyframes, so before the pipelined writes, and before the delta's own poses)

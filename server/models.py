@@ -211,6 +211,7 @@ class MapSegment(Base):
     y0_m: Mapped[float] = mapped_column(Float)
     x1_m: Mapped[float] = mapped_column(Float)
     y1_m: Mapped[float] = mapped_column(Float)
+    #: The map version that last wrote it (a wall a delta sends again unchanged keeps its version).
     version: Mapped[int] = mapped_column(BigInteger)
 
 
