@@ -37,11 +37,14 @@ from server.mapcounts import Counts
 from server.maphistory import UndoReads
 
 __all__ = [
+    "BATCH_KEY",
     "DeltaProbe",
     "PendingReads",
     "UploadReads",
     "array_text",
     "delete_walls",
+    "driver",
+    "driver_errors",
     "insert_trajectory",
     "lock_and_read",
     "pipelined",
@@ -162,7 +165,12 @@ class PendingReads:
         self._curs, self._delta = curs, delta
 
     def result(self) -> UploadReads:
-        """The answers (the cursors are closed). O(rows read)."""
+        """The answers (the cursors are closed). O(rows read). Inside a write batch's pipeline the answers
+        may come here, and an earlier statement's error with them (as SQLAlchemy's error)."""
+        with driver_errors():
+            return self._result()
+
+    def _result(self) -> UploadReads:
         curs = self._curs
         robot, seen = curs[1].fetchone(), curs[2].fetchone()
         undo = None
@@ -196,7 +204,7 @@ def queue_lock_and_read(
     """Queue :func:`lock_and_read`'s statements in the pipeline open on ``conn`` (:func:`pipelined`):
     the write batches queue every upload's lock and reads in one pipeline, one round trip for all."""
     rid = int(robot_id)
-    pg = _driver(conn)
+    pg = driver(conn)
     curs = [pg.cursor() for _ in range(3 + 2 * (delta is not None))]
     curs[0].execute(_LOCK_SQL, (lock_class, rid))
     curs[1].execute(_ROBOT_SQL, (rid,))
@@ -220,20 +228,25 @@ def lock_and_read(
     return pending.result()
 
 
+#: ``conn.info`` key set while a write batch's pipeline is open on the connection (:mod:`server.pgbatch`)
+BATCH_KEY = "linemap_batch_pipeline"
+
+
 @contextmanager
 def pipelined(conn: Connection) -> Iterator[None]:
     """On PostgreSQL, send the statements ``conn`` executes in the block without waiting for each answer
     (psycopg's pipeline mode), all answered in one round trip at the block's end; elsewhere nothing.
     Only statements that return no rows may run in the block (SQLAlchemy reads a result at once). A
-    statement's error is raised at the block's end as SQLAlchemy's error (so callers see one kind)."""
-    if conn.dialect.name != "postgresql":
+    statement's error is raised at the block's end as SQLAlchemy's error (so callers see one kind).
+    Inside a write batch's pipeline (:mod:`server.pgbatch`) the statements join it: no round trip here."""
+    if conn.dialect.name != "postgresql" or conn.info.get(BATCH_KEY) is not None:
         yield
         return
-    with _driver_errors(), _driver(conn).pipeline():
+    with driver_errors(), driver(conn).pipeline():
         yield
 
 
-def _driver(conn: Connection) -> psycopg.Connection[Any]:
+def driver(conn: Connection) -> psycopg.Connection[Any]:
     """The psycopg connection under ``conn``."""
     pg = conn.connection.driver_connection
     if not isinstance(pg, psycopg.Connection):
@@ -242,7 +255,7 @@ def _driver(conn: Connection) -> psycopg.Connection[Any]:
 
 
 @contextmanager
-def _driver_errors() -> Iterator[None]:
+def driver_errors() -> Iterator[None]:
     """psycopg's errors, raised outside SQLAlchemy's execution (a pipeline's sync), as SQLAlchemy's."""
     try:
         yield

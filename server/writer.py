@@ -11,7 +11,8 @@ connection. A job must raise its expected errors (conflicts) before it writes an
 to its caller alone and the batch commits the others. An unexpected database error rolls the batch back and
 its jobs are retried one by one, so one bad job never sinks the rest.
 
-Cost: one thread hop and ``1/batch`` of a commit per job.
+Cost: one thread hop and ``1/batch`` of a commit per job. On PostgreSQL a batch's statements go in one
+pipeline (:mod:`server.pgbatch`): a job's Python runs while the database applies the job before it.
 
 On PostgreSQL, keep every write of robot rows that may run beside the upload batches to one robot per
 transaction or route it through :meth:`WriteBatcher.submit` with that robot's ``key`` (as
@@ -36,6 +37,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from server.database import Database
 from server.errors import ServerError, StorageFullError
+from server.pgbatch import BatchPipeline
 from server.pgrows import pipelined
 
 __all__ = ["PG_WRITERS", "WriteBatcher"]
@@ -183,9 +185,10 @@ class WriteBatcher:
     def _apply(self, batch: list[_Job[Any]]) -> None:
         results: list[tuple[_Job[Any], Any, BaseException | None]] = []
         try:
-            with self._db.write_conn() as conn:
+            with self._db.write_conn() as conn, BatchPipeline(conn) as pipe:
                 _prefetch(conn, batch)
                 for job in batch:
+                    pipe.resume()  # (a job's read ended the batch's pipeline: server.pgbatch)
                     try:
                         results.append((job, job.fn(conn), None))
                     except ServerError as exc:  # expected, raised before the job wrote anything
