@@ -180,12 +180,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--kill-at-s", type=float, default=0.0, help="SIGKILL process 0 this far into the load [0: no]"
     )
+    p.add_argument(
+        "--moved-share",
+        type=float,
+        default=0.0,
+        help="share of each delta's walls moved since the robot last sent them (server_load.py) [0]",
+    )
+    p.add_argument("--stored-poses", type=int, default=0, help="poses each map holds before the load [0]")
     p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     a = p.parse_args(argv)
     if not a.postgres:
         p.error("--postgres (or LINEMAP_TEST_POSTGRES_URL) is needed: several processes need PostgreSQL")
     if a.processes < 1 or min(a.robots, a.period_s, a.duration_s, a.segments) <= 0:
         p.error("--processes, --robots, --period-s, --duration-s and --segments must be positive")
+    if not 0 <= a.moved_share <= 1 or a.stored_poses < 0:
+        p.error("--moved-share must be a share in 0..1 and --stored-poses at least 0")
     if a.kill_at_s and (a.processes < 2 or not 0 < a.kill_at_s < a.duration_s):
         p.error("--kill-at-s needs --processes >= 2 and a time within the load")
     cfg = Config(
@@ -194,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
         duration_s=a.duration_s,
         segments=a.segments,
         messages=a.messages,
+        moved_share=a.moved_share,
+        stored_poses=a.stored_poses,
     )
     console = Console()
     try:
