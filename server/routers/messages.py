@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import random
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, status
@@ -44,11 +45,16 @@ from shared.control import (
     parse_message,
 )
 
-__all__ = ["router"]
+__all__ = ["WAIT_JITTER", "poll_wait_s", "router"]
 
 log = logging.getLogger(__name__)
 
 router = APIRouter(prefix="/robots/{robot_id}/messages", tags=["messages"])
+
+#: A long-poll's wait ends up to this share early, at random. Polls that began together (robots reconnecting
+#: after a restart, a network cut) otherwise all ended, and read again, in the same instant every round:
+#: under server_load.py (100 robots, 20 s polls) each such instant held the uploads around it ~200 ms.
+WAIT_JITTER = 0.1
 
 XML_BODY = {
     "requestBody": {
@@ -196,12 +202,13 @@ async def list_messages(
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> dict[str, object]:
     """Messages after ``after`` in order; with ``wait`` > 0 the call returns as soon as one is queued
-    (long-poll; at most the server's ``long_poll_max_s``), or with an empty list when the wait is over.
+    (long-poll; at most the server's ``long_poll_max_s``), or with an empty list when the wait is over
+    (up to 10 % early, at random, so that polls begun together do not stay in step).
     The robot's own ``after`` is the highest message it applied: when the server's numbering is behind it
     (a database restored from a backup) the numbering continues after it (see ``_resync``)."""
     resync = who.kind == "robot" and after > 0  # the robot's own poll: is the server's numbering behind?
     loop = asyncio.get_running_loop()
-    deadline = loop.time() + min(wait, state.settings.long_poll_max_s)
+    deadline = loop.time() + poll_wait_s(wait, state.settings.long_poll_max_s, random.random())
     recheck = state.settings.poll_recheck_s
     # Woken by the hub when a message is queued (any process); the safety net against a missed wake-up is
     # one read for every waiting poll of the process (server.pollsweep), not a re-read per poll.
@@ -225,6 +232,13 @@ async def list_messages(
             waited = True
             if not await _woken(queue, request, deadline, recheck):
                 return out  # the client went away (or the server is stopping): no read for nobody
+
+
+def poll_wait_s(wait_s: float, max_s: float, u: float) -> float:
+    """How long a long-poll asking for ``wait_s`` waits at most (s): ``wait_s`` capped at ``max_s`` (the
+    server's ``long_poll_max_s``), shortened by up to :data:`WAIT_JITTER` of itself as ``u`` (uniform in
+    [0, 1)) goes from 0 to 1. O(1)."""
+    return min(wait_s, max_s) * (1.0 - WAIT_JITTER * u)
 
 
 async def _woken(queue: asyncio.Queue[object], request: Request, deadline: float, recheck_s: float) -> bool:

@@ -7,7 +7,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
+from server.routers.messages import WAIT_JITTER, poll_wait_s
 from shared.control import parse_message
 from tests.server.live import Live
 
@@ -193,3 +196,19 @@ def test_ids_and_numbers_beyond_the_columns_range_are_refused_not_a_server_error
         assert r.status_code == 422 and "seq" in r.text, r.text
         r = robot.get(f"/robots/{rid}/messages", params={"after": 2**31 - 1, "wait": 0.2})
         assert r.status_code == 200, r.text  # the largest number the column holds is fine
+
+
+@given(
+    wait=st.floats(0, 1e6, allow_nan=False),
+    cap=st.floats(0.001, 3600, allow_nan=False),
+    u=st.floats(0, 1, exclude_max=True),
+)
+def test_a_long_polls_wait_is_the_asked_one_capped_and_at_most_a_tenth_shorter(
+    wait: float, cap: float, u: float
+) -> None:
+    """Polls begun together end apart (server/routers/messages.py WAIT_JITTER): never longer than asked or
+    than the server's cap, never more than 10 % shorter."""
+    got = poll_wait_s(wait, cap, u)
+    asked = min(wait, cap)
+    assert asked * (1 - WAIT_JITTER) <= got <= asked
+    assert poll_wait_s(wait, cap, 0.0) == asked
