@@ -11,11 +11,14 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from sqlalchemy import Connection, text
+from sqlalchemy import Connection, insert, text
 from sqlalchemy.exc import SQLAlchemyError
 
+from server import pgrows
 from server.database import Database
 from server.errors import ServerError
+from server.migrate import upgrade
+from server.models import Robot
 from server.pgbatch import BatchPipeline, queueable
 from server.pgrows import driver
 from server.writer import WriteBatcher
@@ -114,3 +117,21 @@ def test_a_bad_job_in_a_batch_fails_alone(pg: Database) -> None:
     assert got[0] == "a" and got[2] == "c"
     assert isinstance(got[1], ServerError) and "refused the write" in str(got[1])
     assert _rows(pg) == [(1, "a"), (2, "c")]
+
+
+def test_a_robots_second_upload_in_a_batch_reads_the_first_ones_walls(tmp_path: Path) -> None:
+    """Two uploads of one robot in one batch: the second is not prefetched, so it takes its lock and reads
+    in the batch's pipeline (psycopg's own cursors): it must see the walls the first one queued."""
+    db = Database(database_url("postgresql", tmp_path))
+    upgrade(db.engine)
+    try:
+        with db.write_conn() as conn:
+            added = conn.execute(insert(Robot).values(name="b", token_hash="1" * 64).returning(Robot.id))
+            rid = int(added.scalar_one())
+        with db.write_conn() as conn, BatchPipeline(conn):
+            pgrows.upsert_segments(conn, [(rid, 7, 0.0, 0.0, 1.0, 1.0, 1)])  # the first upload's walls
+            assert driver(conn).pgconn.pipeline_status
+            reads = pgrows.lock_and_read(conn, 1, rid, "k", delta=pgrows.DeltaProbe([7, 8], 1))
+        assert reads.undo is not None and [tuple(r) for r in reads.undo.touched] == [(7, 0.0, 0.0, 1.0, 1.0)]
+    finally:
+        db.dispose()
