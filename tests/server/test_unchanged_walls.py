@@ -4,12 +4,10 @@ version that last wrote them. Through the real server on both backends, and the 
 
 from __future__ import annotations
 
-from sqlalchemy import select
-
 from server.maphistory import UndoReads, undo_record
-from server.models import MapSegment
 from server.schemas import MapUpload
 from tests.server.live import Live
+from tests.server.test_pgrows import _walls as stored_walls
 
 
 def test_the_unchanged_walls_are_those_sent_as_stored_and_not_removed() -> None:
@@ -39,18 +37,7 @@ def test_the_unchanged_walls_are_those_sent_as_stored_and_not_removed() -> None:
 
 
 def _versions(live: Live, rid: int) -> dict[int, tuple[float, float, float, float, int]]:
-    with live.state.db.read() as s:
-        rows = s.execute(
-            select(
-                MapSegment.segment_id,
-                MapSegment.x0_m,
-                MapSegment.y0_m,
-                MapSegment.x1_m,
-                MapSegment.y1_m,
-                MapSegment.version,
-            ).where(MapSegment.robot_id == rid)
-        )
-        return {int(r[0]): (r[1], r[2], r[3], r[4], int(r[5])) for r in rows}
+    return {row[0]: row[1:] for row in stored_walls(live, rid)}
 
 
 def test_a_delta_resending_walls_leaves_them_as_they_were(live: Live) -> None:
