@@ -136,7 +136,7 @@ def apply_upload(
         check_not_ended(conn, robot_id, up.map_session, session)
     if up.base_version is None and new_session:
         if max_walls is not None:
-            check_wall_cap(conn, robot_id, up, max_walls)
+            check_wall_cap(robot_id, up, max_walls)
         start_session(
             conn,
             robot_id,
@@ -163,7 +163,7 @@ def apply_upload(
                 current_stamp_s=_stamp(conn, robot_id),
             )
         if max_walls is not None:
-            check_wall_cap(conn, robot_id, up, max_walls)
+            check_wall_cap(robot_id, up, max_walls)
         if prepared is not None and prepared.diff_base is not None and prepared.diff_base != current:
             log.info(
                 "robot %d's map moved (version %d -> %d) since its snapshot's diff: replacing it whole",
@@ -199,7 +199,7 @@ def apply_upload(
         undo_reads = reads.undo if reads.undo is not None else read_undo(conn, robot_id, up)
         walls_after = walls_after_delta(stored.walls, up, (r[0] for r in undo_reads.touched))
         if max_walls is not None:
-            check_wall_cap(conn, robot_id, up, max_walls, stored.walls, after=walls_after)
+            check_wall_cap(robot_id, up, max_walls, before=stored.walls, after=walls_after)
         # what the delta replaces (read before the writes), and the walls it sends as they are stored
         undo, same = undo_record(up, undo_reads)
     v = up.version

@@ -52,14 +52,14 @@ def parse_upload(raw: bytes, robot_id: int, max_walls: int, world_extent_m: floa
     """The validated body; :class:`InvalidRequestError` (422) naming every problem, a value outside its
     declared bound (:func:`server.mapbounds.check_upload_bounds`), or the wall cap."""
     from server.mapbounds import check_upload_bounds
-    from server.mapstore import check_wall_cap  # mapstore imports the models: not needed before this
+    from server.wallcap import check_wall_cap
 
     try:
         body = MapUpload.model_validate_json(raw)
     except ValidationError as exc:
         raise InvalidRequestError(validation_problems(exc)) from None
     check_upload_bounds(body, world_extent_m)
-    check_wall_cap(None, robot_id, body, max_walls)
+    check_wall_cap(robot_id, body, max_walls)
     return body
 
 
