@@ -9,7 +9,9 @@ pipeline over the stream, and :func:`write_outputs` writes the files.
 from __future__ import annotations
 
 import logging
+import os
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
@@ -21,6 +23,7 @@ from shared.io.errors import NoScansError
 from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
 from shared.sim import World, default_world, load_world, simulate_run
 from shared.slam import GraphMapper, LoopClosureSettings
+from shared.slam.frontproc import FrontEndProcess
 from shared.types import FloatArray, Pose2D, Scan
 
 __all__ = [
@@ -150,15 +153,22 @@ def map_scans(
     limit: int | None = None,
     on_step: Callable[[int], None] | None = None,
     loop_closure: LoopClosureSettings | None = None,
+    front_process: bool | None = None,
 ) -> MapRun:
     """Run the pipeline over every scan of ``source`` (at most ``limit``), then flush pending batches.
 
     With ``loop_closure`` the pipeline runs under a keyframe pose graph (:class:`shared.slam.GraphMapper`):
     loops are closed as they are found and the map is drawn again from the corrected poses at the end.
+    The front end then tracks in a child process ahead of the graph (:mod:`shared.slam.frontproc`; the
+    same map bit for bit) where the machine has more than one core, or where ``front_process`` says so.
 
     A malformed record part-way through a log stops the run but loses nothing: :class:`MappingStoppedError`
     carries the map of the scans read before it.
     """
+    if front_process is None:
+        front_process = (os.cpu_count() or 1) > 1
+    if loop_closure is not None and loop_closure.enabled and front_process:
+        return _map_beside_front(source, config, loop_closure, limit=limit, on_step=on_step)
     pipeline: Pipeline | GraphMapper
     if loop_closure is None:
         pipeline = Pipeline(config, laser_offset=source.laser_offset)
@@ -201,6 +211,72 @@ def map_scans(
     seconds = time.perf_counter() - start
     closures = len(pipeline.closures) if isinstance(pipeline, GraphMapper) else 0
     run = MapRun(snapshot, count, seconds, icp, median, p99, closures)
+    if failure is not None:
+        raise MappingStoppedError(failure, run)
+    return run
+
+
+#: scans the front end's process may be ahead of the graph (what waits in the pipes)
+AHEAD_SCANS = 256
+
+
+def _map_beside_front(
+    source: Source,
+    config: PipelineConfig,
+    loop_closure: LoopClosureSettings,
+    *,
+    limit: int | None,
+    on_step: Callable[[int], None] | None,
+) -> MapRun:
+    """:func:`map_scans` with loop closure, the front end tracking in a child process at most
+    :data:`AHEAD_SCANS` scans ahead of the graph here (:mod:`shared.slam.frontproc`)."""
+    front = Pipeline(config, laser_offset=source.laser_offset, track_only=True)  # never stepped here
+    mapper = GraphMapper(
+        lambda: Pipeline(config, laser_offset=source.laser_offset), loop_closure, front=front
+    )
+    count = icp = read = 0
+    start = time.perf_counter()
+    failure: LinemapError | None = None
+    pending: deque[Scan] = deque()
+    with source.closer or nullcontext(), FrontEndProcess(config, source.laser_offset) as child:
+        scans: Iterator[Scan] = iter(source.scans)
+
+        def read_ahead() -> None:
+            """Send scans until AHEAD_SCANS wait, the input ends (or breaks) or ``limit`` is read."""
+            nonlocal read, failure
+            while len(pending) < AHEAD_SCANS and not child.input_closed:
+                if limit is not None and read >= limit:
+                    child.close_input()
+                    return
+                try:
+                    scan = next(scans)
+                except StopIteration:
+                    child.close_input()
+                    return
+                except LinemapError as exc:  # a broken record: keep what was mapped so far
+                    failure = exc
+                    child.close_input()
+                    return
+                read += 1
+                pending.append(scan)
+                child.send(scan)
+
+        read_ahead()
+        for tracked in child.results():
+            result = mapper.step(pending.popleft(), tracked=tracked)
+            count += 1
+            icp += result.icp_used
+            if count == 1:  # the first step compiles the kernels (once per machine): not throughput
+                start = time.perf_counter()
+            if on_step is not None:
+                on_step(count)
+            read_ahead()
+        median, p99 = child.timing_ms
+    if count == 0 and source.log_path is not None and (limit is None or limit > 0):
+        raise no_scans(source, failure)
+    snapshot = mapper.finish()
+    seconds = time.perf_counter() - start
+    run = MapRun(snapshot, count, seconds, icp, median, p99, len(mapper.closures))
     if failure is not None:
         raise MappingStoppedError(failure, run)
     return run

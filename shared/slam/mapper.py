@@ -48,6 +48,7 @@ from shared.protocol.trajectory import thin_positions
 from shared.slam.closure import LoopMatch, candidates, chain_covariance, stacked, verify
 from shared.slam.edges import AGREEMENT_CHI2, consistent, hold_unseen, with_floor
 from shared.slam.errors import OptimisationError
+from shared.slam.frontproc import Tracked
 from shared.slam.graph import PoseGraph
 from shared.slam.information import scan_edge
 from shared.slam.places import SCAN_PLACE, SCANS_PER_PLACE, TIED_KEYFRAMES, Places, near
@@ -137,11 +138,19 @@ class GraphMapper:
         self._seq_cov: list[FloatArray] = []  # covariance of the sequential edge k -> k + 1
         #: search for loop closures in the step (offline); the online mapper searches on a worker instead
         self.search_inline = True
+        self.adopt_front()
 
     # ------------------------------------------------------------------ stepping
-    def step(self, scan: Scan, odometry: Pose2D | None = None) -> StepResult:
-        """One scan through the front end, then the graph; the result's pose is the corrected one."""
-        result = self.front.step(scan, odometry)
+    def step(
+        self, scan: Scan, odometry: Pose2D | None = None, *, tracked: Tracked | None = None
+    ) -> StepResult:
+        """One scan through the front end, then the graph; the result's pose is the corrected one.
+        ``tracked``: what a front end elsewhere made of this scan (:mod:`shared.slam.frontproc`); the
+        front end here is then not stepped."""
+        if tracked is None:
+            tracked = Tracked.of(self.front, self.front.step(scan, odometry))
+        self._now = tracked
+        result = tracked.result
         odom = odometry if odometry is not None else scan.odometry
         pose = result.pose
         step = self._n_steps
@@ -160,6 +169,12 @@ class GraphMapper:
         if self._history is not None and len(self._track) > self._history:
             self._track.drop(thin_positions(len(self._track), self._history))
         return replace(result, pose=self.pose)
+
+    def adopt_front(self) -> None:
+        """Read what the graph takes from the front end (its last scan's returns, the noise it learned,
+        the range noise) off ``self.front`` as it is now: at the start, and after a restore gave it a
+        front end. O(1)."""
+        self._now = Tracked.of(self.front, StepResult(self.front.version, self.front.pose, False, (), 0.0))
 
     def _keep(self, pose: Pose2D) -> bool:
         """Whether the scan at front-end pose ``pose`` is kept for redraws (``redraw_spacing``)."""
@@ -182,7 +197,7 @@ class GraphMapper:
 
     def _add_keyframe(self, step: int, pose: Pose2D, odom: Pose2D | None, stamp_s: float) -> None:
         offset = self.front.laser_offset
-        scan = self.front.scan_points
+        scan = self._now.scan_points
         points = offset.transform_points(scan) if len(scan) else np.zeros((0, 2))
         key = Keyframe(step, pose, odom, points, scan, self._travelled, stamp_s)
         self._fronts.append((pose.x_m, pose.y_m, pose.theta_rad, self._travelled, stamp_s, step))
@@ -292,7 +307,7 @@ class GraphMapper:
             motion,
             self.front.laser_offset,
             sigma_m=self.front.gate.match_sigma_m,
-            range_noise=self.front.range_noise,
+            range_noise=self._now.range_noise,
             refine=refine,
         )
 
@@ -331,7 +346,7 @@ class GraphMapper:
                 sigma_rad=g.odom_sigma_rad,
                 sigma_rad_per_rad=g.odom_sigma_rad_per_rad,
             )
-            k = self.front.odometry_noise.scale
+            k = self._now.noise_scale
             d = 1.0 / np.sqrt([k.translation, k.translation, k.heading])
             info = info + model * np.outer(d, d)
         return with_floor(info, motion)
@@ -363,7 +378,7 @@ class GraphMapper:
                 c,
                 self.settings,
                 self._matcher,
-                range_noise=self.front.range_noise,
+                range_noise=self._now.range_noise,
             )
             if match is not None:
                 found.append(match)

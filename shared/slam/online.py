@@ -445,6 +445,7 @@ class OnlineGraphMapper:
                 except Exception:
                     self._mapper.front.reconfigure(self._config)
                     raise
+            self._mapper.adopt_front()  # the range noise a new configuration may give
             self._config = config
 
     @property

@@ -44,7 +44,8 @@ register_state_class(
 
 _SKIP: dict[type, frozenset[str]] = {
     **PIPELINE_SKIP,
-    mapper.GraphMapper: frozenset({"_make"}),
+    # ``_now`` (what the front end made of the last scan) is read back off the restored front end
+    mapper.GraphMapper: frozenset({"_make", "_now"}),
     graph.PoseGraph: frozenset({"_params", "_isam", "_new_factors", "_new_values"}),
 }
 
@@ -78,6 +79,7 @@ def restore_graph(online: OnlineGraphMapper, state: MapperState) -> dict[str, An
     live = online._mapper
     gm._make = live._make
     gm.front = adopt_pipeline(live.front, gm.front)
+    gm.adopt_front()
     gm.search_inline = live.search_inline
     gm.graph.reattach()
     shown = parts["shown"]

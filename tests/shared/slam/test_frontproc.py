@@ -1,0 +1,110 @@
+"""The front end in a child process ahead of the pose graph (shared/slam/frontproc.py, used by
+``map_scans`` with loop closure): the same map as in one process, bit for bit; a broken record, a front
+end that raises and a child that dies all end the run with a clear error."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+from collections.abc import Iterator
+
+import pytest
+
+from shared.errors import LinemapError
+from shared.mapping import MappingStoppedError, Source, map_scans, open_source
+from shared.pipeline import Pipeline, PipelineConfig
+from shared.pipeline.pipeline import StepResult
+from shared.sim import default_world, simulate_run
+from shared.slam import LoopClosureSettings
+from shared.slam.frontproc import FrontEndProcess, FrontEndProcessError
+from shared.types import Pose2D, Scan
+
+LOOPS = LoopClosureSettings()
+
+
+def _run(front_process: bool, limit: int | None = None):  # type: ignore[no-untyped-def]
+    return map_scans(
+        open_source("sim"), PipelineConfig(), loop_closure=LOOPS, limit=limit, front_process=front_process
+    )
+
+
+def test_the_map_is_the_one_process_map_bit_for_bit() -> None:
+    """The default world's patrol closes loops; with the front end in a child process the walls, their
+    ids, the corrected trajectory, the closures and the ICP count are those of one process."""
+    alone, beside = _run(False), _run(True)
+    assert alone.loop_closures >= 3  # the case exercises the graph
+    assert beside.loop_closures == alone.loop_closures
+    assert (beside.scans, beside.icp_used) == (alone.scans, alone.icp_used)
+    assert pickle.dumps(beside.snapshot) == pickle.dumps(alone.snapshot)
+    assert beside.step_median_ms > 0.0  # the child's step times come back
+
+
+def test_the_limit_is_read_and_no_more() -> None:
+    run = _run(True, limit=37)
+    assert run.scans == 37
+    assert len(run.snapshot.trajectory) == 37
+
+
+def _scans_then_broken(n: int) -> Iterator[Scan]:
+    run = simulate_run(default_world(), seed=0)
+    yield from run.scans[:n]
+    raise LinemapError("line 1234: expected 181 ranges, found 7")
+
+
+def test_a_broken_record_keeps_what_was_mapped_before_it() -> None:
+    source = Source("broken log", _scans_then_broken(60), Pose2D(), None)
+    with pytest.raises(MappingStoppedError) as caught:
+        map_scans(source, PipelineConfig(), loop_closure=LOOPS, front_process=True)
+    assert caught.value.run.scans == 60
+    assert "expected 181 ranges" in str(caught.value)
+
+
+class KernelFailed(LinemapError):
+    pass
+
+
+def test_a_front_end_error_in_the_child_is_raised_as_it_was(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The child is forked from this process, so a step patched here fails there."""
+    calls = {"n": 0}
+    step = Pipeline.step
+
+    def failing(self: Pipeline, scan: Scan, odometry: Pose2D | None = None, **kw: object) -> StepResult:
+        calls["n"] += 1
+        if calls["n"] == 25:
+            raise KernelFailed("kernel 'icp' raised: matrix is singular")
+        return step(self, scan, odometry, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Pipeline, "step", failing)
+    if "fork" not in __import__("multiprocessing").get_all_start_methods():
+        pytest.skip("the patch reaches the child only by fork")
+    with pytest.raises(KernelFailed, match="matrix is singular"):
+        _run(True, limit=60)
+
+
+def test_a_child_that_dies_is_named(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = {"n": 0}
+    step = Pipeline.step
+
+    def dying(self: Pipeline, scan: Scan, odometry: Pose2D | None = None, **kw: object) -> StepResult:
+        calls["n"] += 1
+        if calls["n"] == 10:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return step(self, scan, odometry, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Pipeline, "step", dying)
+    if "fork" not in __import__("multiprocessing").get_all_start_methods():
+        pytest.skip("the patch reaches the child only by fork")
+    with pytest.raises(FrontEndProcessError, match="exit code -9"):
+        _run(True, limit=60)
+
+
+def test_leaving_early_stops_the_child() -> None:
+    run = simulate_run(default_world(), seed=0)
+    with FrontEndProcess(PipelineConfig(), Pose2D()) as child:
+        for scan in run.scans[:20]:
+            child.send(scan)
+        first = next(iter(child.results()))
+        assert first.result.version == 1
+        process = child._process
+    assert not process.is_alive()
