@@ -5,7 +5,8 @@ whole-log replay (reading and writing included, as ``linemap map`` does it) >= 3
 runs in its own process (numba caches warm, the first step not counted); with ``--baseline DIR`` (an exported
 older tree, e.g. ``git archive <commit> | tar -x -C DIR``) the baseline and this tree alternate ``--repeats``
 times in the same session, and the medians and their ratio are printed, since the shared machine drifts by
-20-40 % between runs.
+20-40 % between runs; with ``--loop-closure`` too, the baseline also runs with loop closure and that ratio
+is printed as well.
 
     .venv/bin/python benchmarks/step_time.py [--baseline DIR] [--repeats 3] [--log mit-csail/mit-csail.clf.gz]
         [--loop-closure]
@@ -120,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.baseline is not None:
         trees.insert(0, ("baseline", args.baseline.resolve(), False))
     if args.loop_closure:
+        if args.baseline is not None:
+            trees.insert(1, ("baseline + loop", args.baseline.resolve(), True))
         trees.append(("+ loop closure", None, True))
     runs: dict[str, list[dict[str, float]]] = {name: [] for name, _, _ in trees}
     for i in range(args.repeats):
@@ -136,6 +139,12 @@ def main(argv: list[str] | None = None) -> int:
             f"{'ratio':15s} {t['step_median_ms'] / b['step_median_ms']:15.2f}x "
             f"{t['replay_scans_per_s'] / b['replay_scans_per_s']:14.2f}x"
         )
+        if args.loop_closure:
+            b, t = med["baseline + loop"], med["+ loop closure"]
+            print(
+                f"{'ratio, loop':15s} {t['step_median_ms'] / b['step_median_ms']:15.2f}x "
+                f"{t['replay_scans_per_s'] / b['replay_scans_per_s']:14.2f}x"
+            )
     return 0
 
 
