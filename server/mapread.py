@@ -9,7 +9,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import TYPE_CHECKING
 
-from sqlalchemy import func, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from server.errors import ConflictError, NotFoundError
@@ -80,7 +80,7 @@ def read_map(s: Session, robot_id: int, trajectory_tail: int | None = None) -> M
 
 def list_sessions(s: Session, robot_id: int) -> list[MapSessionOut]:
     """The robot's sessions, newest first: the current one's figures read live, ended ones' as stored.
-    O(sessions) plus one count of the current map's walls."""
+    O(sessions); the current map's wall count is the one kept with its state (:mod:`server.mapcounts`)."""
     robot = s.get(Robot, robot_id)
     if robot is None:
         raise NotFoundError(f"no robot with id {robot_id}")
@@ -120,8 +120,8 @@ def _live(
     first: int | None,
     reason: str | None,
 ) -> MapSessionOut:
-    walls = s.scalar(select(func.count()).select_from(MapSegment).where(MapSegment.robot_id == robot.id))
     state = s.get(MapState, robot.id)
+    walls = state.n_walls if state is not None else 0  # kept with every upload (server.mapcounts)
     return MapSessionOut(
         map_session=session_id,
         current=True,
