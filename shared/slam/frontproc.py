@@ -23,6 +23,7 @@ import logging
 import multiprocessing as mp
 import pickle
 import queue
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from types import TracebackType
@@ -93,9 +94,9 @@ class FrontEndProcess:
     (module docstring). Use as a context manager; not thread-safe beyond one sender and one reader."""
 
     def __init__(self, config: PipelineConfig, laser_offset: Pose2D, *, ahead: int = 256) -> None:
-        # fork where there is one: the child starts at once with what is imported here (spawn would
-        # import numpy, numba and the kernels again, about a second)
-        fork = "fork" in mp.get_all_start_methods()
+        # fork on Linux: the child starts at once with what is imported here (spawn would import numpy,
+        # numba and the kernels again, about a second); elsewhere fork is unsafe or missing
+        fork = sys.platform.startswith("linux") and "fork" in mp.get_all_start_methods()
         ctx = mp.get_context("fork") if fork else mp.get_context("spawn")
         self._inbox: Any = ctx.Queue(maxsize=max(ahead // BATCH, 1))
         self._outbox: Any = ctx.Queue()
