@@ -53,10 +53,11 @@ _STOP = object()
 INLINE_WAIT_S = 0.05
 #: Writer threads on a database other than SQLite by default (each holds one connection of the pool while it
 #: writes; the server's setting ``pg_writers``). More threads wait for the database side by side but compete
-#: for the GIL with everything else: under ``benchmarks/server_load.py`` (100 robots, PostgreSQL, one
-#: process) 1 and 2 threads gave 161-164 and 172 uploads/s with a control message reaching its long-poll in
-#: 44-49 and 82-96 ms (median); two processes of 1 thread each took 196 uploads/s (messages 51 ms), of 2
-#: each 190 (72 ms). One keeps control messages within their 50 ms; more processes add uploads/s.
+#: for the GIL with everything else. Under ``benchmarks/server_load.py`` (100 robots, PostgreSQL, one
+#: process), once a write batch ran as one pipeline (:mod:`server.pgbatch`), 1 thread took 199.6 uploads/s
+#: with a control message reaching its long-poll in 38 ms (median); 2 threads were worse (p50 377-446 ms
+#: against 54-75, messages 114-127 ms against 49-52, alternating runs; docs/fleet-scale.md). One keeps
+#: control messages within their 50 ms; more processes add uploads/s.
 PG_WRITERS = 1
 #: A write batch slower than this is logged (debug level), in milliseconds.
 _SLOW_BATCH_MS = 30.0
