@@ -55,21 +55,28 @@ COARSE_RADIUS_M = 0.25
 
 
 @njit
+def _fill_row(table: FloatArray, u: int, first: IntArray, after: IntArray) -> None:
+    """Where row ``u`` of ``table`` ``(nx, ny)`` is non-zero: ``first[u, v]``, the first column >= v with a
+    non-zero value (``ny`` if none), and ``after[u, v]``, one past the last column < v with a non-zero value
+    (0 if none), for v in 0..ny. A look-up table is zero beyond its radius of the submap's points (about
+    95 % of its cells), and adding those zeros changes no sum. O(ny)."""
+    ny = table.shape[1]
+    first[u, ny] = ny
+    for v in range(ny - 1, -1, -1):
+        first[u, v] = v if table[u, v] != 0.0 else first[u, v + 1]
+    after[u, 0] = 0
+    for v in range(ny):
+        after[u, v + 1] = v + 1 if table[u, v] != 0.0 else after[u, v]
+
+
+@njit
 def _extents(table: FloatArray) -> tuple[IntArray, IntArray]:
-    """Where each row of ``table`` ``(nx, ny)`` is non-zero: ``first[u, v]``, the first column >= v with
-    a non-zero value (``ny`` if none), and ``after[u, v]``, one past the last column < v with a non-zero
-    value (0 if none); both ``(nx, ny + 1)``. A look-up table is zero beyond its radius of the submap's
-    points (about 95 % of its cells), and adding those zeros changes no sum. O(nx ny)."""
+    """:func:`_fill_row` for every row: ``(first, after)``, both ``(nx, ny + 1)``. O(nx ny)."""
     nx, ny = table.shape
     first = np.empty((nx, ny + 1), dtype=np.int64)
     after = np.empty((nx, ny + 1), dtype=np.int64)
     for u in range(nx):
-        first[u, ny] = ny
-        for v in range(ny - 1, -1, -1):
-            first[u, v] = v if table[u, v] != 0.0 else first[u, v + 1]
-        after[u, 0] = 0
-        for v in range(ny):
-            after[u, v + 1] = v + 1 if table[u, v] != 0.0 else after[u, v]
+        _fill_row(table, u, first, after)
     return first, after
 
 
@@ -78,6 +85,7 @@ def _score_grid(
     table: FloatArray,
     first: IntArray,
     after: IntArray,
+    filled: BoolArray,
     x0: float,
     y0: float,
     cell: float,
@@ -92,8 +100,9 @@ def _score_grid(
     """Per translation cell of the window the best score over the rotations and that rotation (rad):
     two ``(2 n_xy + 1, 2 n_xy + 1)`` arrays, index ``[a, b]`` for the shift ``((a - n_xy) cell,
     (b - n_xy) cell)`` from ``(x, y)``. Each return adds the table's window round its cell to the sums,
-    row by row, only over the span of the row that is non-zero (``first``, ``after``:
-    :func:`_extents`); the sums, added in the returns' order, are those of the whole window bit for bit
+    row by row, only over the span of the row that is non-zero (``first``, ``after``: :func:`_fill_row`,
+    filled for a row the first time one of these calls reads it, ``filled`` ``(nx,)`` saying which are);
+    the sums, added in the returns' order, are those of the whole window bit for bit
     (tests/shared/slam/test_surface.py keeps the plain loop to compare)."""
     nx, ny = table.shape
     n = cur.shape[0]
@@ -120,6 +129,9 @@ def _score_grid(
                 continue
             for a in range(max(-u0, 0), min(side, nx - u0)):
                 u = u0 + a
+                if not filled[u]:
+                    _fill_row(table, u, first, after)
+                    filled[u] = True
                 lo = first[u, v_lo]
                 hi = after[u, v_hi]
                 row = table[u]
@@ -164,7 +176,10 @@ class ScoreSurface:
         self.table = _table(
             np.ascontiguousarray(sub), float(self.lo[0]), float(self.lo[1]), cell, nx, ny, radius
         )
-        self.first, self.after = _extents(self.table)
+        # where each row is non-zero, filled as the searches first read a row (:func:`_fill_row`)
+        self.first = np.empty((nx, ny + 1), dtype=np.int64)
+        self.after = np.empty((nx, ny + 1), dtype=np.int64)
+        self.filled = np.zeros(nx, dtype=np.bool_)
 
     def scores(
         self, pose: Pose2D, n_rot: int, rot_step: float, n_xy: int | None = None
@@ -175,6 +190,7 @@ class ScoreSurface:
             self.table,
             self.first,
             self.after,
+            self.filled,
             float(self.lo[0]),
             float(self.lo[1]),
             self.cell,

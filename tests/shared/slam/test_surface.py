@@ -83,11 +83,20 @@ def cases(draw: st.DrawFn) -> Case:
 @given(cases())
 def test_the_grid_is_the_plain_loop_bit_for_bit(case: Case) -> None:
     table, cur, x, y, theta, n_rot, n_xy = case
-    first, after = _extents(table)
-    got = _score_grid(table, first, after, -0.05, -0.05, 0.1, cur, x, y, theta, n_rot, 0.03, n_xy)
-    want = plain_grid(table, -0.05, -0.05, 0.1, cur, x, y, theta, n_rot, 0.03, n_xy)
-    assert np.array_equal(got[0], want[0])
-    assert np.array_equal(got[1], want[1])
+    nx, ny = table.shape
+    first, after = np.empty((nx, ny + 1), np.int64), np.empty((nx, ny + 1), np.int64)
+    filled = np.zeros(nx, np.bool_)
+    # the rows' extents filled by an earlier call elsewhere on the table serve a later one unchanged
+    for dx in (0.0, 0.35, -0.2):
+        got = _score_grid(
+            table, first, after, filled, -0.05, -0.05, 0.1, cur, x + dx, y, theta, n_rot, 0.03, n_xy
+        )
+        want = plain_grid(table, -0.05, -0.05, 0.1, cur, x + dx, y, theta, n_rot, 0.03, n_xy)
+        assert np.array_equal(got[0], want[0])
+        assert np.array_equal(got[1], want[1])
+    full_first, full_after = _extents(table)
+    assert np.array_equal(first[filled], full_first[filled])
+    assert np.array_equal(after[filled], full_after[filled])
 
 
 @settings(max_examples=200, deadline=None)
@@ -102,6 +111,14 @@ def test_extents_bound_the_nonzero_cells_of_each_row(table: FloatArray) -> None:
             earlier = nonzero[nonzero < v]
             assert first[u, v] == (later[0] if len(later) else ny)
             assert after[u, v] == (earlier[-1] + 1 if len(earlier) else 0)
+
+
+def want_at(surface: ScoreSurface, pose: Pose2D) -> float:
+    x0, y0 = float(surface.lo[0]), float(surface.lo[1])
+    grid = plain_grid(
+        surface.table, x0, y0, surface.cell, surface.cur, pose.x_m, pose.y_m, pose.theta_rad, 0, 0.0, 0
+    )
+    return float(grid[0][0, 0])
 
 
 def test_a_room_surface_is_the_plain_loop() -> None:
@@ -120,6 +137,10 @@ def test_a_room_surface_is_the_plain_loop() -> None:
     cur = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
     guess = Pose2D(0.0, 0.0, 0.0)
     surface = ScoreSurface(sub, cur, guess, 0.1, 0.25, 0.5, clip_m=30.0)
+    assert not surface.filled.any()
+    assert surface.at(guess) == want_at(surface, guess)
+    # the score of one pose reads one row a return: only those rows' extents were filled
+    assert 0 < surface.filled.sum() <= len(np.unique(np.floor((surface.cur[:, 0] - surface.lo[0]) / 0.1)))
     got = surface.scores(guess, 6, 0.02)
     want = plain_grid(
         surface.table, float(surface.lo[0]), float(surface.lo[1]), 0.1, surface.cur, 0.0, 0.0, 0.0, 6, 0.02, 5
