@@ -14,13 +14,14 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import AbstractContextManager, nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from shared.errors import LinemapError
 from shared.io.errors import NoScansError
 from shared.pipeline import MapSnapshot, Pipeline, PipelineConfig
+from shared.pipeline.pipeline import StepResult
 from shared.sim import World, default_world, load_world, simulate_run
 from shared.slam import GraphMapper, LoopClosureSettings
 from shared.slam.frontproc import FrontEndProcess
@@ -179,12 +180,11 @@ def map_scans(
         pipeline = GraphMapper(
             lambda: Pipeline(config, laser_offset=source.laser_offset), loop_closure, front=front
         )
-    count = icp = 0
-    start = time.perf_counter()
+    tally = _Tally(on_step)
     failure: LinemapError | None = None
     with source.closer or nullcontext():
         scans: Iterator[Scan] = iter(source.scans)
-        while limit is None or count < limit:
+        while limit is None or tally.count < limit:
             try:
                 scan = next(scans)
             except StopIteration:
@@ -192,28 +192,56 @@ def map_scans(
             except LinemapError as exc:  # a broken record: keep what was mapped so far
                 failure = exc
                 break
-            result = pipeline.step(scan)
-            count += 1
-            icp += result.icp_used
-            if count == 1:  # the first step compiles the kernels (once per machine): not throughput
-                start = time.perf_counter()
-            if on_step is not None:
-                on_step(count)
-    if count == 0 and source.log_path is not None and (limit is None or limit > 0):
-        raise no_scans(source, failure)  # an empty map from an empty or foreign file is not a result
+            tally.add(pipeline.step(scan))
+    tally.check(source, limit, failure)
     if isinstance(pipeline, GraphMapper):
         snapshot = pipeline.finish()
-        median, p99 = pipeline.front.timing_ms()
+        timing = pipeline.front.timing_ms()
     else:
         pipeline.flush()
         snapshot = pipeline.snapshot()
-        median, p99 = pipeline.timing_ms()
-    seconds = time.perf_counter() - start
+        timing = pipeline.timing_ms()
     closures = len(pipeline.closures) if isinstance(pipeline, GraphMapper) else 0
-    run = MapRun(snapshot, count, seconds, icp, median, p99, closures)
-    if failure is not None:
-        raise MappingStoppedError(failure, run)
-    return run
+    return tally.run(snapshot, timing, closures, failure)
+
+
+@dataclass(slots=True)
+class _Tally:
+    """A run's scans stepped and ICP corrections, and its clock (from the second scan on: the first
+    compiles the kernels, once per machine, which is not throughput)."""
+
+    on_step: Callable[[int], None] | None
+    count: int = 0
+    icp: int = 0
+    start: float = field(default_factory=time.perf_counter)
+
+    def add(self, result: StepResult) -> None:
+        self.count += 1
+        self.icp += result.icp_used
+        if self.count == 1:
+            self.start = time.perf_counter()
+        if self.on_step is not None:
+            self.on_step(self.count)
+
+    def check(self, source: Source, limit: int | None, failure: LinemapError | None) -> None:
+        """:class:`NoScansError` when a log gave no scans: an empty map from an empty or foreign file is
+        not a result."""
+        if self.count == 0 and source.log_path is not None and (limit is None or limit > 0):
+            raise no_scans(source, failure)
+
+    def run(
+        self,
+        snapshot: MapSnapshot,
+        timing_ms: tuple[float, float],
+        closures: int,
+        failure: LinemapError | None,
+    ) -> MapRun:
+        """The :class:`MapRun`, or :class:`MappingStoppedError` carrying it after a broken record."""
+        seconds = time.perf_counter() - self.start
+        run = MapRun(snapshot, self.count, seconds, self.icp, *timing_ms, closures)
+        if failure is not None:
+            raise MappingStoppedError(failure, run)
+        return run
 
 
 #: scans the front end's process may be ahead of the graph (what waits in the pipes)
@@ -234,8 +262,8 @@ def _map_beside_front(
     mapper = GraphMapper(
         lambda: Pipeline(config, laser_offset=source.laser_offset), loop_closure, front=front
     )
-    count = icp = read = 0
-    start = time.perf_counter()
+    tally = _Tally(on_step)
+    read = 0
     failure: LinemapError | None = None
     pending: deque[Scan] = deque()
     with source.closer or nullcontext(), FrontEndProcess(config, source.laser_offset) as child:
@@ -263,23 +291,10 @@ def _map_beside_front(
 
         read_ahead()
         for tracked in child.results():
-            result = mapper.step(pending.popleft(), tracked=tracked)
-            count += 1
-            icp += result.icp_used
-            if count == 1:  # the first step compiles the kernels (once per machine): not throughput
-                start = time.perf_counter()
-            if on_step is not None:
-                on_step(count)
+            tally.add(mapper.step(pending.popleft(), tracked=tracked))
             read_ahead()
-        median, p99 = child.timing_ms
-    if count == 0 and source.log_path is not None and (limit is None or limit > 0):
-        raise no_scans(source, failure)
-    snapshot = mapper.finish()
-    seconds = time.perf_counter() - start
-    run = MapRun(snapshot, count, seconds, icp, median, p99, len(mapper.closures))
-    if failure is not None:
-        raise MappingStoppedError(failure, run)
-    return run
+    tally.check(source, limit, failure)
+    return tally.run(mapper.finish(), child.timing_ms, len(mapper.closures), failure)
 
 
 def loop_settings(

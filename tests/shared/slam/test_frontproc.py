@@ -8,7 +8,7 @@ import os
 import pickle
 import signal
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import pytest
 
@@ -65,37 +65,34 @@ class KernelFailedError(LinemapError):
     pass
 
 
-def test_a_front_end_error_in_the_child_is_raised_as_it_was(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The child is forked from this process, so a step patched here fails there."""
+def patch_step(monkeypatch: pytest.MonkeyPatch, at: int, act: Callable[[], None]) -> None:
+    """Make the ``at``-th call of ``Pipeline.step`` in the front end's process ``act`` first. The child is
+    forked from this process, so a step patched here is patched there."""
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the patch reaches the child only by fork")
     calls = {"n": 0}
     step = Pipeline.step
 
-    def failing(self: Pipeline, scan: Scan, odometry: Pose2D | None = None, **kw: object) -> StepResult:
+    def patched(self: Pipeline, scan: Scan, odometry: Pose2D | None = None, **kw: object) -> StepResult:
         calls["n"] += 1
-        if calls["n"] == 25:
-            raise KernelFailedError("kernel 'icp' raised: matrix is singular")
+        if calls["n"] == at:
+            act()
         return step(self, scan, odometry, **kw)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(Pipeline, "step", failing)
-    if not sys.platform.startswith("linux"):
-        pytest.skip("the patch reaches the child only by fork")
+    monkeypatch.setattr(Pipeline, "step", patched)
+
+
+def test_a_front_end_error_in_the_child_is_raised_as_it_was(monkeypatch: pytest.MonkeyPatch) -> None:
+    def fail() -> None:
+        raise KernelFailedError("kernel 'icp' raised: matrix is singular")
+
+    patch_step(monkeypatch, 25, fail)
     with pytest.raises(KernelFailedError, match="matrix is singular"):
         _run(True, limit=60)
 
 
 def test_a_child_that_dies_is_named(monkeypatch: pytest.MonkeyPatch) -> None:
-    calls = {"n": 0}
-    step = Pipeline.step
-
-    def dying(self: Pipeline, scan: Scan, odometry: Pose2D | None = None, **kw: object) -> StepResult:
-        calls["n"] += 1
-        if calls["n"] == 10:
-            os.kill(os.getpid(), signal.SIGKILL)
-        return step(self, scan, odometry, **kw)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(Pipeline, "step", dying)
-    if not sys.platform.startswith("linux"):
-        pytest.skip("the patch reaches the child only by fork")
+    patch_step(monkeypatch, 10, lambda: os.kill(os.getpid(), signal.SIGKILL))
     with pytest.raises(FrontEndProcessError, match="exit code -9"):
         _run(True, limit=60)
 
