@@ -23,7 +23,7 @@ from shared.cli.report import report_cmd
 from shared.cli.worlds import bench_worlds_cmd
 from shared.errors import LinemapError
 
-__all__ = ["app"]
+__all__ = ["app", "interrupted", "main"]
 
 app = typer.Typer(
     name="linemap",
@@ -329,6 +329,18 @@ def eval_cmd(
     console.print(evaluation_table(figures))
 
 
+def interrupted(exc: BaseException) -> bool:
+    """Whether ``exc`` is, or was raised while handling or because of, a ``KeyboardInterrupt`` (O(chain))."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, KeyboardInterrupt):
+            return True
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return False
+
+
 def main() -> None:
     """Entry point of the ``linemap`` command: an unexpected failure prints one line, not a traceback (run
     with ``--verbose`` to log it in full)."""
@@ -338,6 +350,9 @@ def main() -> None:
         err_console.print(f"[red]error:[/red] {escape(str(exc))}")  # text in [brackets] shown as is
         raise SystemExit(2) from None
     except Exception as exc:  # the last line of defence; expected errors are handled per command
+        if interrupted(exc):  # Ctrl-C that landed in compiled code (numba: "returned a result with an
+            err_console.print("interrupted")  # exception set") comes out wrapped: still Ctrl-C, not a bug
+            raise SystemExit(130) from None
         logging.getLogger(__name__).debug("unexpected failure", exc_info=True)
         err_console.print(
             f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))} "

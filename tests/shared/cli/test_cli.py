@@ -61,3 +61,39 @@ def test_unwritable_json_path_is_reported(tmp_path: Path) -> None:
     out = linemap("bench", "kernels", "--runs", "5", "--json", str(tmp_path / "missing-dir" / "x.json"))
     assert out.returncode == 2
     assert "cannot write" in out.stderr and "Traceback" not in out.stderr
+
+
+def _raise_from_ctrl_c() -> None:
+    """What numba raises when Ctrl-C arrives inside a compiled function: a SystemError chained to it."""
+    try:
+        raise KeyboardInterrupt
+    except KeyboardInterrupt as ctrl_c:
+        raise SystemError("CPUDispatcher(<function f>) returned a result with an exception set") from ctrl_c
+
+
+def test_ctrl_c_inside_compiled_code_is_an_interruption_not_a_bug(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from shared.cli import main as cli_main
+
+    monkeypatch.setattr(cli_main, "app", _raise_from_ctrl_c)
+    with pytest.raises(SystemExit) as caught:
+        cli_main.main()
+    assert caught.value.code == 130
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "internal error" not in err
+
+
+def test_an_unexpected_failure_is_still_called_a_bug(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from shared.cli import main as cli_main
+
+    def broken() -> None:
+        raise SystemError("returned a result with an exception set")
+
+    monkeypatch.setattr(cli_main, "app", broken)
+    with pytest.raises(SystemExit) as caught:
+        cli_main.main()
+    assert caught.value.code == 3
+    assert "internal error: SystemError" in capsys.readouterr().err
