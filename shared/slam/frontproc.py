@@ -21,9 +21,12 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import os
 import pickle
 import queue
 import sys
+import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from types import TracebackType
@@ -67,11 +70,12 @@ class FrontEndProcessError(SlamError):
 
 
 def _child(
-    config: PipelineConfig, laser_offset: Pose2D, inbox: Any, outbox: Any
+    config: PipelineConfig, laser_offset: Pose2D, inbox: Any, outbox: Any, parent: int
 ) -> None:  # pragma: no cover - runs in the child process (tests cover it through FrontEndProcess)
     """The child: step a tracking-only pipeline through the scans of ``inbox`` (batches of ``(scan,
     odometry)``, ``None`` at the end), putting a batch of :class:`Tracked` on ``outbox`` for each, then
     ``("done", (median_ms, p99_ms))``; an error goes as ``("error", exception or text)``."""
+    _orphan_watch(parent)
     try:
         front = Pipeline(config, laser_offset=laser_offset, track_only=True)
         while (batch := inbox.get()) is not None:
@@ -89,6 +93,20 @@ def _child(
             outbox.put(("error", f"{type(exc).__name__}: {exc}"))
 
 
+def _orphan_watch(parent: int) -> None:  # pragma: no cover - runs in the child process
+    """End the child at once when its parent process is gone (killed: nobody is left to say so, and a
+    read of a message the parent was half-way through writing would wait for ever). Checked every half
+    second on a daemon thread, whatever the child's main thread is blocked on."""
+
+    def watch() -> None:
+        while True:
+            if os.getppid() != parent:
+                os._exit(0)
+            time.sleep(0.5)
+
+    threading.Thread(target=watch, name="linemap-front-end-watch", daemon=True).start()
+
+
 class FrontEndProcess:
     """A tracking-only front end (``Pipeline(config, laser_offset, track_only=True)``) in a child process
     (module docstring). Use as a context manager; not thread-safe beyond one sender and one reader."""
@@ -102,7 +120,7 @@ class FrontEndProcess:
         self._outbox: Any = ctx.Queue()
         self._process = ctx.Process(
             target=_child,
-            args=(config, laser_offset, self._inbox, self._outbox),
+            args=(config, laser_offset, self._inbox, self._outbox, os.getpid()),
             name="linemap-front-end",
             daemon=True,
         )

@@ -7,8 +7,11 @@ from __future__ import annotations
 import os
 import pickle
 import signal
+import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 
@@ -106,3 +109,56 @@ def test_leaving_early_stops_the_child() -> None:
         assert first.result.version == 1
         process = child._process
     assert not process.is_alive()
+
+
+_STUCK_PARENT = """
+import threading
+from shared.mapping import Source, map_scans
+from shared.pipeline import PipelineConfig
+from shared.sim import default_world, simulate_run
+from shared.slam import LoopClosureSettings
+from shared.types import Pose2D
+
+run = simulate_run(default_world(), seed=0)
+
+def scans():
+    yield from run.scans[:30]
+    threading.Event().wait()  # the input stalls: the parent waits here, the child for scans
+
+map_scans(Source("stalled", scans(), Pose2D(), None), PipelineConfig(), loop_closure=LoopClosureSettings(),
+          front_process=True)
+"""
+
+
+def _children(pid: int) -> list[int]:
+    path = Path(f"/proc/{pid}/task/{pid}/children")
+    return [int(c) for c in path.read_text().split()] if path.exists() else []
+
+
+def _running(pid: int) -> bool:
+    """Whether ``pid`` exists and is not a zombie waiting to be reaped."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def test_the_child_does_not_outlive_a_killed_parent() -> None:
+    """``kill -9`` of ``linemap map``: nobody is left to tell the child, which must end by itself."""
+    if not Path("/proc/self/task").exists():
+        pytest.skip("reads the process tree from /proc")
+    parent = subprocess.Popen([sys.executable, "-c", _STUCK_PARENT])
+    try:
+        deadline = time.monotonic() + 120.0
+        while not (kids := _children(parent.pid)):
+            assert parent.poll() is None, "the mapping process ended before it started its child"
+            assert time.monotonic() < deadline, "no front-end child process appeared"
+            time.sleep(0.05)
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 60.0
+    while any(_running(k) for k in kids):
+        assert time.monotonic() < deadline, f"the front end's process {kids} outlived its parent"
+        time.sleep(0.05)
