@@ -4,6 +4,8 @@ own loop-closure mapper (:class:`robot_agent.mapping.PipelineSlot` with loop clo
 :class:`~shared.slam.OnlineGraphMapper` with its worker threads and the agent's bounded history; the map
 is the same whatever the worker's timing). Every ``--every`` steps it prints the keyframes (all, and
 those still holding their scan), the scans kept for redraws (all, and those still held), the closures,
+the pose graph's nodes in the solver and its edges, the median and largest step time (ms) since the row
+before,
 the saved state's size and the time to take it and make its bytes, the last rebuild's time, and the
 shown map against the world's walls (mean and 95th-percentile distance, walls, spurious share, the
 share of the world's wall length mapped).
@@ -33,8 +35,14 @@ from shared.slam import OnlineGraphMapper
 __all__ = ["main"]
 
 
-def _row(online: OnlineGraphMapper, walls_true, step: int, t_run_s: float) -> dict[str, float | int]:  # type: ignore[no-untyped-def]
+def _row(  # type: ignore[no-untyped-def]
+    online: OnlineGraphMapper, walls_true, step: int, t_run_s: float, step_ms: list[float]
+) -> dict[str, float | int]:
     mapper = online._mapper
+    graph = mapper.graph
+    solved = getattr(graph, "solved_nodes", len(graph))  # nodes in the solver (riders are not)
+    edges = len(graph._edges)
+    times = sorted(step_ms) or [0.0]
     t0 = time.perf_counter()
     state = online.state()
     t1 = time.perf_counter()
@@ -52,6 +60,10 @@ def _row(online: OnlineGraphMapper, walls_true, step: int, t_run_s: float) -> di
         "kept_scans": len(mapper.stepped()),
         "kept_scans_held": len(mapper.stepped()) - scans_retired,
         "closures": online.closures,
+        "graph_nodes": solved,
+        "graph_edges": edges,
+        "step_p50_ms": round(times[len(times) // 2], 2),
+        "step_max_ms": round(times[-1], 1),
         "state_bytes": size,
         "state_take_ms": round((t1 - t0) * 1e3, 1),
         "state_bytes_ms": round((t2 - t1) * 1e3, 1),
@@ -87,17 +99,21 @@ def main() -> None:
     header = False
     t0 = time.perf_counter()
     step = 0
+    step_ms: list[float] = []
     for step, scan in enumerate(scene_patrol_scans(args.world, seed=args.seed, laps=args.laps), 1):
+        t_step = time.perf_counter()
         online.step(scan)
+        step_ms.append((time.perf_counter() - t_step) * 1e3)
         if step % args.every == 0:
-            rows.append(_row(online, walls_true, step, time.perf_counter() - t0))
+            rows.append(_row(online, walls_true, step, time.perf_counter() - t0, step_ms))
+            step_ms = []
             if not header:
                 print("  ".join(f"{k:>10}" for k in rows[-1]))
                 header = True
             print("  ".join(f"{v:>10}" for v in rows[-1].values()), flush=True)
     online.flush()
     online.wait_idle()
-    rows.append(_row(online, walls_true, step, time.perf_counter() - t0))
+    rows.append(_row(online, walls_true, step, time.perf_counter() - t0, step_ms))
     print("  ".join(f"{v:>10}" for v in rows[-1].values()), "(flushed)")
     if args.json is not None:
         args.json.write_text(json.dumps(rows, indent=1))

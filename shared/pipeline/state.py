@@ -37,7 +37,8 @@ __all__ = ["STATE_FORMAT", "MapperState", "decode_tree", "encode_tree", "registe
 #: 2: the graph mapper's pending jobs, its solver's history and its per-step rows (2026-12-06)
 #: 3: places (retired keyframes and kept scans, shared.slam.places), the keyframes' rows, the pose graph's
 #: estimate and edges as arrays (2026-12-06)
-STATE_FORMAT = 3
+#: 4: the pose graph's riders (retired keyframes carried by a newer node, shared.slam.riders) (2026-12-07)
+STATE_FORMAT = 4
 #: the bytes form starts with this, then the zlib-compressed archive
 _MAGIC = b"LMSTATE\x00"
 

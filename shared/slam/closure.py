@@ -185,7 +185,7 @@ def verify(
     return LoopMatch(candidate, pose, info.inlier_share, fine_spread)
 
 
-def chain_covariance(poses: Sequence[Pose2D], covariances: Sequence[FloatArray]) -> FloatArray:
+def chain_covariance(poses: Sequence[Pose2D], covariances: Sequence[FloatArray] | FloatArray) -> FloatArray:
     """Covariance ``(3, 3)`` of the last of ``poses`` in the frame of the first, by dead reckoning along
     the chain: ``covariances[m]`` ``(3, 3)`` is that of the motion from ``poses[m]`` to ``poses[m + 1]``
     (in the frame of ``poses[m]``); first order, ``sum_m A_m S_m A_m^T`` with

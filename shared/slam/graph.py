@@ -8,6 +8,11 @@ edges arrive; :meth:`PoseGraph.optimise_batch` re-solves the whole graph with Le
 offline final pass). gtsam's ``Pose2`` tangent order ``(x, y, theta)`` is the order of every information
 matrix here (per m^2, m rad, rad^2).
 
+**Riders** (:mod:`shared.slam.riders`): a node handed to :meth:`PoseGraph.ride` (a keyframe retired at a
+place a newer one holds, :mod:`shared.slam.places`) leaves the solver at its next rebuild from scratch and
+is carried by its anchor at a fixed offset; its edges are carried onto the anchor and fused, so the
+solver's nodes and edges are bounded by the places, not by the distance driven.
+
 An update that gtsam refuses (an indeterminate system, a non-finite value) raises
 :class:`~shared.slam.errors.OptimisationError`; the estimate from before it stays in force.
 
@@ -24,6 +29,7 @@ import gtsam
 import numpy as np
 
 from shared.slam.errors import OptimisationError
+from shared.slam.riders import EDGE_WIDTH, LOOP, RIDE_WIDTH, carry, inverse_edge, take_riders
 from shared.slam.rows import Rows
 from shared.types import FloatArray, Pose2D, wrap_angle
 
@@ -52,9 +58,9 @@ def _pose2(p: Pose2D) -> gtsam.Pose2:
     return gtsam.Pose2(p.x_m, p.y_m, p.theta_rad)
 
 
-#: an edge as a row of :attr:`PoseGraph._edges`: i, j, the measurement (x, y, theta), loop (0/1) and the
-#: information's 9 entries (row-major)
-_EDGE_WIDTH = 15
+#: an edge as a row of :attr:`PoseGraph._edges`: i, j, the measurement (x, y, theta), its kind (bits:
+#: a loop closure 1, carried from a rider 2; shared.slam.riders) and the information's 9 entries (row-major)
+_EDGE_WIDTH = EDGE_WIDTH
 
 
 def _edge_row(e: Edge) -> list[float]:
@@ -65,22 +71,34 @@ def _edge_row(e: Edge) -> list[float]:
 def _edge_of(row: FloatArray) -> Edge:
     i, j, x, y, th, loop = row[:6].tolist()
     info = np.array(row[6:15], dtype=np.float64).reshape(3, 3)
-    return Edge(int(i), int(j), Pose2D(x, y, th), info, bool(loop))
+    return Edge(int(i), int(j), Pose2D(x, y, th), info, bool(int(loop) & LOOP))
 
 
-def _poses_of(values: gtsam.Values, n: int) -> FloatArray:
-    """Nodes ``0..n-1`` of ``values`` as read-only rows ``(n, 3)`` ``[x_m, y_m, theta_rad]``, in key order
-    (one C++ call: the per-node ``atPose2``, and a ``Pose2D`` per node, took a third of an update's time
-    on long graphs). O(n)."""
+def _poses_of(values: gtsam.Values, rides: FloatArray) -> FloatArray:
+    """Nodes ``0..n-1`` as read-only rows ``(n, 3)`` ``[x_m, y_m, theta_rad]``: those in the solver read
+    off ``values`` in key order (one C++ call: the per-node ``atPose2``, and a ``Pose2D`` per node, took a
+    third of an update's time on long graphs), the riders composed from their anchors (``rides``: rows of
+    the rider table, :data:`~shared.slam.riders.RIDE_WIDTH`). O(n), vectorised."""
     arr = np.array(gtsam.utilities.extractPose2(values), dtype=np.float64).reshape(-1, 3)
-    if len(arr) != n:
-        raise OptimisationError(f"the solution holds {len(arr)} poses for {n} nodes")
+    anchor = rides[:, 0].astype(np.intp)
+    solved = np.flatnonzero(anchor < 0)
+    if len(arr) != len(solved):
+        raise OptimisationError(f"the solution holds {len(arr)} poses for {len(solved)} nodes")
     if not np.isfinite(arr).all():
         raise OptimisationError("the solution holds a pose that is not finite")
-    th = arr[:, 2]
+    out = np.empty((len(rides), 3))
+    out[solved] = arr
+    riders = np.flatnonzero(anchor >= 0)
+    if len(riders):
+        base, off = out[anchor[riders]], rides[riders, 1:4]
+        c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
+        out[riders, 0] = base[:, 0] + c * off[:, 0] - s * off[:, 1]
+        out[riders, 1] = base[:, 1] + s * off[:, 0] + c * off[:, 1]
+        out[riders, 2] = base[:, 2] + off[:, 2]
+    th = out[:, 2]
     for i in np.flatnonzero((th <= -math.pi) | (th > math.pi)).tolist():  # as Pose2D wraps: (-pi, pi]
         th[i] = wrap_angle(float(th[i]))
-    return _frozen(arr)
+    return _frozen(out)
 
 
 def _frozen(arr: FloatArray) -> FloatArray:
@@ -122,6 +140,10 @@ class PoseGraph:
         self._base: tuple[int, int, FloatArray] = (0, 0, np.zeros((0, 3)))
         self._log: list[tuple[int, int, bool]] = []
         self._guesses: list[Pose2D] = []
+        # per node: the node it rides on (-1: in the solver) and its offset there (x, y, theta); and the
+        # nodes handed to ride() for the next rebuild from scratch, with their anchors
+        self._rides = Rows(RIDE_WIDTH)
+        self._queued: list[tuple[int, int]] = []
         self._fresh_solver()
 
     def _fresh_solver(self) -> None:
@@ -159,15 +181,21 @@ class PoseGraph:
             self._new_values = gtsam.Values()
 
     def _queue_graph(self, estimate: FloatArray, edges: FloatArray) -> None:
-        """The anchor, every node at ``estimate`` (rows) and ``edges``, queued for one update."""
+        """The anchor, every node in the solver at ``estimate`` (rows) and ``edges``, queued for one
+        update."""
         self._prior()
+        riding = self._rides.view()[: len(estimate), 0] >= 0
         for k, (x, y, th) in enumerate(estimate.tolist()):
-            self._new_values.insert(k, gtsam.Pose2(x, y, th))
+            if not riding[k]:
+                self._new_values.insert(k, gtsam.Pose2(x, y, th))
         self._queue_edges(edges)
 
-    def _resolve(self) -> None:
-        """Build the solver from scratch: every node at its estimate, every edge, one update (the estimate
-        stays); the history starts again here. O(graph)."""
+    def _resolve(self, take_riders: bool = True) -> None:
+        """Build the solver from scratch: the nodes handed to :meth:`ride` leave it, then every node in it
+        at its estimate, every edge, one update (the estimate stays); the history starts again here.
+        O(graph)."""
+        if self._queued and take_riders:
+            self._take_riders()
         self._fresh_solver()
         self._base = (len(self._estimate), len(self._edges), self.pose_array())
         self._log, self._guesses = [], []
@@ -200,14 +228,14 @@ class PoseGraph:
                     self._estimate = np.vstack([self._estimate, _row(guess)])
                 self._queue_edges(self._edges.view()[edges:e_after])
                 edges = e_after
-                self._estimate = _poses_of(self._solve(loops), len(self._estimate))
+                self._estimate = _poses_of(self._solve(loops), self._rides.view()[: len(self._estimate)])
         except (OptimisationError, IndexError) as exc:
             log.warning("the pose graph's solver did not replay (%s); rebuilt from the saved estimate", exc)
         exact = self._estimate.shape == saved.shape and bool(np.array_equal(self._estimate, saved))
         self._estimate = saved
         if not exact:
             log.warning("the pose graph's solver replayed to another estimate; rebuilt from the saved one")
-            self._resolve()
+            self._resolve(take_riders=False)
         else:
             self._log, self._guesses = history, guesses
 
@@ -216,8 +244,19 @@ class PoseGraph:
         return len(self._estimate)
 
     @property
+    def solved_nodes(self) -> int:
+        """How many nodes are in the solver (the others ride on them). O(n)."""
+        return int(np.count_nonzero(self._rides.view()[:, 0] < 0))
+
+    def riding_on(self, index: int) -> int:
+        """The node that node ``index`` rides on, or ``index`` itself while it is in the solver. O(1)."""
+        anchor = int(self._rides.row(index)[0])
+        return index if anchor < 0 else anchor
+
+    @property
     def edges(self) -> tuple[Edge, ...]:
-        """Every edge added so far, in order. O(edges)."""
+        """The edges, in order: each as added, but those of riders carried onto their anchors and fused at
+        each rebuild from scratch (:mod:`shared.slam.riders`). O(edges)."""
         return tuple(_edge_of(row) for row in self._edges.view())
 
     def add_node(self, guess: Pose2D) -> int:
@@ -229,7 +268,27 @@ class PoseGraph:
             self._prior()
         self._estimate = _frozen(np.vstack([self._estimate, _row(guess)]))
         self._guesses.append(guess)
+        self._rides.append((-1.0, *[0.0] * (RIDE_WIDTH - 1)))
         return index
+
+    def ride(self, index: int, anchor: int) -> None:
+        """From the next rebuild from scratch, node ``index`` leaves the solver and rides on node ``anchor``
+        (a newer node at its place) at their relative estimate then, if a loop closure joins the two
+        directly; its edges are carried onto the anchor (:mod:`shared.slam.riders`). The first node (the
+        graph's anchor) and a node already riding stay as they are. O(1)."""
+        if not 0 < index < len(self._estimate) or not 0 <= anchor < len(self._estimate) or index == anchor:
+            return
+        self._queued.append((index, anchor))
+
+    def _take_riders(self) -> None:
+        """The queued riders out of the solver and every edge carried and fused
+        (:func:`~shared.slam.riders.take_riders`). O(graph)."""
+        est = self._estimate
+        rides, edges = take_riders(
+            self._rides.view()[: len(est)], self._queued, est, self._edges.view(), self._robust_sigmas
+        )
+        self._queued = []
+        self._rides, self._edges = Rows.of(rides), Rows.of(edges)
 
     def add_edge(self, i: int, j: int, measurement: Pose2D, information: FloatArray, *, loop: bool) -> None:
         """Measurement of node ``j`` in the frame of node ``i`` with ``information`` (positive definite)
@@ -238,10 +297,24 @@ class PoseGraph:
         info = np.asarray(information, dtype=np.float64)
         if info.shape != (3, 3) or not np.isfinite(info).all() or np.linalg.eigvalsh(info)[0] <= 0.0:
             raise OptimisationError(f"edge {i}->{j}: information {info.tolist()} is not positive definite")
-        self._edges.append(_edge_row(Edge(i, j, measurement, info, loop)))
+        row = np.array(_edge_row(Edge(i, j, measurement, info, loop)))
+        a_i, a_j = self.riding_on(i), self.riding_on(j)
+        if (a_i, a_j) != (i, j):  # an end rides on another node: the edge goes to it (riders.carry)
+            if a_i == a_j:
+                return
+            rides = self._rides.view()
+            off_i = rides[i, 1:4] if a_i != i else np.zeros(3)
+            off_j = rides[j, 1:4] if a_j != j else np.zeros(3)
+            row = carry(row, off_i, off_j, a_i, a_j)
+            if a_i > a_j:
+                row = inverse_edge(row)
+        self._edges.append(row.tolist())
+        e = _edge_of(row)
         self._loop_pending = self._loop_pending or loop
         self._new_factors.add(
-            gtsam.BetweenFactorPose2(i, j, _pose2(measurement), self._noise(_local(info, measurement), loop))
+            gtsam.BetweenFactorPose2(
+                e.i, e.j, _pose2(e.measurement), self._noise(_local(e.information, e.measurement), loop)
+            )
         )
 
     def _noise(self, info: FloatArray, loop: bool) -> gtsam.noiseModel.Base:
@@ -260,7 +333,7 @@ class PoseGraph:
             return
         loops, self._loop_pending = self._loop_pending, False
         self._log.append((len(self._estimate), len(self._edges), loops))
-        self._estimate = _poses_of(self._solve(loops), len(self._estimate))
+        self._estimate = _poses_of(self._solve(loops), self._rides.view()[: len(self._estimate)])
         if len(self._log) >= RESOLVE_EVERY_UPDATES:
             self._resolve()
 
@@ -280,15 +353,17 @@ class PoseGraph:
                 )
             )
         initial = gtsam.Values()
+        riding = self._rides.view()[: len(self._estimate), 0] >= 0
         for k, (x, y, th) in enumerate(self._estimate.tolist()):
-            initial.insert(k, gtsam.Pose2(x, y, th))
+            if not riding[k]:
+                initial.insert(k, gtsam.Pose2(x, y, th))
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations)
         try:
             result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
         except RuntimeError as exc:
             raise OptimisationError(f"batch optimisation failed: {exc}") from exc
-        poses = _poses_of(result, len(self._estimate))
+        poses = _poses_of(result, self._rides.view()[: len(self._estimate)])
         if np.isfinite(poses).all():
             self._estimate = poses
             self._resolve()
@@ -312,7 +387,8 @@ class PoseGraph:
     def covariance(self, index: int) -> FloatArray:
         """The marginal covariance of node ``index`` ``(3, 3)`` over world-frame ``(x_m, y_m, theta_rad)``
         (iSAM2's, in the node's own frame, rotated into the world's). Cost: a Bayes tree marginal, small
-        for recent nodes (they sit near the root)."""
+        for recent nodes (they sit near the root). A rider's is its anchor's (its offset is held fixed)."""
+        index = self.riding_on(index)
         try:
             local = np.asarray(self._isam.marginalCovariance(index), dtype=np.float64)
         except RuntimeError as exc:

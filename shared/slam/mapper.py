@@ -135,7 +135,7 @@ class GraphMapper:
         self.places = Places(places)
         self._spacing = redraw_spacing
         self._kept_at: Pose2D | None = None
-        self._seq_cov: list[FloatArray] = []  # covariance of the sequential edge k -> k + 1
+        self._seq_cov = Rows(9)  # covariance of the sequential edge k -> k + 1 (row-major)
         #: search for loop closures in the step (offline); the online mapper searches on a worker instead
         self.search_inline = True
         self.adopt_front()
@@ -215,7 +215,7 @@ class GraphMapper:
         k = self.graph.add_node(guess)
         seq_info = self._sequential_information(prev, key, motion)
         self.graph.add_edge(k_prev, k, motion, seq_info, loop=False)
-        self._seq_cov.append(np.asarray(np.linalg.inv(seq_info), dtype=np.float64))
+        self._seq_cov.append(np.linalg.inv(seq_info).ravel().tolist())
         self._add_skip_edges(k)
         if self.settings.enabled and self.search_inline:
             self.add_closures(k, self.find_closures(k))
@@ -273,7 +273,8 @@ class GraphMapper:
     def chain_covariance(self, c: int, k: int) -> FloatArray:
         """Covariance ``(3, 3)`` of keyframe ``k`` in keyframe ``c``'s frame by the sequential edges alone
         (:func:`shared.slam.closure.chain_covariance`). O(k - c)."""
-        return chain_covariance([kf.frontend for kf in self.keyframes[c : k + 1]], self._seq_cov[c:k])
+        covariances = self._seq_cov.view()[c:k].reshape(-1, 3, 3)
+        return chain_covariance([kf.frontend for kf in self.keyframes[c : k + 1]], covariances)
 
     def _consistent(self, c: int, k: int, pose: Pose2D, info: FloatArray) -> bool:
         """Whether a loop closure ``pose`` (keyframe ``k`` in ``c``'s frame) agrees with the graph's
@@ -486,7 +487,10 @@ class GraphMapper:
         limit = travelled[k] - max(s.recent_m, SKIP_MAX_M) - s.keyframe_m
         n = len(estimate)
         old = np.flatnonzero(p.keyframes_held()[:n] & (travelled[:n] < limit))
-        p.retire_keyframes(near(estimate, old, estimate[k], s.keyframe_m / 2, s.keyframe_rad))
+        retired = near(estimate, old, estimate[k], s.keyframe_m / 2, s.keyframe_rad)
+        p.retire_keyframes(retired)
+        for r in retired.tolist():  # out of the solver at its next rebuild, carried by k (shared.slam.riders)
+            self.graph.ride(int(r), k)
         kept = self._kept.view()
         keys = kept[:, 3].astype(np.intp)
         new = np.flatnonzero(keys == k - 1)

@@ -9,12 +9,13 @@ current stretch to the earlier visit (a loop closure accepted within :data:`TIED
 the estimate of where it is is then good), each new keyframe **retires** the older keyframes at its place
 (within half the keyframe spacing and the keyframe turn), and each new kept scan the older kept scans at
 its place (within :data:`SCAN_PLACE`) beyond the newest :data:`SCANS_PER_PLACE` there. A retired
-keyframe stays a node of the pose graph (its pose, its edges: a few hundred bytes) but is no longer a
-loop-search candidate and gives up its scan; a retired kept scan is not mapped again by later rebuilds
-and gives up its returns. What is held is then bounded by the places visited (area x headings), not by
-the distance driven. The idea is the reduced pose graph's
-(Johannsson et al., ICRA 2013: "Temporally scalable visual SLAM using a reduced pose graph") applied to
-the scans; the nodes themselves still grow with distance, a few hundred bytes each.
+keyframe is no longer a loop-search candidate and gives up its scan, and it leaves the graph's solver: it
+rides on the keyframe that retired it, its edges carried onto that one (:mod:`shared.slam.riders`); a
+retired kept scan is not mapped again by later rebuilds and gives up its returns. What is held and solved
+is then bounded by the places visited (area x headings), not by the distance driven. The idea is the
+reduced pose graph's (Johannsson et al., ICRA 2013: "Temporally scalable visual SLAM using a reduced pose
+graph"); what still grows with distance is a few rows per keyframe (its front-end pose, its rider offset,
+its sequential covariance) and one record per closure.
 
 **The same map whatever the timing.** Retirements are decided in the step (at the join of a keyframe's
 loop search, a fixed step), numbered in order; a job (a loop search, a rebuild) reads only what was held

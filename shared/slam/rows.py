@@ -22,6 +22,15 @@ class Rows:
         self.data: FloatArray = np.zeros((16, width), dtype=np.float64)
         self.n = 0
 
+    @classmethod
+    def of(cls, rows: FloatArray) -> Rows:
+        """Rows holding a copy of ``rows`` ``(n, width)``. O(n)."""
+        out = cls(rows.shape[1])
+        out.data = np.zeros((max(16, 2 * len(rows)), rows.shape[1]), dtype=np.float64)
+        out.data[: len(rows)] = rows
+        out.n = len(rows)
+        return out
+
     def __len__(self) -> int:
         return self.n
 
