@@ -28,14 +28,14 @@ touched it is carried onto the anchor:
   independent witnesses (their offsets come from one estimate), and covariance intersection is consistent
   whatever their correlation, where adding informations would make the graph ever more certain of a place
   the longer the robot drives there. An edge between two nodes in the solver is never fused with a
-  carried one: covariance intersection with an edge the offsets' doubt made weak along a corridor would
-  take from the newer chain's own edge what it knows (tried: corridor-doors lost 16 points of
-  completeness); the two stay side by side, one factor each.
+  carried one: it measures the newer chain, independently of the old laps, and covariance intersection
+  would take from it what it knows whenever the carried edge is weak in some direction; the two stay side
+  by side, one factor each.
 
-So the nodes in the solver and the edges are bounded by the places and their links, not by the distance
-driven. What a rider loses is its own freedom: the chain of an old lap no longer bends on its own, only
-with the places it rides on, which is what retiring it already said (the newer keyframe sees that place
-as it is now).
+So the nodes in the solver grow with the places and with the retired keyframes no closure tied directly
+(a quarter of them on the simulated corridor loop), not with every keyframe. What a rider loses is its own
+freedom: the chain of an old lap no longer bends on its own, only with the places it rides on, which is
+what retiring it already said (the newer keyframe sees that place as it is now).
 
 Pure: arrays in, arrays out. Edge rows are :mod:`shared.slam.graph`'s: ``i, j, x, y, theta``, the kind
 (bits :data:`LOOP`, :data:`CARRIED`) and the information's nine entries (row-major) over the
