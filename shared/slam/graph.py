@@ -30,7 +30,15 @@ import gtsam
 import numpy as np
 
 from shared.slam.errors import OptimisationError
-from shared.slam.riders import EDGE_WIDTH, LOOP, RIDE_WIDTH, carry, inverse_edge, take_riders
+from shared.slam.riders import (
+    EDGE_WIDTH,
+    LOOP,
+    RIDE_WIDTH,
+    carry,
+    inverse_edge,
+    residual_sigmas,
+    take_riders,
+)
 from shared.slam.rows import Rows
 from shared.types import FloatArray, Pose2D, wrap_angle
 
@@ -402,13 +410,6 @@ class PoseGraph:
 
     def residual_sigmas(self, edge: Edge) -> float:
         """How far the current estimate is from ``edge``'s measurement, in the edge's standard deviations
-        (Mahalanobis distance). A loop edge far beyond ``robust_sigmas`` is one the kernel outvoted."""
-        predicted = self.pose(edge.i).between(self.pose(edge.j))
-        d = np.array(
-            [
-                predicted.x_m - edge.measurement.x_m,
-                predicted.y_m - edge.measurement.y_m,
-                math.remainder(predicted.theta_rad - edge.measurement.theta_rad, math.tau),
-            ]
-        )
-        return float(math.sqrt(max(float(d @ edge.information @ d), 0.0)))
+        (Mahalanobis distance; :func:`shared.slam.riders.residual_sigmas`). A loop edge far beyond
+        ``robust_sigmas`` is one the kernel outvoted."""
+        return residual_sigmas(np.array(_edge_row(edge)), self._estimate)
