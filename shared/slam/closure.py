@@ -114,18 +114,28 @@ def candidates(
 
 
 def _coarse(
-    sub: FloatArray, cur: FloatArray, guess: Pose2D, settings: LoopClosureSettings, rot_step: float
+    sub: FloatArray, cur: FloatArray, guess: Pose2D, window: tuple[float, float], rot_step: float
 ) -> tuple[Pose2D, FloatArray, tuple[int, int], BoolArray]:
-    """The window's best pose, per translation cell the best score over the rotations, the chosen cell
-    and the cells that explain the scan about as well (:func:`peak`): ``(pose, scores (S, S), cell,
-    plausible (S, S))``."""
+    """The best pose of the window (``(half-width m, half-width rad)``), per translation cell the best
+    score over the rotations, the chosen cell and the cells that explain the scan about as well
+    (:func:`peak`): ``(pose, scores (S, S), cell, plausible (S, S))``."""
     cell = COARSE_CELL_M
-    surface = ScoreSurface(sub, cur, guess, cell, COARSE_RADIUS_M, settings.window_m, clip_m=30.0)
-    scores, thetas = surface.scores(guess, int(settings.window_rad / rot_step), rot_step)
+    surface = ScoreSurface(sub, cur, guess, cell, COARSE_RADIUS_M, window[0], clip_m=30.0)
+    scores, thetas = surface.scores(guess, int(window[1] / rot_step), rot_step)
     ox, oy = surface.offsets()
     (a, b), plausible = peak(scores, np.hypot(ox, oy))
     pose = Pose2D(guess.x_m + ox[a, b], guess.y_m + oy[a, b], float(thetas[a, b]))
     return pose, scores, (a, b), plausible
+
+
+def _reaches_border(
+    plausible: BoolArray, pose: Pose2D, guess: Pose2D, window_rad: float, step: float
+) -> bool:
+    """Whether a coarse search's plausible cells reach its grid's border or its pose lies on the last
+    rotation of its fan: the scan does not fix the place within the window."""
+    edge = plausible[0, :].any() or plausible[-1, :].any() or plausible[:, 0].any() or plausible[:, -1].any()
+    turn = abs(math.remainder(pose.theta_rad - guess.theta_rad, math.tau))
+    return bool(edge) or turn >= window_rad - 1.5 * step
 
 
 def verify(
@@ -137,11 +147,15 @@ def verify(
     matcher: Any,
     *,
     range_noise: RangeNoise = NO_RANGE_NOISE,
+    window: tuple[float, float] | None = None,
 ) -> LoopMatch | None:
     """Match ``current`` (robot frame of the current keyframe, m) onto ``submap`` (robot frame of keyframe
     ``candidate``) from ``guess`` (the current keyframe in the candidate's frame, from the graph); a
     :class:`LoopMatch` when it passes (module docstring), else ``None``. ``matcher`` is a scan-matching
-    kernel (``apply(reference, current, initial) -> Match``)."""
+    kernel (``apply(reference, current, initial) -> Match``). ``window``: half-widths ``(m, rad)`` of a
+    narrower search that the graph's knowledge of the relative pose allows
+    (:func:`shared.slam.window.search_window`); where its plausible cells reach its border, the
+    settings' whole window is searched instead, so a narrow search never cuts a spread short."""
     sub = submap[np.isfinite(submap).all(axis=1)]
     cur = current[np.isfinite(current).all(axis=1)]
     if len(sub) < MIN_PAIRS or len(cur) < MIN_PAIRS:
@@ -149,7 +163,12 @@ def verify(
     reach = float(np.percentile(np.hypot(cur[:, 0], cur[:, 1]), 90))
     # a rotation step moving the far returns by about one cell
     coarse_step = min(max(0.1 / max(reach, 0.5), 0.004), 0.035)
-    coarse, scores, cell, plausible = _coarse(sub, cur, guess, settings, coarse_step)
+    whole = (settings.window_m, settings.window_rad)
+    used = whole if window is None else (min(window[0], whole[0]), min(window[1], whole[1]))
+    coarse, scores, cell, plausible = _coarse(sub, cur, guess, used, coarse_step)
+    if used != whole and _reaches_border(plausible, coarse, guess, used[1], coarse_step):
+        used = whole
+        coarse, scores, cell, plausible = _coarse(sub, cur, guess, used, coarse_step)
     if ambiguous(scores, cell):
         return None
     fine = correlative_search(
@@ -166,10 +185,10 @@ def verify(
     match = matcher.apply(sub, cur, fine.pose)
     pose = match.pose if match.converged else fine.pose
     shift = guess.between(pose)
-    edge = settings.window_m - 0.1
-    if settings.window_m > 0.15 and (abs(shift.x_m) > edge or abs(shift.y_m) > edge):
+    edge = used[0] - 0.1
+    if used[0] > 0.15 and (abs(shift.x_m) > edge or abs(shift.y_m) > edge):
         return None  # on the window's border: the best place may lie beyond it
-    if abs(math.remainder(pose.theta_rad - guess.theta_rad, math.tau)) > settings.window_rad + 0.02:
+    if abs(math.remainder(pose.theta_rad - guess.theta_rad, math.tau)) > used[1] + 0.02:
         return None
     info = match_information(
         sub, cur, pose, inlier_m=settings.inlier_m, range_noise=range_noise, tree=cKDTree(sub)

@@ -23,6 +23,7 @@ Pure; O(N log M) with scipy's cKDTree (the reference tree may be passed in, buil
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -31,7 +32,7 @@ from scipy.spatial import cKDTree
 
 from shared.pipeline.fusion_solve import fuse_with_odometry
 from shared.pipeline.rangenoise import NO_RANGE_NOISE, RangeNoise
-from shared.types import FloatArray, Pose2D
+from shared.types import FloatArray, IntArray, Pose2D
 
 __all__ = ["MatchInformation", "match_information", "scan_edge"]
 
@@ -46,10 +47,19 @@ class MatchInformation:
     pairs: int
 
 
-def _moments(hood: FloatArray) -> tuple[float, float, float]:
-    """Second central moments ``(sxx, syy, sxy)`` of a neighbourhood ``(K, 2)``."""
-    d = hood - hood.mean(axis=0)
-    return float(d[:, 0] @ d[:, 0]), float(d[:, 1] @ d[:, 1]), float(d[:, 0] @ d[:, 1])
+def _group_moments(
+    points: FloatArray, groups: list[list[int]], sizes: IntArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Per group of ``points`` ``(M, 2)`` (index lists, ``sizes`` their lengths, each > 0) the second
+    central moments ``(sxx, syy, sxy)`` (sums of the products of the deviations from the group's mean),
+    for all groups at once (two passes: the means, then the products). O(sum of sizes)."""
+    idx = np.fromiter(itertools.chain.from_iterable(groups), dtype=np.intp, count=int(sizes.sum()))
+    group = np.repeat(np.arange(len(sizes)), sizes)
+    x, y = points[idx, 0], points[idx, 1]
+    dx = x - (np.bincount(group, x, len(sizes)) / sizes)[group]
+    dy = y - (np.bincount(group, y, len(sizes)) / sizes)[group]
+    n = len(sizes)
+    return np.bincount(group, dx * dx, n), np.bincount(group, dy * dy, n), np.bincount(group, dx * dy, n)
 
 
 def match_information(
@@ -88,10 +98,7 @@ def match_information(
     if not full.any():
         return MatchInformation(np.zeros((3, 3)), share, 0)
     cur, moved = cur[full], moved[full]
-    moments = np.array(
-        [_moments(ref[np.asarray(h, dtype=np.intp)]) for h, f in zip(hoods, full, strict=True) if f]
-    )
-    sxx, syy, sxy = moments[:, 0], moments[:, 1], moments[:, 2]
+    sxx, syy, sxy = _group_moments(ref, [h for h, f in zip(hoods, full, strict=True) if f], sizes[full])
     # eigenvalues of [[sxx, sxy], [sxy, syy]] and the normal (eigenvector of the smaller one)
     half_tr = 0.5 * (sxx + syy)
     root = np.sqrt(np.maximum(0.25 * (sxx - syy) ** 2 + sxy**2, 0.0))

@@ -15,7 +15,9 @@ odometry, the local wall refinement) one scan at a time and keeps, beside it,
 - **skip edges** from 4, 8 and 16 keyframes back where the scans overlap (the front end matches against a
   local wall map, so its error over metres is far below a random walk of its keyframe errors);
 - **loop-closure edges** (:mod:`shared.slam.closure`): verified matches of the current keyframe against
-  an earlier place, robust in the graph (:mod:`shared.slam.graph`).
+  an earlier place, robust in the graph (:mod:`shared.slam.graph`); once a closure tied the robot's
+  stretch to a place, the searches there are as wide as the graph's uncertainty of the relative pose
+  allows (:mod:`shared.slam.window`).
 
 The corrected pose of step ``s`` is ``G(k) F(k)^-1 F(s)`` for the last keyframe ``k`` at or before it
 (``F`` the front end's pose, ``G`` the graph's): the front end runs undisturbed in its own frame, and the
@@ -54,6 +56,7 @@ from shared.slam.information import scan_edge
 from shared.slam.places import SCAN_PLACE, SCANS_PER_PLACE, TIED_KEYFRAMES, Places, near
 from shared.slam.rows import Rows
 from shared.slam.settings import LoopClosureSettings
+from shared.slam.window import search_window
 from shared.types import BoolArray, FloatArray, IntArray, Pose2D, Scan
 
 __all__ = ["GraphMapper", "Keyframe", "LoopClosure"]
@@ -115,6 +118,7 @@ class GraphMapper:
         self.keyframes: list[Keyframe] = []
         self.closures: list[LoopClosure] = []
         self._pairs = Rows(2)  # per closure: its current and candidate keyframe (counted vectorised)
+        self._pair_cov = Rows(9)  # per closure: its covariance (row-major; the search windows it allows)
         self.candidates_tried = 0
         self.optimise_ms: list[float] = []
         # per step: stamp, the front end's pose (x, y, theta), its keyframe; ``history`` poses at most
@@ -225,15 +229,22 @@ class GraphMapper:
             self._update()
 
     def find_closures(
-        self, k: int, poses: FloatArray | None = None, held_upto: int | None = None
+        self,
+        k: int,
+        poses: FloatArray | None = None,
+        held_upto: int | None = None,
+        closures_upto: int | None = None,
     ) -> list[LoopMatch]:
         """The verified loop closures of keyframe ``k`` (the slow part: correlative searches) with the
         graph's estimate ``poses`` (``(K, 3)`` rows of :meth:`PoseGraph.pose_array`, K > k; default: the
         current one) against the keyframes held when ``held_upto`` keyframes had been retired
-        (:mod:`shared.slam.places`; default: now). Changes nothing and reads only keyframes up to
-        ``K - 1``, so with ``poses`` and ``held_upto`` taken when ``k`` was added it may run beside the step
-        (:mod:`shared.slam.online`) and finds the same closures whenever it runs."""
-        return self._loop_matches(k, self.graph.pose_array() if poses is None else poses, held_upto)
+        (:mod:`shared.slam.places`; default: now), each search's window narrowed by the first
+        ``closures_upto`` accepted closures (:mod:`shared.slam.window`; default: all). Changes nothing and
+        reads only keyframes up to ``K - 1``, so with ``poses``, ``held_upto`` and ``closures_upto`` taken
+        when ``k`` was added it may run beside the step (:mod:`shared.slam.online`) and finds the same
+        closures whenever it runs."""
+        estimate = self.graph.pose_array() if poses is None else poses
+        return self._loop_matches(k, estimate, held_upto, closures_upto)
 
     def add_closures(self, k: int, matches: list[LoopMatch]) -> int:
         """Turn verified ``matches`` of keyframe ``k`` into loop edges (refined, held where blind, checked
@@ -258,6 +269,7 @@ class GraphMapper:
             self.graph.add_edge(match.candidate, k, pose, info / (1 + n), loop=True)
             self.closures.append(LoopClosure(k, match.candidate, pose, match.inlier_share))
             self._pairs.append((k, match.candidate))
+            self._pair_cov.append(np.linalg.inv(info).ravel().tolist())
             added += 1
         self._update()
         return added
@@ -352,10 +364,16 @@ class GraphMapper:
             info = info + model * np.outer(d, d)
         return with_floor(info, motion)
 
-    def _loop_matches(self, k: int, estimate: FloatArray, held_upto: int | None) -> list[LoopMatch]:
+    def _loop_matches(
+        self, k: int, estimate: FloatArray, held_upto: int | None, closures_upto: int | None
+    ) -> list[LoopMatch]:
         """Verified loop closures of keyframe ``k`` against its candidates among the keyframes held as of
-        ``held_upto`` retirements, under ``estimate`` ``(K, 3)``."""
+        ``held_upto`` retirements, under ``estimate`` ``(K, 3)``, in windows the first ``closures_upto``
+        closures allow."""
         poses = [Pose2D(x, y, th) for x, y, th in estimate.tolist()]
+        upto = len(self._pairs) if closures_upto is None else closures_upto
+        ties, tie_covs = self._pairs.view()[:upto], self._pair_cov.view()[:upto]
+        seq_cov = self._seq_cov.view()
         travelled = np.array(self._fronts.view()[: len(poses), 3])
         held = self.places.keyframes_held(held_upto)[: len(poses)]
         found: list[LoopMatch] = []
@@ -380,6 +398,7 @@ class GraphMapper:
                 self.settings,
                 self._matcher,
                 range_noise=self._now.range_noise,
+                window=search_window(estimate, seq_cov, c, k, ties, tie_covs, self.settings),
             )
             if match is not None:
                 found.append(match)

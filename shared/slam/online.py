@@ -89,6 +89,7 @@ class _Search:
     due: int
     estimate: FloatArray
     held: int  # keyframes retired when it began (shared.slam.places): it reads only those held then
+    closures: int  # closures accepted when it began: they alone narrow its windows (shared.slam.window)
     matches: list[LoopMatch] | None = None
 
 
@@ -204,7 +205,8 @@ class OnlineGraphMapper:
                 k = len(self._mapper.keyframes) - 1
                 estimate = self._mapper.graph.pose_array()
                 retired = self._mapper.places.keyframes_retired
-                self._search(_Search(k, self._version + SEARCH_LAG_STEPS, estimate, retired))
+                closures = len(self._mapper.closures)
+                self._search(_Search(k, self._version + SEARCH_LAG_STEPS, estimate, retired, closures))
             if self._rebuild_due():
                 self._begin_redraw()
             if self._thread is None:
@@ -313,7 +315,7 @@ class OnlineGraphMapper:
             if isinstance(job, _Redraw):
                 self._redraw(job)
             else:
-                job.matches = self._mapper.find_closures(job.k, job.estimate, job.held)
+                job.matches = self._mapper.find_closures(job.k, job.estimate, job.held, job.closures)
         except LinemapError as exc:
             self.failure = f"loop closure: {exc}"
             log.warning("%s; mapping goes on without it", self.failure)
@@ -388,7 +390,9 @@ class OnlineGraphMapper:
                 "closed": self._closed_since_rebuild,
                 "rebuilt_at": self._rebuilt_at,
                 "rebuilds": self.rebuilds,
-                "searches": [(j.k, j.due, j.estimate, j.held, j.matches) for j in self._searches],
+                "searches": [
+                    (j.k, j.due, j.estimate, j.held, j.closures, j.matches) for j in self._searches
+                ],
                 "redraw": None
                 if redraw is None
                 else (redraw.at, redraw.estimate, redraw.kept, redraw.held, redraw.since),
@@ -406,8 +410,8 @@ class OnlineGraphMapper:
             self._mapper, self._shown, self._base = parts["mapper"], parts["shown"], parts["base"]
             self._version, self._rebuilt_at = int(parts["version"]), int(parts["rebuilt_at"])
             self._closed_since_rebuild, self.rebuilds = bool(parts["closed"]), int(parts["rebuilds"])
-            for k, due, estimate, held, matches in parts["searches"]:
-                job = _Search(int(k), int(due), estimate, int(held), matches)
+            for k, due, estimate, held, closures, matches in parts["searches"]:
+                job = _Search(int(k), int(due), estimate, int(held), int(closures), matches)
                 self._searches.append(job)
                 if matches is None:
                     self._submit(job)

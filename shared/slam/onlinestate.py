@@ -53,8 +53,8 @@ _SKIP: dict[type, frozenset[str]] = {
 def graph_state(online: OnlineGraphMapper, parts: dict[str, Any]) -> MapperState:
     """The state of ``online`` from ``parts`` (read under its lock: ``mapper``, ``shown``, ``base``,
     ``version``, ``closed``, ``rebuilt_at``, ``rebuilds``, ``searches`` (keyframe, due version, estimate,
-    keyframes retired then, matches or None) and ``redraw`` (version, estimate, kept scans, kept scans
-    retired then, what the shown map took since) or None)."""
+    keyframes retired then, closures accepted then, matches or None) and ``redraw`` (version, estimate,
+    kept scans, kept scans retired then, what the shown map took since) or None)."""
     tree, arrays = encode_tree(parts, _SKIP)
     return MapperState(GRAPH_KIND, tree, arrays)
 
@@ -99,12 +99,13 @@ def _check_jobs(searches: Any, redraw: Any) -> None:
     for job in searches if isinstance(searches, list) else [None]:
         if not (
             isinstance(job, tuple)
-            and len(job) == 5
+            and len(job) == 6
             and isinstance(job[0], int)
             and isinstance(job[1], int)
             and _estimate(job[2])
             and isinstance(job[3], int)
-            and (job[4] is None or isinstance(job[4], list))
+            and isinstance(job[4], int)
+            and (job[5] is None or isinstance(job[5], list))
         ):
             raise StateError(f"the graph mapper's pending loop search {job!r:.80} is not one")
     if redraw is not None and not (

@@ -106,7 +106,7 @@ def test_a_failing_search_leaves_the_robot_mapping(loop_block, monkeypatch) -> N
     run = loop_block.run
     online = _mapper(run, worker=True)
 
-    def broken(k: int, estimate: object = None, held_upto: object = None) -> list[object]:
+    def broken(k: int, *args: object) -> list[object]:
         raise RuntimeError("search exploded")
 
     monkeypatch.setattr(online._mapper, "find_closures", broken)

@@ -114,4 +114,4 @@ def test_the_state_format_names_the_layout() -> None:
         online.step(scan)
     layout = {k: sorted(v) for k, v in _layout(online.state().tree, {}).items()}
     digest = hashlib.sha256(json.dumps(layout, sort_keys=True).encode()).hexdigest()[:16]
-    assert (STATE_FORMAT, digest) == (4, "8daa0bc75050a489"), layout
+    assert (STATE_FORMAT, digest) == (5, "8c730e6835df7047"), layout

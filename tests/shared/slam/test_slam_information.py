@@ -72,3 +72,23 @@ def test_information_is_symmetric_and_positive_semidefinite(
     info = match_information(ROOM, current, Pose2D(x, y, theta), range_noise=URG04LX_RANGE_NOISE).information
     assert np.allclose(info, info.T)
     assert np.linalg.eigvalsh(info)[0] >= -1e-6 * max(1.0, float(np.abs(info).max()))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.lists(st.integers(0, 29), min_size=1, max_size=12), min_size=1, max_size=20),
+    st.integers(0, 2**31 - 1),
+)
+def test_the_grouped_moments_are_each_groups_own(groups: list[list[int]], seed: int) -> None:
+    """_group_moments (all neighbourhoods at once) against each neighbourhood's moments taken alone: the
+    sums of the products of the deviations from its own mean."""
+    from shared.slam.information import _group_moments
+
+    points = np.random.default_rng(seed).normal(0.0, 3.0, (30, 2)) + 100.0
+    sizes = np.array([len(g) for g in groups])
+    sxx, syy, sxy = _group_moments(points, groups, sizes)
+    for i, g in enumerate(groups):
+        d = points[g] - points[g].mean(axis=0)
+        assert np.allclose(
+            [sxx[i], syy[i], sxy[i]], [d[:, 0] @ d[:, 0], d[:, 1] @ d[:, 1], d[:, 0] @ d[:, 1]]
+        )
