@@ -59,7 +59,10 @@ def _group_moments(
     dx = x - (np.bincount(group, x, len(sizes)) / sizes)[group]
     dy = y - (np.bincount(group, y, len(sizes)) / sizes)[group]
     n = len(sizes)
-    return np.bincount(group, dx * dx, n), np.bincount(group, dy * dy, n), np.bincount(group, dx * dy, n)
+    sxx: FloatArray = np.bincount(group, dx * dx, n).astype(np.float64)
+    syy: FloatArray = np.bincount(group, dy * dy, n).astype(np.float64)
+    sxy: FloatArray = np.bincount(group, dx * dy, n).astype(np.float64)
+    return sxx, syy, sxy
 
 
 def match_information(
