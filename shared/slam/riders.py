@@ -58,6 +58,7 @@ __all__ = [
     "carry",
     "fuse",
     "inverse_edge",
+    "inverse_jacobian",
     "reduce_edges",
     "residual_sigmas",
     "take_riders",
@@ -91,8 +92,9 @@ def _inverse(a: FloatArray) -> FloatArray:
     return np.array([xy[0], xy[1], _wrap(-float(a[2]))])
 
 
-def _d_inverse(a: FloatArray) -> FloatArray:
-    """``d(a^-1) / da`` over additive coordinates (x, y, theta): ``[[-R(-a), R(-a) J a_t], [0, 0, -1]]``."""
+def inverse_jacobian(a: FloatArray) -> FloatArray:
+    """``d(a^-1) / da`` of a pose row ``a`` ``(3,)`` over additive coordinates (x, y, theta):
+    ``[[-R(-a), R(-a) J a_t], [0, 0, -1]]`` (a covariance of ``a^-1`` is ``D S D^T``). O(1)."""
     r = _rot(-float(a[2]))
     out = np.zeros((3, 3))
     out[:2, :2] = -r
@@ -138,7 +140,7 @@ def inverse_edge(row: FloatArray) -> FloatArray:
     out = row.copy()
     out[0], out[1] = row[1], row[0]
     out[2:5] = _inverse(z)
-    out[6:] = _through(row[6:].reshape(3, 3), _d_inverse(z)).ravel()
+    out[6:] = _through(row[6:].reshape(3, 3), inverse_jacobian(z)).ravel()
     return out
 
 

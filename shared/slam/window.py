@@ -24,6 +24,7 @@ import math
 import numpy as np
 
 from shared.slam.closure import chain_covariance
+from shared.slam.riders import inverse_jacobian
 from shared.slam.settings import LoopClosureSettings
 from shared.types import FloatArray, Pose2D
 
@@ -49,13 +50,9 @@ TIE_KEYFRAMES = 6
 
 def inverse_covariance(motion: Pose2D, cov: FloatArray) -> FloatArray:
     """Covariance ``(3, 3)`` of ``motion^-1`` given that of ``motion`` (additive noise on ``(x, y,
-    theta)``, as :func:`~shared.slam.closure.chain_covariance` takes it), first order. O(1)."""
-    c, s = math.cos(motion.theta_rad), math.sin(motion.theta_rad)
-    t = np.array([motion.x_m, motion.y_m])
-    jac = np.zeros((3, 3))
-    jac[:2, :2] = -np.array([[c, s], [-s, c]])  # -R^T
-    jac[:2, 2] = np.array([[s, -c], [c, s]]) @ t  # -(dR^T / dtheta) t
-    jac[2, 2] = -1.0
+    theta)``, as :func:`~shared.slam.closure.chain_covariance` takes it), first order
+    (:func:`shared.slam.riders.inverse_jacobian`). O(1)."""
+    jac = inverse_jacobian(np.array(motion.as_tuple()))
     out: FloatArray = jac @ cov @ jac.T
     return out
 
