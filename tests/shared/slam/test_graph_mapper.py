@@ -13,7 +13,7 @@ from shared.pipeline import PipelineConfig
 from shared.sim import default_world, simulate_run
 from shared.sim.worlds import simulate_case
 from shared.slam import LoopClosureSettings
-from shared.slam import mapper as mapper_module
+from shared.slam.closure import verify
 from shared.slam.window import MIN_WINDOW_M, MIN_WINDOW_RAD
 
 
@@ -40,13 +40,12 @@ def test_searches_at_a_place_already_tied_search_narrower_windows(monkeypatch) -
     run = case.run
     source = Source("loop-block 2", run.scans, run.drive.laser_offset, len(run), run.world, run.trajectory())
     windows: list[tuple[float, float] | None] = []
-    real = mapper_module.verify
 
     def spy(*args, window=None, **kwargs):  # type: ignore[no-untyped-def]
         windows.append(window)
-        return real(*args, window=window, **kwargs)
+        return verify(*args, window=window, **kwargs)
 
-    monkeypatch.setattr(mapper_module, "verify", spy)
+    monkeypatch.setattr("shared.slam.mapper.verify", spy)
     settings = LoopClosureSettings()
     closed = map_scans(source, PipelineConfig(), loop_closure=settings, front_process=False)
     whole = (settings.window_m, settings.window_rad)
