@@ -11,14 +11,17 @@ the ``walls`` table; the newest delivered one stays, with its scan stamp, for
 :meth:`MapTables.stamp_of`), and the delivered poses are thinned past
 :data:`shared.protocol.MAX_TRAJECTORY_POSES` by the rule the server applies
 (:func:`shared.protocol.thin_positions`); a pose not yet delivered is never dropped. A snapshot's
-trajectory is thinned the same way, so no upload carries the whole trajectory.
+trajectory is thinned the same way, so no upload carries the whole trajectory. With loop closure on, the
+pose graph's keyframes that own none of the poses left go with them, and a later row for one is not
+recorded (:func:`shared.protocol.keyframes_in_use`): a snapshot's keyframe rows, and a correction's,
+stay about one per kept pose whatever the distance driven.
 """
 
 from __future__ import annotations
 
 import contextlib
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -28,7 +31,7 @@ from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from robot_agent.models import MapVersion, Meta, OutboxEntry, PoseRecord, Wall
 from robot_agent.store_db import RobotDBFile, put_meta, put_metas, table_of
 from robot_agent.store_resume import SavedState, write_resume
-from shared.protocol import MAX_TRAJECTORY_POSES, correct_trajectory, thin_positions
+from shared.protocol import MAX_TRAJECTORY_POSES, correct_trajectory, keyframes_in_use, thin_positions
 
 __all__ = ["MapTables", "PendingUpload", "StepRecord"]
 
@@ -97,6 +100,12 @@ class MapTables(RobotDBFile):
         step is the robot's most frequent write (10 Hz), and the ORM's flush cost it about twice as much."""
         with self.tx() as s:
             write_resume(s, rec.version, scan, saved)
+            # the current keyframes and closures kept for snapshots: written when a step changes them
+            # (and once to start), so a step that changes none costs no statement more; rows of keyframes
+            # dropped with the poses they owned are left out of the record (_keep_graph)
+            if rec.graph and (rec.keyframes or rec.loop_closures or not getattr(self, "_graph_kept", False)):
+                rec = _keep_graph(s, rec)
+                self._graph_kept = True
             s.execute(
                 _INSERT_VERSION,
                 {
@@ -111,11 +120,6 @@ class MapTables(RobotDBFile):
                     },
                 },
             )
-            # the current keyframes and closures kept for snapshots: written when a step changes them
-            # (and once to start), so a step that changes none costs no statement more
-            if rec.graph and (rec.keyframes or rec.loop_closures or not getattr(self, "_graph_kept", False)):
-                _keep_graph(s, rec)
-                self._graph_kept = True
             if rec.removed:
                 s.execute(delete(Wall).where(Wall.segment_id.in_(rec.removed)))
             if rec.segments:
@@ -276,6 +280,8 @@ class MapTables(RobotDBFile):
         drop = [v for v in drop if v <= delivered]  # what is not delivered yet is sent first
         for start in range(0, len(drop), 500):
             s.execute(delete(PoseRecord).where(PoseRecord.version.in_(drop[start : start + 500])))
+        if drop:
+            _prune_graph(s)
 
     def size_bytes(self) -> int:
         """The Robot DB's size on disk (the file and its write-ahead log), in bytes."""
@@ -357,11 +363,23 @@ def _graph_change(rec: StepRecord) -> dict[str, Any]:
     return out
 
 
-def _keep_graph(s: Any, rec: StepRecord) -> None:
+def _keep_graph(s: Any, rec: StepRecord) -> StepRecord:
     """Fold a step's keyframes and loop closures into the current ones kept in meta (what a snapshot
-    sends). O(keyframes)."""
+    sends); ``rec`` without the rows of keyframes :func:`_prune_graph` dropped (not kept, older than the
+    newest kept: they own no pose kept here or on the server, :mod:`shared.protocol.posegraph`), and the
+    closures reaching them. O(kept keyframes)."""
     kept = s.get(Meta, _KEYFRAMES_META)
     rows = {int(r[0]): r for r in ((kept.value or {}).get("v") or [])} if kept is not None else {}
+    newest = max(rows, default=-1)
+
+    def dropped(k: int) -> bool:
+        return k not in rows and k < newest
+
+    rec = replace(
+        rec,
+        keyframes=[r for r in rec.keyframes if not dropped(int(r[0]))],
+        loop_closures=[c for c in rec.loop_closures if not (dropped(int(c[0])) or dropped(int(c[1])))],
+    )
     _correct_poses(s, rows, rec.keyframes)
     rows.update({int(r[0]): r for r in rec.keyframes})
     put_meta(s, _KEYFRAMES_META, [rows[k] for k in sorted(rows)])
@@ -370,6 +388,26 @@ def _keep_graph(s: Any, rec: StepRecord) -> None:
         closures = list((got.value or {}).get("v") or []) if got is not None else []
         seen = {(int(a), int(b)) for a, b in closures}
         put_meta(s, _CLOSURES_META, [*closures, *(c for c in rec.loop_closures if (c[0], c[1]) not in seen)])
+    return rec
+
+
+def _prune_graph(s: Any) -> None:
+    """Drop the kept keyframes that own none of the poses kept, and the loop closures reaching them
+    (:func:`shared.protocol.keyframes_in_use`, the server's rule): the rows a snapshot carries stay
+    about one per kept pose whatever the distance driven. O(poses + keyframes), after a thinning."""
+    kept = s.get(Meta, _KEYFRAMES_META)
+    rows = list((kept.value or {}).get("v") or []) if kept is not None else []
+    if not rows:
+        return
+    stamps = s.scalars(select(PoseRecord.stamp_s)).all()
+    used = keyframes_in_use(rows, stamps)
+    if len(used) == len(rows):
+        return
+    put_meta(s, _KEYFRAMES_META, [r for r in rows if int(r[0]) in used])
+    got = s.get(Meta, _CLOSURES_META)
+    if got is not None:
+        closures = (got.value or {}).get("v") or []
+        put_meta(s, _CLOSURES_META, [c for c in closures if int(c[0]) in used and int(c[1]) in used])
 
 
 def _owning_keyframes(s: Any, first_s: float, last_s: float) -> list[list[float]]:

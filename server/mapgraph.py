@@ -7,6 +7,12 @@ delta moves stored keyframes (a loop closure's correction), the stored trajector
 each moved keyframe move with it (:func:`shared.protocol.posegraph.correct_trajectory`), so
 ``/maps/latest`` returns the corrected trajectory and the rows a viewer corrects in place match it. The
 correction costs O(poses after the earliest moved keyframe); a delta without graph rows costs nothing here.
+
+Bounded whatever the run's length (issue 21): when the stored trajectory is thinned,
+:func:`prune_graph` drops the keyframes that own none of the poses left and the loop closures reaching
+them (:func:`shared.protocol.keyframes_in_use`); a delta's row for a keyframe dropped so (not stored, older
+than the newest stored) moves nothing and is left out, as is a loop closure to one. So the stored rows, and
+``/maps/latest``, hold at most about one keyframe per kept pose.
 """
 
 from __future__ import annotations
@@ -19,9 +25,9 @@ from sqlalchemy import Connection, Table, bindparam, select, update
 
 from server.models import MapState, TrajectoryPoint
 from server.schemas import MapUpload
-from shared.protocol import correct_trajectory
+from shared.protocol import correct_trajectory, keyframes_in_use
 
-__all__ = ["GRAPH_COLUMNS", "graph_columns", "graph_fields"]
+__all__ = ["GRAPH_COLUMNS", "graph_columns", "graph_fields", "prune_graph"]
 
 log = logging.getLogger(__name__)
 
@@ -66,9 +72,11 @@ def graph_columns(conn: Connection, robot_id: int, up: MapUpload, whole: bool) -
     ).first()
     old_kf = _rows(stored[0]) if stored is not None else []
     old_lc = _rows(stored[1]) if stored is not None else []
+    before = {int(r[0]): r[1:] for r in old_kf}
+    newest = max(before, default=-1)
     if up.keyframes is not None:
-        before = {int(r[0]): r[1:] for r in old_kf}
-        after = {int(r[0]): r[1:] for r in up.keyframes}
+        # a row of a keyframe dropped with the poses it owned (prune_graph) moves nothing: left out
+        after = {int(r[0]): r[1:] for r in up.keyframes if int(r[0]) in before or int(r[0]) > newest}
         moved = {k: v for k, v in after.items() if k in before and _moved(before[k], v)}
         if moved:
             _correct_stored(conn, robot_id, before, moved)
@@ -78,9 +86,43 @@ def graph_columns(conn: Connection, robot_id: int, up: MapUpload, whole: bool) -
         }
     if up.loop_closures is not None:
         seen = {(int(a), int(b)) for a, b in old_lc}
-        new = [[int(a), int(b)] for a, b in up.loop_closures if (int(a), int(b)) not in seen]
+        new = [
+            [int(a), int(b)]
+            for a, b in up.loop_closures
+            if (int(a), int(b)) not in seen
+            and not _dropped(int(a), before, newest)
+            and not _dropped(int(b), before, newest)
+        ]
         out["loop_closures"] = {"rows": [*old_lc, *new]}
     return out
+
+
+def _dropped(k: int, held: dict[int, list[float]], newest: int) -> bool:
+    """Whether keyframe ``k`` was dropped by :func:`prune_graph` (not held, older than the newest held)."""
+    return k not in held and k < newest
+
+
+def prune_graph(conn: Connection, robot_id: int) -> int:
+    """Drop the robot's stored keyframes that own none of its stored poses, and the loop closures that
+    reach them (:func:`shared.protocol.keyframes_in_use`); the keyframes dropped. Called after the
+    trajectory is thinned (once per ~max poses / 4 poses stored). O(poses + keyframes)."""
+    stored = conn.execute(
+        select(_STATE.c.keyframes, _STATE.c.loop_closures).where(_STATE.c.robot_id == robot_id)
+    ).first()
+    if stored is None or stored[0] is None:
+        return 0
+    keyframes = _rows(stored[0])
+    stamps = conn.execute(select(_TRAJ.c.stamp_s).where(_TRAJ.c.robot_id == robot_id)).scalars().all()
+    used = keyframes_in_use(keyframes, stamps)
+    if len(used) == len(keyframes):
+        return 0
+    values: dict[str, Any] = {"keyframes": {"rows": [r for r in keyframes if int(r[0]) in used]}}
+    if stored[1] is not None:
+        values["loop_closures"] = {
+            "rows": [[a, b] for a, b in _rows(stored[1]) if int(a) in used and int(b) in used]
+        }
+    conn.execute(update(_STATE).where(_STATE.c.robot_id == robot_id).values(**values))
+    return len(keyframes) - len(used)
 
 
 def _moved(old: list[float], new: list[float]) -> bool:

@@ -25,7 +25,7 @@ from sqlalchemy import Connection, Table, delete, select
 from server import pgrows
 from server.errors import ConflictError, MapSessionMismatchError, NotFoundError
 from server.mapcounts import Counts, reconcile, walls_after_delta, walls_of_snapshot
-from server.mapgraph import graph_columns
+from server.mapgraph import graph_columns, prune_graph
 from server.maphistory import read_undo, touched_ids, undo_record
 from server.mapread import map_version, read_map  # the read side, importable from here as before
 from server.maprows import (  # the rows' writes, importable from here as before
@@ -226,6 +226,7 @@ def apply_upload(
     if counts.poses > MAX_TRAJECTORY_POSES:
         dropped = thin_trajectory(conn, robot_id, poses=counts.poses)
         counts = Counts(counts.walls, counts.poses - dropped)
+        prune_graph(conn, robot_id)  # and the keyframes that own none of the poses left
     if v % _TRIM_EVERY == 0:
         trim_upload_records(conn, robot_id)
         reconcile(conn, robot_id, counts)  # the counts checked against the rows now and then

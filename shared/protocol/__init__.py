@@ -32,7 +32,7 @@ from shared.protocol.patterns import (
     VERSION_RE,
     anchored,
 )
-from shared.protocol.posegraph import check_covariance, correct_trajectory, sigmas
+from shared.protocol.posegraph import check_covariance, correct_trajectory, keyframes_in_use, sigmas
 from shared.protocol.trajectory import MAX_TRAJECTORY_POSES, thin_positions
 
 __all__ = [
@@ -65,6 +65,7 @@ __all__ = [
     "anchored",
     "check_covariance",
     "correct_trajectory",
+    "keyframes_in_use",
     "sigmas",
     "thin_positions",
 ]

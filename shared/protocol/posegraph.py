@@ -13,6 +13,14 @@ Rows, as they go on the wire:
 delta moves keyframes: a pose recorded after keyframe ``k`` (and before the next) moves with ``k``, i.e.
 ``p' = K'_k K_k^-1 p`` with ``K_k`` the keyframe's pose before and ``K'_k`` after. It is exact for the
 robot's own rule (:mod:`shared.slam.mapper`: a step's pose is ``G(k) F(k)^-1 F(s)``). O(N log K).
+
+:func:`keyframes_in_use` bounds what a store keeps of them (issue 21, a day with loop closure): a keyframe
+serves only to move the poses it owns, so once a trajectory is thinned
+(:func:`shared.protocol.thin_positions`) the keyframes owning none of the poses kept are dropped, with
+the loop closures that reach them. Dropping them changes no kept pose's owner, and a row arriving later
+for a dropped keyframe (older than the newest kept) moves nothing and is left out. Both sides apply it
+to what they hold: the robot (its Robot DB's snapshot rows and what it records) and the server (its
+stored map), so neither grows with the distance driven: at most one keyframe per kept pose.
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ __all__ = [
     "MAX_LOOP_CLOSURES",
     "check_covariance",
     "correct_trajectory",
+    "keyframes_in_use",
     "sigmas",
 ]
 
@@ -111,3 +120,25 @@ def correct_trajectory(
     hit = owner >= 0
     traj[hit, 1:4] = _compose(delta[owner[hit]], traj[hit, 1:4])
     return traj
+
+
+def keyframes_in_use(
+    keyframes: Sequence[Sequence[float]], pose_stamps: Sequence[float] | FloatArray
+) -> set[int]:
+    """The ids of ``keyframes`` (rows ``[keyframe_id, stamp_s, ...]``) that a store holding poses stamped
+    ``pose_stamps`` (s) needs: each pose's owner (:func:`correct_trajectory`'s rule, the last keyframe at
+    or before it by ``(stamp, id)``) and every keyframe stamped after the last pose (the owners of poses
+    to come, the newest among them). Removing the others changes no pose's owner. O((N + K) log K)."""
+    if not len(keyframes):
+        return set()
+    order = sorted(range(len(keyframes)), key=lambda i: (float(keyframes[i][1]), int(keyframes[i][0])))
+    ids = np.array([int(keyframes[i][0]) for i in order], dtype=np.int64)
+    stamps = np.array([float(keyframes[i][1]) for i in order])
+    t = np.asarray(pose_stamps, dtype=np.float64).reshape(-1)
+    if not len(t):
+        return {int(k) for k in ids}
+    owner = np.searchsorted(stamps, t, side="right") - 1
+    used = np.zeros(len(ids), dtype=bool)
+    used[owner[owner >= 0]] = True
+    used |= stamps > float(t.max())
+    return {int(k) for k in ids[used]}

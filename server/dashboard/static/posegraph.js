@@ -96,9 +96,15 @@ export class PoseGraphLayer {
    * when the delta moves keyframes held here). */
   applyDelta(d, trajectory) {
     this.covariance = d.pose_covariance || null;
+    // a row of a keyframe the server dropped with the poses it owned (not held, older than the newest
+    // held: server/mapgraph.py prune_graph) moves nothing here either
+    let newest = -1;
+    for (const k of this.keyframes.keys()) if (k > newest) newest = k;
+    const dropped = (k) => !this.keyframes.has(k) && k < newest;
     if (d.keyframes) {
+      const rows = d.keyframes.filter((r) => !dropped(r[0]));
       const moved = new Map();
-      for (const r of d.keyframes) {
+      for (const r of rows) {
         const old = this.keyframes.get(r[0]);
         if (old && (old[1] !== r[2] || old[2] !== r[3] || old[3] !== r[4])) moved.set(r[0], [r[1], r[2], r[3], r[4]]);
       }
@@ -106,11 +112,13 @@ export class PoseGraphLayer {
         this.movedPoses = correctTrajectory(trajectory, this.keyframes, moved);
         this.corrections++;
       }
-      for (const r of d.keyframes) this.keyframes.set(r[0], [r[1], r[2], r[3], r[4]]);
+      for (const r of rows) this.keyframes.set(r[0], [r[1], r[2], r[3], r[4]]);
     }
     if (d.loop_closures) {
       const seen = new Set(this.closures.map((p) => `${p[0]}:${p[1]}`));
-      for (const p of d.loop_closures) if (!seen.has(`${p[0]}:${p[1]}`)) this.closures.push([p[0], p[1]]);
+      for (const p of d.loop_closures) {
+        if (!seen.has(`${p[0]}:${p[1]}`) && !dropped(p[0]) && !dropped(p[1])) this.closures.push([p[0], p[1]]);
+      }
     }
   }
 

@@ -108,3 +108,55 @@ def test_a_loop_closure_redraws_in_place(live: Live, tmp_path: Path) -> None:
         )
         browser.close()
     assert not errors, errors
+
+
+def test_a_row_of_a_keyframe_the_server_dropped_is_left_out_on_the_page(live: Live) -> None:
+    """A keyframe per pose for 9,000 poses: the server keeps the keyframes its thinned trajectory owns
+    (server/mapgraph.py prune_graph). A later correction's row for a dropped keyframe and a closure to it
+    are left out by the page as by the server, so the page's graph stays the server's."""
+    rid, token = live.new_robot()
+    per = 1000
+
+    def delta(v: int, first: int, n: int) -> dict[str, Any]:
+        return {
+            "version": v,
+            "base_version": v - 1 if v > 1 else None,
+            "stamp_s": float(first + n),
+            "segments": [[float(v), 0.0, 0.0, 1.0, 1.0]],
+            "trajectory": [[float(s), 0.001 * s, 1.0, 0.0] for s in range(first, first + n)],
+            "keyframes": [[float(k), float(k), 0.001 * k, 1.0, 0.0] for k in range(first, first + n)],
+            "loop_closures": [[first + n - 1, max(first - per, 0)]],
+        }
+
+    with live.client(token) as robot:
+        for k in range(9):
+            assert robot.post(f"/robots/{rid}/maps", json=delta(k + 1, k * per, per)).status_code == 200
+    with sync_api.sync_playwright() as p:
+        browser = launch_chromium(p)
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        page.set_default_timeout(30_000)
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(live.base_url + "/")
+        page.get_by_test_id("login-token").fill(live.admin_token)
+        page.get_by_test_id("login-submit").click()
+        page.goto(f"{live.base_url}/#/robots/{rid}")
+        expect(page.get_by_test_id("map-canvas")).to_be_visible()
+        wait_for("the page at version 9", lambda: _stats(page).get("version") == 9, 60)
+        before = _stats(page)["graph"]
+        correction = delta(10, 9 * per, 1) | {
+            "keyframes": [[1.0, 1.0, 5.0, 5.0, 0.0], [0.0, 0.0, 0.0, 1.5, 0.0]],
+            "loop_closures": [[9 * per - 1, 1], [9 * per - 1, 0]],
+        }
+        with live.client(token) as robot:
+            assert robot.post(f"/robots/{rid}/maps", json=correction).status_code == 200
+        wait_for("the page at version 10", lambda: _stats(page).get("version") == 10, 60)
+        graph = _stats(page)["graph"]
+        browser.close()
+    with live.operator() as op:
+        latest = op.get(f"/robots/{rid}/maps/latest").json()
+    assert 1 not in {int(r[0]) for r in latest["keyframes"]}
+    assert graph["keyframes"] == len(latest["keyframes"]) == before["keyframes"], "the dropped row left out"
+    assert graph["loop_closures"] == len(latest["loop_closures"]) == before["loop_closures"] + 1
+    assert graph["corrections"] == before["corrections"] + 1
+    assert not errors, errors

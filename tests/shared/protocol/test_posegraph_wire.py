@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -13,8 +14,18 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from shared.protocol import MapDelta, MapSnapshot, MapUpload, check_covariance, correct_trajectory, sigmas
-from shared.types import Pose2D
+from shared.protocol import (
+    MAX_TRAJECTORY_POSES,
+    MapDelta,
+    MapSnapshot,
+    MapUpload,
+    check_covariance,
+    correct_trajectory,
+    keyframes_in_use,
+    sigmas,
+    thin_positions,
+)
+from shared.types import FloatArray, Pose2D
 
 _F = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
 _ANGLE = st.floats(-math.pi, math.pi, allow_nan=False)
@@ -128,3 +139,45 @@ def test_correction_matches_the_mappers_rule(
     assert np.allclose(got[:, :3], want[:, :3], atol=1e-6)
     dth = np.remainder(got[:, 3] - want[:, 3] + math.pi, 2 * math.pi) - math.pi
     assert np.allclose(dth, 0.0, atol=1e-9)
+
+
+@st.composite
+def _stores(draw: st.DrawFn) -> tuple[dict[int, list[float]], FloatArray, dict[int, list[float]]]:
+    """Keyframes (id -> [stamp, x, y, th], ids in stamp order, stamps may repeat), a trajectory among
+    them and a correction of some of them."""
+    n = draw(st.integers(1, 15))
+    stamps = sorted(draw(st.lists(st.integers(0, 40), min_size=n, max_size=n)))
+    before = {k: [float(t), draw(_F) / 1e3, draw(_F) / 1e3, draw(_ANGLE)] for k, t in enumerate(stamps)}
+    poses = sorted(draw(st.lists(st.integers(-2, 45), max_size=12)))
+    traj = np.array([[t + 0.5, 0.1 * t, 1.0, 0.2] for t in poses], dtype=np.float64).reshape(-1, 4)
+    moving = draw(st.lists(st.sampled_from(list(before)), max_size=n, unique=True))
+    after = {k: [before[k][0], draw(_F) / 1e3, draw(_F) / 1e3, draw(_ANGLE)] for k in moving}
+    return before, traj, after
+
+
+@given(_stores())
+def test_keyframes_owning_no_pose_move_nothing(store: tuple[Any, FloatArray, Any]) -> None:
+    """Dropping the keyframes keyframes_in_use leaves out changes no correction of the poses held, the
+    owners of the poses and every keyframe after the last one are kept."""
+    before, traj, after = store
+    used = keyframes_in_use([[k, *v] for k, v in before.items()], traj[:, 0])
+    kept = {k: v for k, v in before.items() if k in used}
+    whole = correct_trajectory(traj, before, after)
+    pruned = correct_trajectory(traj, kept, {k: v for k, v in after.items() if k in used})
+    np.testing.assert_allclose(pruned, whole, rtol=0, atol=1e-9)  # an unmoved owner: identity, rounded
+    last = float(traj[:, 0].max()) if len(traj) else -np.inf
+    assert {k for k, v in before.items() if v[0] > last} <= used
+    assert max(before) in used, "the newest keyframe is always kept"
+    assert len(used) <= len(traj) + sum(v[0] > last for v in before.values())
+
+
+def test_keyframes_in_use_of_a_long_patrol_are_about_one_per_kept_pose() -> None:
+    """70,000 keyframes (a day at 0.5 m/s, one per 50 cm) under a trajectory thinned to 8,000 poses."""
+    n_poses = 864_000
+    stamps = np.arange(n_poses) * 0.1
+    keep = np.ones(n_poses, dtype=bool)
+    keep[thin_positions(n_poses)] = False
+    keyframes = [[float(k), 1.234 * k, 0.0, 0.0, 0.0] for k in range(70_000)]  # a keyframe each 1.234 s
+    used = keyframes_in_use(keyframes, stamps[keep])
+    assert 1 < len(used) <= MAX_TRAJECTORY_POSES + 1
+    assert 69_999 in used and 0 in used
