@@ -29,6 +29,7 @@ import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 from shared.types import FloatArray
 
@@ -122,9 +123,7 @@ def correct_trajectory(
     return traj
 
 
-def keyframes_in_use(
-    keyframes: Sequence[Sequence[float]], pose_stamps: Sequence[float] | FloatArray
-) -> set[int]:
+def keyframes_in_use(keyframes: Sequence[Sequence[float]], pose_stamps: npt.ArrayLike) -> set[int]:
     """The ids of ``keyframes`` (rows ``[keyframe_id, stamp_s, ...]``) that a store holding poses stamped
     ``pose_stamps`` (s) needs: each pose's owner (:func:`correct_trajectory`'s rule, the last keyframe at
     or before it by ``(stamp, id)``) and every keyframe stamped after the last pose (the owners of poses

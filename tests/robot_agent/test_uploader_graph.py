@@ -99,7 +99,9 @@ def test_the_robot_keeps_and_sends_the_keyframes_its_kept_poses_own(live: Live, 
     dropped = min(set(range(1, 301)) - held)
     db.record_step(replace(_step(301, [row(dropped, 0.5), row(1, 0.5)]), loop_closures=[[301, dropped]]))
     with db.tx() as s:
-        change = s.get(MapVersion, 301).change
+        recorded = s.get(MapVersion, 301)
+        assert recorded is not None
+        change = recorded.change
     assert [int(r[0]) for r in change["keyframes"]] == [1], "the dropped keyframe's row is not recorded"
     assert change["loop_closures"] == []
     up.need_snapshot = True
