@@ -2,7 +2,7 @@
 agent's Robot DB and uploader driven at 10 Hz of simulated time against a real ``linemap server`` (SQLite),
 with a cheap synthetic map step instead of the sensor and the pipeline.
 
-    .venv/bin/python benchmarks/long_run.py [--hours 1 6 24] [--walls 1500] [--robot-dir DIR]
+    .venv/bin/python benchmarks/long_run.py [--hours 1 6 24] [--walls 1500] [--robot-dir DIR] [--loop-closure]
 
 Each step is what the agent records (:meth:`robot_agent.store.RobotDB.record_step`): a map version with
 the walls that changed (one new wall every 4 steps until ``--walls``, then 5 walls re-estimated a step),
@@ -12,6 +12,12 @@ journal's own format) and every 50 steps a saved mapping state (a fixed 256 kB s
 HTTP. At each mark it forces one snapshot upload and measures: the Robot DB's size, the largest upload
 so far (snapshots included), ``GET /maps/latest`` (median of 3: time and bytes), the GeoJSON export, the
 server database's size and the poses each side keeps. Prints the table; exit 0 when it ran.
+
+``--loop-closure`` adds the pose graph's rows a robot with loop closure records (:class:`StepRecord`'s
+``keyframes``, ``loop_closures``, ``pose_covariance``): a keyframe every 0.5 m (each 10 steps), from the
+second lap on a loop closure from each keyframe to the one a lap back, and at the end of each lap a
+correction moving the last lap's 400 keyframes by 1 mm (what a loop closure's optimisation sends). The
+table then also gives the keyframes and closures the latest snapshot and ``/maps/latest`` carried.
 
 The Robot DB goes to ``--robot-dir`` (default: /dev/shm when there is one, so that the per-step fsync of
 ``synchronous=FULL`` does not set the pace; the sizes are the same on any disk).
@@ -33,6 +39,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -128,20 +135,51 @@ class World:
                 self.walls[wid] = [row[0], *(v + float(self.rng.normal(0, 0.002)) for v in row[1:])]
                 changed.append(self.walls[wid])
         t = version / RATE_HZ
-        s = (0.5 * t) % 200.0  # 0.5 m/s along a 50 m x 50 m square
-        side, along = int(s // 50.0), s % 50.0
-        x, y, th = [
-            (along, 0.0, 0.0),
-            (50.0, along, 1.57),
-            (50.0 - along, 50.0, 3.14),
-            (0.0, 50.0 - along, -1.57),
-        ][side]
         cents = self.rng.uniform(-60, 60, (200, 2)).round(3).tolist()
-        return StepRecord(version, t, version, changed, [], [t, x - 25.0, y - 25.0, th], cents)
+        return StepRecord(version, t, version, changed, [], [t, *_patrol(t)], cents)
 
     def scan(self, version: int) -> bytes:
         t = version / RATE_HZ
         return scan_to_bytes(Scan(t, -2.09, 0.00614, 0.02, 5.6, self.beams, None, Pose2D(0.0, 0.0, 0.0)))
+
+
+KEYFRAME_EVERY = 10  # steps: 0.5 m at 0.5 m/s
+LAP_STEPS = 4_000  # the 200 m loop at 0.5 m/s, 10 Hz
+
+
+def with_graph(rec: StepRecord, version: int) -> StepRecord:
+    """``rec`` with the pose graph's rows of the synthetic patrol (module docstring): keyframe ``k`` made at
+    step ``10 k`` at the step's pose; its closure to keyframe ``k - 400`` from the second lap on; at each
+    lap's end the last lap's keyframes moved by 1 mm in y (x, y alternate so every lap moves them again)."""
+    keyframes: list[list[float]] = []
+    closures: list[list[int]] = []
+    if version % KEYFRAME_EVERY == 0:
+        k = version // KEYFRAME_EVERY
+        keyframes.append([float(k), *rec.pose])
+        lap = LAP_STEPS // KEYFRAME_EVERY
+        if k >= lap:
+            closures.append([k, k - lap])
+    if version % LAP_STEPS == 0 and version > LAP_STEPS:
+        shift = 0.001 * (version // LAP_STEPS)
+        first = (version - LAP_STEPS) // KEYFRAME_EVERY
+        for k in range(first, version // KEYFRAME_EVERY):
+            t = k * KEYFRAME_EVERY / RATE_HZ
+            keyframes.append([float(k), t, *_patrol(t)[:1], _patrol(t)[1] + shift, _patrol(t)[2]])
+    cov = [[1e-4, 0.0, 0.0], [0.0, 1e-4, 0.0], [0.0, 0.0, 1e-5]]
+    return replace(rec, keyframes=keyframes, loop_closures=closures, pose_covariance=cov, graph=True)
+
+
+def _patrol(t: float) -> tuple[float, float, float]:
+    """The pose at ``t`` s on the 200 m loop at 0.5 m/s (a 50 m x 50 m square round the origin)."""
+    s = (0.5 * t) % 200.0
+    side, along = int(s // 50.0), s % 50.0
+    x, y, th = [
+        (along, 0.0, 0.0),
+        (50.0, along, 1.57),
+        (50.0 - along, 50.0, 3.14),
+        (0.0, 50.0 - along, -1.57),
+    ][side]
+    return x - 25.0, y - 25.0, th
 
 
 class _Sender:
@@ -210,15 +248,15 @@ class _Sender:
         self._thread.join(60)
 
 
-def _latest(client: httpx.Client, rid: int) -> tuple[float, int, int]:
-    times, size, poses = [], 0, 0
+def _latest(client: httpx.Client, rid: int) -> tuple[float, int, dict[str, Any]]:
+    times, size, body = [], 0, {}
     for _ in range(3):
         t0 = time.perf_counter()
         r = client.get(f"/api/v1/robots/{rid}/maps/latest")
         times.append(time.perf_counter() - t0)
         r.raise_for_status()
-        size, poses = len(r.content), len(r.json()["trajectory"])
-    return statistics.median(times), size, poses
+        size, body = len(r.content), r.json()
+    return statistics.median(times), size, body
 
 
 def _export(client: httpx.Client, rid: int) -> tuple[float, int]:
@@ -234,6 +272,7 @@ def main() -> int:
     ap.add_argument("--walls", type=int, default=1500, help="walls of the synthetic map [1500]")
     shm = Path("/dev/shm")
     ap.add_argument("--robot-dir", type=Path, default=shm if shm.is_dir() else None)
+    ap.add_argument("--loop-closure", action="store_true", help="add the pose graph's rows (docstring)")
     args = ap.parse_args()
     marks = sorted(int(h * 3600 * RATE_HZ) for h in args.hours)
     with (
@@ -249,10 +288,12 @@ def main() -> int:
         db = RobotDB(Path(robot_dir) / "robot.db")
         link = ServerLink(base, rid, token, timeout_s=60)
         sizes: list[int] = []
+        sent_keyframes: list[int] = []
         real_upload = link.upload
 
         def measured(payload: dict[str, Any], key: str) -> Any:
             sizes.append(len(json.dumps(payload, separators=(",", ":")).encode()))
+            sent_keyframes.append(len(payload.get("keyframes") or ()))
             return real_upload(payload, key)
 
         link.upload = measured  # type: ignore[method-assign]
@@ -277,7 +318,9 @@ def main() -> int:
         try:
             for version in range(1, marks[-1] + 1):
                 saved = SavedState(version, "bench", 1, 0, state) if version % STATE_EVERY == 0 else None
-                db.record_step(world.step(version), world.scan(version), saved)
+                rec = world.step(version)
+                rec = with_graph(rec, version) if args.loop_closure else rec
+                db.record_step(rec, world.scan(version), saved)
                 if version % STEPS_PER_UPLOAD == 0:
                     sender.due(version)
                 if version % progress == 0:
@@ -293,7 +336,7 @@ def main() -> int:
                             pass
                         uploader.need_snapshot = True
                         uploader.send_maps()
-                    latest_s, latest_b, server_poses = _latest(op, rid)
+                    latest_s, latest_b, latest = _latest(op, rid)
                     export_s, export_b = _export(op, rid)
                     rows.append(
                         {
@@ -308,7 +351,10 @@ def main() -> int:
                             "export_mib": export_b / 2**20,
                             "server_db_mb": _file_bytes(server_db) / 1e6,
                             "server_wal_mb": _file_bytes(Path(f"{server_db}-wal")) / 1e6,
-                            "server_poses": server_poses,
+                            "server_poses": len(latest["trajectory"]),
+                            "snapshot_keyframes": sent_keyframes[-1],
+                            "server_keyframes": len(latest.get("keyframes") or ()),
+                            "server_closures": len(latest.get("loop_closures") or ()),
                             "walls": len(world.walls),
                             "elapsed_s": time.perf_counter() - t_start,
                         }
@@ -337,6 +383,14 @@ def main() -> int:
             f"| {r['server_db_mb']:.1f} MB ({r['server_wal_mb']:.1f}) "
             f"| {r['server_poses']:,} |"
         )
+    if args.loop_closure:
+        print("\n| simulated | keyframes made | in the snapshot | held by the server | closures held |")
+        print("|---|---|---|---|---|")
+        for r in rows:
+            print(
+                f"| {r['hours']:g} h | {r['poses'] // KEYFRAME_EVERY:,} | {r['snapshot_keyframes']:,} "
+                f"| {r['server_keyframes']:,} | {r['server_closures']:,} |"
+            )
     print(f"\n{marks[-1]:,} steps in {rows[-1]['elapsed_s']:.0f} s ({args.walls} walls)")
     return 0
 

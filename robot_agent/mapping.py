@@ -188,6 +188,10 @@ class MappingLoop:
         # per keyframe (index from 0): the pose last recorded (x, y, theta), NaN until recorded
         self._sent_keyframes: FloatArray = np.full((0, 3), np.nan)
         self._prev_closures = 0
+        # the graph's estimate last compared, and the first keyframe to compare while it stays the same
+        # (OnlineGraphMapper.keyframe_changes): the step compares the keyframes that can have moved
+        self._seen_estimate: object | None = None
+        self._compare_from = 0
         if resumed.problem is not None:
             stats.last_error = resumed.problem
 
@@ -335,7 +339,8 @@ class MappingLoop:
     def _with_graph(self, rec: StepRecord, graph: OnlineGraphMapper) -> StepRecord:
         """``rec`` with the pose graph's rows: the keyframes that are new or moved since the last step
         (a loop closure moves many: the correction goes out as these), the new loop closures, the
-        covariance. O(keyframes) vectorised + O(new closures).
+        covariance. O(keyframes) vectorised after an optimisation moved the graph's estimate, else
+        O(new keyframes) (:meth:`OnlineGraphMapper.keyframe_changes`), + O(new closures).
 
         A keyframe this step made goes out first at the pose this step records: the loop-closure worker
         may have moved it between the step and this read, and a first row off its own trajectory pose
@@ -343,15 +348,20 @@ class MappingLoop:
         step, as any keyframe's, and moves the trajectory with it."""
         stamp = rec.pose[0]
         off = self._keyframe_offset
-        rows = graph.keyframe_array()  # [id, stamp, x, y, theta], ids 0..K-1
+        # [id, stamp, x, y, theta] of ids first..K-1: those that can have changed since the last step
+        self._seen_estimate, first, rows = graph.keyframe_changes(self._seen_estimate, self._compare_from)
+        n = first + len(rows)
         rows[:, 0] += off
         sent = self._sent_keyframes
-        if len(sent) < len(rows):  # keyframes never sent: NaN
-            sent = np.vstack([sent, np.full((max(len(rows), 2 * len(sent)) - len(sent), 3), np.nan)])
+        if len(sent) < n:  # keyframes never sent: NaN
+            sent = np.vstack([sent, np.full((max(n, 2 * len(sent)) - len(sent), 3), np.nan)])
             self._sent_keyframes = sent
-        prev = sent[: len(rows)]
+        prev = sent[first:n]
         unsent = np.isnan(prev[:, 0])
-        rows[(rows[:, 1] == stamp) & unsent, 2:] = rec.pose[1:]
+        at_step = (rows[:, 1] == stamp) & unsent
+        rows[at_step, 2:] = rec.pose[1:]
+        # a row recorded at the step's pose is compared with the estimate again next step
+        self._compare_from = first + int(np.argmax(at_step)) if at_step.any() else n
         turn = np.abs(np.remainder(rows[:, 4] - prev[:, 2] + math.pi, math.tau) - math.pi)
         moved = (
             unsent

@@ -430,16 +430,18 @@ class GraphMapper:
         rows: list[list[float]] = self.keyframe_array().tolist()
         return rows
 
-    def keyframe_array(self) -> FloatArray:
-        """:meth:`keyframe_rows` as one array ``(K, 5)``. O(keyframes), vectorised."""
+    def keyframe_array(self, since: int = 0) -> FloatArray:
+        """:meth:`keyframe_rows` from keyframe ``since`` on as one array ``(K - since, 5)``.
+        O(K - since), vectorised."""
         fronts = self._fronts.view()
         estimate = self.graph.pose_array()
         n = min(len(fronts), len(estimate))
         n = int(np.searchsorted(fronts[:n, 5], self._n_steps))  # made in a step that is over
-        out = np.empty((n, 5))
-        out[:, 0] = np.arange(n)
-        out[:, 1] = fronts[:n, 4]
-        out[:, 2:] = estimate[:n]
+        since = min(since, n)
+        out = np.empty((n - since, 5))
+        out[:, 0] = np.arange(since, n)
+        out[:, 1] = fronts[since:n, 4]
+        out[:, 2:] = estimate[since:n]
         return out
 
     def closure_pairs(self, since: int = 0) -> list[list[int]]:
