@@ -157,7 +157,7 @@ def with_graph(rec: StepRecord, version: int) -> StepRecord:
         k = version // KEYFRAME_EVERY
         keyframes.append([float(k), *rec.pose])
         lap = LAP_STEPS // KEYFRAME_EVERY
-        if k >= lap:
+        if k > lap:  # keyframe 0 is never made (the first step is 1)
             closures.append([k, k - lap])
     if version % LAP_STEPS == 0 and version > LAP_STEPS:
         shift = 0.001 * (version // LAP_STEPS)

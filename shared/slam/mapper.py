@@ -370,26 +370,30 @@ class GraphMapper:
         """Verified loop closures of keyframe ``k`` against its candidates among the keyframes held as of
         ``held_upto`` retirements, under ``estimate`` ``(K, 3)``, in windows the first ``closures_upto``
         closures allow."""
-        poses = [Pose2D(x, y, th) for x, y, th in estimate.tolist()]
+
+        def pose(i: int) -> Pose2D:  # only the few a search reads, not a Pose2D per keyframe each search
+            x, y, th = estimate[i].tolist()
+            return Pose2D(x, y, th)
+
         upto = len(self._pairs) if closures_upto is None else closures_upto
         ties, tie_covs = self._pairs.view()[:upto], self._pair_cov.view()[:upto]
         seq_cov = self._seq_cov.view()
-        travelled = np.array(self._fronts.view()[: len(poses), 3])
-        held = self.places.keyframes_held(held_upto)[: len(poses)]
+        travelled = np.array(self._fronts.view()[: len(estimate), 3])
+        held = self.places.keyframes_held(held_upto)[: len(estimate)]
         found: list[LoopMatch] = []
         for c in candidates(estimate[:, :2], travelled, k, self.settings, estimate[:, 2], held):
             self.candidates_tried += 1
             lo = max(c - self.settings.submap_keyframes, 0)
             hi = min(c + self.settings.submap_keyframes, k - 1)
-            origin = poses[c]
+            origin = pose(c)
             parts = [
-                origin.between(poses[m]).transform_points(self.keyframes[m].points)
+                origin.between(pose(m)).transform_points(self.keyframes[m].points)
                 for m in range(lo, hi + 1)
                 if held[m]
                 and len(self.keyframes[m].points)
                 and self.keyframes[m].travelled_m <= travelled[k] - self.settings.recent_m
             ]
-            guess = origin.between(poses[k])
+            guess = origin.between(pose(k))
             match = verify(
                 stacked(parts),
                 self.keyframes[k].points,
