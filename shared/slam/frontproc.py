@@ -130,6 +130,9 @@ class FrontEndProcess:
 
     def __enter__(self) -> FrontEndProcess:
         self._process.start()
+        # this side only reads the results: without its own copy of their pipe's write end, a child killed
+        # half-way through writing one leaves an end of file here (EOFError), not a read that waits forever
+        self._outbox._writer.close()
         return self
 
     def __exit__(
@@ -150,7 +153,7 @@ class FrontEndProcess:
         """No more scans: the child finishes those sent and reports its step times."""
         if not self._closed:
             self._flush()
-            self._inbox.put(None)
+            self._put(None)
             self._closed = True
 
     @property
@@ -160,8 +163,22 @@ class FrontEndProcess:
 
     def _flush(self) -> None:
         if self._batch:
-            self._inbox.put(self._batch)
+            self._put(self._batch)
             self._batch = []
+
+    def _put(self, item: Any) -> None:
+        """Put ``item`` on the child's bounded queue, waiting while it is full; a child that died meanwhile
+        is named (:class:`FrontEndProcessError`), not waited for forever."""
+        while True:
+            try:
+                self._inbox.put(item, timeout=1.0)
+                return
+            except queue.Full:
+                if not self._process.is_alive():
+                    raise FrontEndProcessError(
+                        f"the front end's process ended with exit code {self._process.exitcode} "
+                        "before it took the scans sent"
+                    ) from None
 
     def results(self) -> Iterator[Tracked]:
         """One :class:`Tracked` per scan sent, in order, until the child has finished those sent before
@@ -190,16 +207,19 @@ class FrontEndProcess:
                 raise FrontEndProcessError(f"the front end failed: {payload}")
 
     def _next(self) -> tuple[str, Any]:
-        """The child's next message, or ``("", None)`` after a second without one."""
+        """The child's next message, or ``("", None)`` after a second without one or once the child's end
+        of the pipe is closed."""
         try:
             message: tuple[str, Any] = self._outbox.get_nowait()
             return message
         except queue.Empty:
             self._flush()  # the scans waiting for their batch to fill may be the ones waited for
+        except (EOFError, OSError):  # the child is gone (or died mid-message): the caller names it
+            return "", None
         try:
             message = self._outbox.get(timeout=1.0)
             return message
-        except queue.Empty:
+        except (queue.Empty, EOFError, OSError):  # nothing yet, or the child died mid-message
             return "", None
 
     def stop(self) -> None:

@@ -9,6 +9,7 @@ import pickle
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -162,3 +163,30 @@ def test_the_child_does_not_outlive_a_killed_parent() -> None:
     while any(_running(k) for k in kids):
         assert time.monotonic() < deadline, f"the front end's process {kids} outlived its parent"
         time.sleep(0.05)
+
+
+def test_a_child_killed_while_the_sender_waits_is_named() -> None:
+    """The child gone while its bounded queue is full: sending names it instead of waiting forever (the
+    join below only bounds a hang, should one come back)."""
+    run = simulate_run(default_world(), seed=0)
+    raised: list[BaseException] = []
+    with FrontEndProcess(PipelineConfig(), Pose2D(), ahead=8) as child:
+        pid = child._process.pid
+        assert pid is not None
+        os.kill(pid, signal.SIGKILL)
+        child._process.join(30)
+
+        def send_all() -> None:
+            try:
+                for scan in run.scans[:200]:
+                    child.send(scan)
+                child.close_input()
+                list(child.results())
+            except FrontEndProcessError as exc:
+                raised.append(exc)
+
+        sender = threading.Thread(target=send_all, daemon=True)
+        sender.start()
+        sender.join(120)
+    assert not sender.is_alive(), "the sender still waits for a dead child"
+    assert raised and "exit code -9" in str(raised[0])
