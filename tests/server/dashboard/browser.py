@@ -90,6 +90,19 @@ def launch_chromium(playwright: Any) -> Any:
     return playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
 
 
+def logged_in_page(browser: Any, base_url: str, token: str) -> tuple[Any, list[str]]:
+    """A new page (1280 x 800, 30 s timeouts) logged in with ``token`` at ``base_url``, and the list its
+    uncaught errors go to."""
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    page.set_default_timeout(30_000)
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.goto(base_url + "/")
+    page.get_by_test_id("login-token").fill(token)
+    page.get_by_test_id("login-submit").click()
+    return page, errors
+
+
 def save_figures(name: str, figures: dict[str, Any]) -> Path:
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     path = ARTIFACTS / f"{name}.json"

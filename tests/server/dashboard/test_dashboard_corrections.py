@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 
 from tests.robot_agent.agentproc import AgentProcess, wait_for
-from tests.server.dashboard.browser import ARTIFACTS, launch_chromium
+from tests.server.dashboard.browser import ARTIFACTS, launch_chromium, logged_in_page
 from tests.server.live import Live, start_live
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is a dev dependency")
@@ -36,13 +36,7 @@ def test_a_loop_closure_redraws_in_place(live: Live, tmp_path: Path) -> None:
     rid, token = live.new_robot()
     with sync_api.sync_playwright() as p:
         browser = launch_chromium(p)
-        page = browser.new_page(viewport={"width": 1280, "height": 800})
-        page.set_default_timeout(30_000)
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(live.base_url + "/")
-        page.get_by_test_id("login-token").fill(live.admin_token)
-        page.get_by_test_id("login-submit").click()
+        page, errors = logged_in_page(browser, live.base_url, live.admin_token)
         expect(page.locator(f'[data-testid="robot-row"][data-robot-id="{rid}"]')).to_be_visible()
         page.goto(f"{live.base_url}/#/robots/{rid}")
         expect(page.get_by_test_id("map-canvas")).to_be_visible()
@@ -133,13 +127,7 @@ def test_a_row_of_a_keyframe_the_server_dropped_is_left_out_on_the_page(live: Li
             assert robot.post(f"/robots/{rid}/maps", json=delta(k + 1, k * per, per)).status_code == 200
     with sync_api.sync_playwright() as p:
         browser = launch_chromium(p)
-        page = browser.new_page(viewport={"width": 1280, "height": 800})
-        page.set_default_timeout(30_000)
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(live.base_url + "/")
-        page.get_by_test_id("login-token").fill(live.admin_token)
-        page.get_by_test_id("login-submit").click()
+        page, errors = logged_in_page(browser, live.base_url, live.admin_token)
         page.goto(f"{live.base_url}/#/robots/{rid}")
         expect(page.get_by_test_id("map-canvas")).to_be_visible()
         wait_for("the page at version 9", lambda: _stats(page).get("version") == 9, 60)

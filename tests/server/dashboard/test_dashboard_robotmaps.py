@@ -11,7 +11,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.server.dashboard.browser import ARTIFACTS, launch_chromium
+from tests.server.dashboard.browser import ARTIFACTS, launch_chromium, logged_in_page
 from tests.server.live import Live, start_live
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is a dev dependency")
@@ -53,13 +53,7 @@ def test_the_maps_tab_lists_sessions_and_identity_events(live: Live) -> None:
 
     with sync_api.sync_playwright() as p:
         browser = launch_chromium(p)
-        page = browser.new_page(viewport={"width": 1280, "height": 800})
-        page.set_default_timeout(30_000)
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.goto(live.base_url + "/")
-        page.get_by_test_id("login-token").fill(live.admin_token)
-        page.get_by_test_id("login-submit").click()
+        page, errors = logged_in_page(browser, live.base_url, live.admin_token)
         expect(page.locator(f'[data-testid="robot-row"][data-robot-id="{rid}"]')).to_be_visible()
         page.goto(f"{live.base_url}/#/robots/{rid}/maps")
         rows = page.get_by_test_id("map-session")
