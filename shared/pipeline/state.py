@@ -39,7 +39,7 @@ __all__ = ["STATE_FORMAT", "MapperState", "decode_tree", "encode_tree", "registe
 #: estimate and edges as arrays (2026-12-06)
 #: 4: the pose graph's riders (retired keyframes carried by a newer node, shared.slam.riders) (2026-12-07)
 #: 5: each closure's covariance and each pending search's closure count (shared.slam.window) (2026-12-07)
-STATE_FORMAT = 5
+STATE_FORMAT = 6
 #: the bytes form starts with this, then the zlib-compressed archive
 _MAGIC = b"LMSTATE\x00"
 

@@ -117,6 +117,13 @@ class GraphMapper:
         )
         self.keyframes: list[Keyframe] = []
         self.closures: list[LoopClosure] = []
+        # what the state keeps of the records above (and of the kept scans below) as rows, so a state is
+        # taken in array copies, not an object per keyframe, closure and kept scan (shared.slam.onlinestate):
+        # per keyframe its odometry (x, y, theta; NaN: none), per closure its pose and inlier share, per kept
+        # scan its step and odometry
+        self._odometry = Rows(3)
+        self._closure_rows = Rows(4)
+        self._scan_rows = Rows(4)
         self._pairs = Rows(2)  # per closure: its current and candidate keyframe (counted vectorised)
         self._pair_cov = Rows(9)  # per closure: its covariance (row-major; the search windows it allows)
         self.candidates_tried = 0
@@ -166,6 +173,7 @@ class GraphMapper:
         key = len(self.keyframes) - 1
         if self._keep(pose):
             self._scans.append((step, scan, odometry))
+            self._scan_rows.append((step, *_pose_row(odometry)))
             self._kept.append((pose.x_m, pose.y_m, pose.theta_rad, key))
             self.places.add_scan()
         self._track.append((scan.stamp_s, pose.x_m, pose.y_m, pose.theta_rad, key))
@@ -205,6 +213,7 @@ class GraphMapper:
         points = offset.transform_points(scan) if len(scan) else np.zeros((0, 2))
         key = Keyframe(step, pose, odom, points, scan, self._travelled, stamp_s)
         self._fronts.append((pose.x_m, pose.y_m, pose.theta_rad, self._travelled, stamp_s, step))
+        self._odometry.append(_pose_row(odom))
         self.places.add_keyframe()
         if not self.keyframes:
             self.keyframes.append(key)
@@ -268,6 +277,7 @@ class GraphMapper:
             )
             self.graph.add_edge(match.candidate, k, pose, info / (1 + n), loop=True)
             self.closures.append(LoopClosure(k, match.candidate, pose, match.inlier_share))
+            self._closure_rows.append((pose.x_m, pose.y_m, pose.theta_rad, match.inlier_share))
             self._pairs.append((k, match.candidate))
             self._pair_cov.append(np.linalg.inv(info).ravel().tolist())
             added += 1
@@ -550,6 +560,11 @@ class GraphMapper:
 
 _NO_POINTS = np.zeros((0, 2))
 _NO_POINTS.setflags(write=False)
+
+
+def _pose_row(pose: Pose2D | None) -> tuple[float, float, float]:
+    """``(x, y, theta)`` of ``pose``, NaN for none."""
+    return (math.nan, math.nan, math.nan) if pose is None else (pose.x_m, pose.y_m, pose.theta_rad)
 
 
 def _at_place(a: FloatArray, b: FloatArray) -> BoolArray:
