@@ -122,7 +122,10 @@ def restore_graph(online: OnlineGraphMapper, state: MapperState) -> dict[str, An
     gm = parts["mapper"]
     if not isinstance(gm, mapper.GraphMapper) or not isinstance(gm.graph, graph.PoseGraph):
         raise StateError("the graph mapper's state holds no graph mapper")
-    _restore_records(gm, parts.pop("returns"), parts.pop("scans"))
+    try:
+        _restore_records(gm, parts.pop("returns"), parts.pop("scans"))
+    except (TypeError, ValueError, LookupError) as exc:  # rows or returns of another shape
+        raise StateError(f"the graph mapper's records do not parse ({type(exc).__name__}: {exc})") from None
     live = online._mapper
     gm._make = live._make
     gm.front = adopt_pipeline(live.front, gm.front)

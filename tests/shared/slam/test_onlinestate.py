@@ -146,3 +146,18 @@ def test_the_state_format_names_the_layout() -> None:
     layout = {k: sorted(v) for k, v in _layout(online.state().tree, {}).items()}
     digest = hashlib.sha256(json.dumps(layout, sort_keys=True).encode()).hexdigest()[:16]
     assert (STATE_FORMAT, digest) == (6, "37bd59e394a6b02a"), layout
+
+
+def test_records_of_another_shape_are_refused_by_name() -> None:
+    """A state whose saved returns are not (index, points, scan) rows is refused as a StateError, not a
+    TypeError the agent would report as a bug."""
+    online = _mapper()
+    for scan in _case().run.scans[:60]:
+        online.step(scan)
+    state = online.state()
+    tree = dict(state.tree)
+    tree["d"] = [
+        [k, {"n": 10**6, "l": [{"n": 10**6 + 1, "l": [1]}]} if k == "returns" else v] for k, v in tree["d"]
+    ]
+    with pytest.raises(StateError, match="records do not parse"):
+        _mapper().restore(MapperState(state.kind, tree, state.arrays))
