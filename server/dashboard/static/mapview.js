@@ -190,7 +190,10 @@ export class MapView {
     if (this.graph.corrections > corrections && typeof d.wall_time_s === "number") this.pendingCorrections.push(d.wall_time_s);
     if (d.trajectory && d.trajectory.length) {
       for (const row of d.trajectory) this.trajectory.push(row);
-      if (this.trajectory.length > TRAJECTORY_KEEP * 1.2) this.trajectory = this.trajectory.slice(-TRAJECTORY_KEEP);
+      if (this.trajectory.length > TRAJECTORY_KEEP * 1.2) {
+        this.trajectory = this.trajectory.slice(-TRAJECTORY_KEEP);
+        this.graph.prune(this.trajectory); // the keyframes of the rows dropped go with them
+      }
     }
     this.version = d.version;
     if (this.status) this.setStatus("");

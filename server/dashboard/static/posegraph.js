@@ -122,6 +122,31 @@ export class PoseGraphLayer {
     }
   }
 
+  /** Keep the keyframes the held trajectory rows need and the loop closures between kept ones: each row's
+   * owner (the last keyframe at or before it by stamp, then id) and every keyframe after the last row, the
+   * server's rule when it thins its poses (shared/protocol/posegraph.py keyframes_in_use). Called when the
+   * page drops its oldest trajectory rows, so a page left open for days holds as many keyframes as its
+   * rows need, not one per keyframe the robot ever made. Returns the number dropped. O((N + K) log K). */
+  prune(trajectory) {
+    if (!this.keyframes.size) return 0;
+    const ids = [...this.keyframes.keys()].sort((a, b) => this.keyframes.get(a)[0] - this.keyframes.get(b)[0] || a - b);
+    const stamps = ids.map((k) => this.keyframes.get(k)[0]);
+    const used = new Uint8Array(ids.length);
+    let last = -Infinity;
+    for (const row of trajectory) {
+      let lo = 0, hi = stamps.length;
+      while (lo < hi) { const mid = (lo + hi) >> 1; if (stamps[mid] <= row[0]) lo = mid + 1; else hi = mid; }
+      if (lo > 0) used[lo - 1] = 1;
+      if (row[0] > last) last = row[0];
+    }
+    if (!trajectory.length) used.fill(1);
+    for (let i = ids.length - 1; i >= 0 && stamps[i] > last; i--) used[i] = 1;
+    let dropped = 0;
+    ids.forEach((k, i) => { if (!used[i]) { this.keyframes.delete(k); dropped++; } });
+    if (dropped) this.closures = this.closures.filter(([a, b]) => this.keyframes.has(a) && this.keyframes.has(b));
+    return dropped;
+  }
+
   /** Keyframes as small circles; loop closures as lines between their keyframes. O(K + C). */
   draw(ctx, layers, scale, ox, oy, w, hgt) {
     if (layers.loopClosures && this.closures.length) {

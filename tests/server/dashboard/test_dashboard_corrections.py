@@ -148,3 +148,47 @@ def test_a_row_of_a_keyframe_the_server_dropped_is_left_out_on_the_page(live: Li
     assert graph["loop_closures"] == len(latest["loop_closures"]) == before["loop_closures"] + 1
     assert graph["corrections"] == before["corrections"] + 1
     assert not errors, errors
+
+
+def test_a_page_left_open_holds_the_keyframes_of_the_rows_it_holds(live: Live) -> None:
+    """A page open while a robot sends a keyframe per pose: when the page drops its oldest trajectory rows
+    (it holds the newest 5,000), the keyframes those rows owned and the loop closures reaching them go too
+    (the server's rule, shared.protocol.keyframes_in_use), so a page left open for days stays bounded."""
+    rid, token = live.new_robot()
+    per, n_uploads = 500, 14
+
+    def upload(v: int) -> dict[str, Any]:
+        first = (v - 1) * per
+        return {
+            "version": v,
+            "base_version": v - 1 if v > 1 else None,
+            "stamp_s": float(first + per),
+            "segments": [[float(v), 0.0, 0.0, 1.0, 1.0]],
+            "trajectory": [[float(s), 0.001 * s, 1.0, 0.0] for s in range(first, first + per)],
+            "keyframes": [[float(k), float(k), 0.001 * k, 1.0, 0.0] for k in range(first, first + per)],
+            "loop_closures": [[max(first - 2 * per, 0), first + per - 1]],
+        }
+
+    with sync_api.sync_playwright() as p:
+        browser = launch_chromium(p)
+        page, errors = logged_in_page(browser, live.base_url, live.admin_token)
+        with live.client(token) as robot:
+            assert robot.post(f"/robots/{rid}/maps", json=upload(1)).status_code == 200
+            page.goto(f"{live.base_url}/#/robots/{rid}")
+            expect(page.get_by_test_id("map-canvas")).to_be_visible()
+            wait_for("the page at version 1", lambda: _stats(page).get("version") == 1, 60)
+            snapshots = _stats(page)["snapshots"]
+            for v in range(2, n_uploads + 1):
+                assert robot.post(f"/robots/{rid}/maps", json=upload(v)).status_code == 200
+                wait_for(f"the page at version {v}", lambda v=v: _stats(page).get("version") == v, 60)
+        st = _stats(page)
+        browser.close()
+    assert st["snapshots"] == snapshots, "the page followed by deltas"
+    # 7,000 rows sent; past 6,000 the page kept the newest 5,000 (1,500 on), then 500 more came
+    first_row = st["trajectory_sample"][0][0]
+    assert first_row == 1500.0
+    graph = st["graph"]
+    assert graph["keyframes"] == n_uploads * per - 1500, "the keyframes of the rows dropped are gone"
+    kept = [(a, b) for a, b in (upload(v)["loop_closures"][0] for v in range(1, n_uploads + 1))]
+    assert graph["loop_closures"] == sum(1 for a, b in kept if a >= 1500 and b >= 1500)
+    assert not errors, errors
