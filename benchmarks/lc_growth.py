@@ -20,15 +20,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import time
 from pathlib import Path
+
+import numpy as np
 
 from robot_agent.mapping import PipelineSlot
 from robot_agent.sources import laser_offset
 from shared.metrics import line_accuracy
 from shared.pipeline import PipelineConfig
 from shared.protocol import MAX_TRAJECTORY_POSES
-from shared.sim import scene_patrol_scans
+from shared.sim.patrol import scene_patrol
 from shared.sim.worlds import build_scene
 from shared.slam import OnlineGraphMapper
 
@@ -36,7 +39,7 @@ __all__ = ["main"]
 
 
 def _row(  # type: ignore[no-untyped-def]
-    online: OnlineGraphMapper, walls_true, step: int, t_run_s: float, step_ms: list[float]
+    online: OnlineGraphMapper, walls_true, step: int, t_run_s: float, step_ms: list[float], truth
 ) -> dict[str, float | int]:
     mapper = online._mapper
     graph = mapper.graph
@@ -73,8 +76,36 @@ def _row(  # type: ignore[no-untyped-def]
         "p95_error_cm": round(acc.p95_distance_m * 100, 2),
         "spurious_pct": round(acc.spurious_share * 100, 1),
         "complete_pct": round(acc.completeness * 100, 1),  # of every wall of the world, seen or not
+        **_keyframe_errors(mapper, truth),
+        "rss_mb": round(_rss_mb(), 1),
         "run_s": round(t_run_s, 1),
     }
+
+
+def _keyframe_errors(mapper, truth) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    """Position error (cm) of the graph's held keyframes (median, largest) and of the newest keyframe
+    against the true poses ``truth`` ``(steps, 3)``."""
+    estimate = mapper.graph.pose_array()
+    n = len(estimate)
+    if not n:
+        return {"key_err_p50_cm": 0.0, "key_err_max_cm": 0.0, "newest_err_cm": 0.0}
+    steps = mapper._fronts.view()[:n, 5].astype(int)
+    err = np.hypot(*(estimate[:, :2] - truth[steps, :2]).T) * 100
+    places = getattr(mapper, "places", None)
+    held = places.keyframes_held()[:n] if places is not None else np.ones(n, dtype=bool)
+    return {
+        "key_err_p50_cm": round(float(np.median(err[held])), 2),
+        "key_err_max_cm": round(float(err[held].max()), 2),
+        "newest_err_cm": round(float(err[-1]), 2),
+    }
+
+
+def _rss_mb() -> float:
+    """The process's resident memory now (MB; where ``/proc`` is missing, its peak)."""
+    statm = Path("/proc/self/statm")
+    if statm.exists():
+        return int(statm.read_text().split()[1]) * resource.getpagesize() / 1e6
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
 
 
 def main() -> None:
@@ -100,12 +131,16 @@ def main() -> None:
     t0 = time.perf_counter()
     step = 0
     step_ms: list[float] = []
-    for step, scan in enumerate(scene_patrol_scans(args.world, seed=args.seed, laps=args.laps), 1):
+    truth = np.zeros((1024, 3))
+    for step, (scan, pose) in enumerate(scene_patrol(args.world, seed=args.seed, laps=args.laps), 1):
+        if step > len(truth):
+            truth = np.vstack([truth, np.zeros_like(truth)])
+        truth[step - 1] = pose.as_tuple()
         t_step = time.perf_counter()
         online.step(scan)
         step_ms.append((time.perf_counter() - t_step) * 1e3)
         if step % args.every == 0:
-            rows.append(_row(online, walls_true, step, time.perf_counter() - t0, step_ms))
+            rows.append(_row(online, walls_true, step, time.perf_counter() - t0, step_ms, truth))
             step_ms = []
             if not header:
                 print("  ".join(f"{k:>10}" for k in rows[-1]))
@@ -113,7 +148,7 @@ def main() -> None:
             print("  ".join(f"{v:>10}" for v in rows[-1].values()), flush=True)
     online.flush()
     online.wait_idle()
-    rows.append(_row(online, walls_true, step, time.perf_counter() - t0, step_ms))
+    rows.append(_row(online, walls_true, step, time.perf_counter() - t0, step_ms, truth))
     print("  ".join(f"{v:>10}" for v in rows[-1].values()), "(flushed)")
     if args.json is not None:
         args.json.write_text(json.dumps(rows, indent=1))

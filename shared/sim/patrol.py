@@ -25,7 +25,7 @@ from shared.sim.scans import RangeNoise
 from shared.sim.world import World
 from shared.types import Pose2D, Scan
 
-__all__ = ["patrol_lap_steps", "patrol_scans", "scene_patrol_scans"]
+__all__ = ["patrol_lap_steps", "patrol_scans", "scene_patrol", "scene_patrol_scans"]
 
 _TURN_RATE_RADPS = 0.8  # as plan_path turns in place
 _RATE_HZ = 10.0
@@ -61,7 +61,21 @@ def scene_patrol_scans(
     odometry: str | None = None,
     noise: RangeNoise | None = None,
 ) -> Iterator[Scan]:
-    """Scans of ``laps`` patrols (0: forever) of the suite world ``kind`` drawn with ``seed``, at 10 Hz.
+    """:func:`scene_patrol`'s scans alone."""
+    for scan, _truth in scene_patrol(kind, seed=seed, laps=laps, odometry=odometry, noise=noise):
+        yield scan
+
+
+def scene_patrol(
+    kind: str,
+    *,
+    seed: int = 0,
+    laps: int = 0,
+    odometry: str | None = None,
+    noise: RangeNoise | None = None,
+) -> Iterator[tuple[Scan, Pose2D]]:
+    """Scans, each with the robot's true pose then (world frame), of ``laps`` patrols (0: forever) of the
+    suite world ``kind`` drawn with ``seed``, at 10 Hz.
 
     Each lap drives the world's path out and back (a closed path, e.g. ``loop-block``: once round), then
     turns in place to face the first leg again. Odometry follows the kind's error model (or ``odometry``,
@@ -102,7 +116,7 @@ def scene_patrol_scans(
             scan, _hits = simulate_scene_scan(
                 scene, laser, step / _RATE_HZ, scan_rng, noise, odometry=odo_pose
             )
-            yield scan
+            yield scan, pose
             step += 1
         odo_end = _chain(odo_end, first, odo[-1])
         n += 1

@@ -79,6 +79,25 @@ def test_a_closed_suite_path_is_driven_round() -> None:
     assert max(_off_m(s, first) for s in lap) > 3.0  # went round the block
 
 
+def test_a_suite_patrol_gives_each_scan_with_the_true_pose() -> None:
+    """``scene_patrol``: the same scans as ``scene_patrol_scans``, each with the robot's true pose; with
+    perfect wheels the odometry is that pose, and with worn ones it drifts away from it."""
+    from shared.sim.patrol import scene_patrol, scene_patrol_scans
+
+    pairs = list(itertools.islice(scene_patrol("loop-block", seed=0, laps=1, odometry="perfect"), 300))
+    plain = list(itertools.islice(scene_patrol_scans("loop-block", seed=0, laps=1, odometry="perfect"), 300))
+    assert all(
+        np.array_equal(a.ranges_m, b.ranges_m, equal_nan=True) for (a, _), b in zip(pairs, plain, strict=True)
+    )
+    for scan, truth in pairs:
+        assert scan.odometry is not None
+        assert np.allclose(scan.odometry.as_tuple(), truth.as_tuple(), atol=2e-3)
+    worn = list(scene_patrol("loop-block", seed=0, laps=1, odometry="worn"))
+    last, truth = worn[-1]
+    assert last.odometry is not None
+    assert np.hypot(last.odometry.x_m - truth.x_m, last.odometry.y_m - truth.y_m) > 0.05
+
+
 def test_a_suite_patrol_refuses_unknown_names() -> None:
     from shared.sim import scene_patrol_scans
 
