@@ -8,7 +8,7 @@ shows the 1-sigma uncertainty the robot sent."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +30,10 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
 def _stats(page: Any) -> dict[str, Any]:
     got: dict[str, Any] = page.evaluate("window.linemapStats")
     return got
+
+
+def _at_version(page: Any, version: int) -> Callable[[], bool]:
+    return lambda: bool(_stats(page).get("version") == version)
 
 
 def test_a_loop_closure_redraws_in_place(live: Live, tmp_path: Path) -> None:
@@ -180,7 +184,7 @@ def test_a_page_left_open_holds_the_keyframes_of_the_rows_it_holds(live: Live) -
             snapshots = _stats(page)["snapshots"]
             for v in range(2, n_uploads + 1):
                 assert robot.post(f"/robots/{rid}/maps", json=upload(v)).status_code == 200
-                wait_for(f"the page at version {v}", lambda v=v: _stats(page).get("version") == v, 60)
+                wait_for(f"the page at version {v}", _at_version(page, v), 60)
         st = _stats(page)
         browser.close()
     assert st["snapshots"] == snapshots, "the page followed by deltas"
