@@ -9,7 +9,7 @@ offline final pass). gtsam's ``Pose2`` tangent order ``(x, y, theta)`` is the or
 matrix here (per m^2, m rad, rad^2).
 
 **Riders** (:mod:`shared.slam.riders`): a node handed to :meth:`PoseGraph.ride` (a keyframe retired at a
-place a newer one holds, :mod:`shared.slam.places`) that a loop closure ties directly to that one leaves
+place an older one holds, :mod:`shared.slam.places`) that a loop closure ties directly to that one leaves
 the solver at its next rebuild from scratch and is carried by it at a fixed offset; its edges are carried
 onto the anchor and fused. The solver then grows with the places and with the retired nodes that no
 closure tied (a quarter of them on the simulated corridor loop), not with every keyframe.
@@ -282,7 +282,7 @@ class PoseGraph:
 
     def ride(self, index: int, anchor: int) -> None:
         """From the next rebuild from scratch, node ``index`` leaves the solver and rides on node ``anchor``
-        (a newer node at its place) at their relative estimate then, if a loop closure joins the two
+        (the node holding its place) at their relative estimate then, if a loop closure joins the two
         directly; its edges are carried onto the anchor (:mod:`shared.slam.riders`). The first node (the
         graph's anchor) and a node already riding stay as they are. O(1)."""
         if not 0 < index < len(self._estimate) or not 0 <= anchor < len(self._estimate) or index == anchor:

@@ -53,7 +53,7 @@ from shared.slam.errors import OptimisationError
 from shared.slam.frontproc import Tracked
 from shared.slam.graph import PoseGraph
 from shared.slam.information import scan_edge
-from shared.slam.places import SCAN_PLACE, SCANS_PER_PLACE, TIED_KEYFRAMES, Places, near
+from shared.slam.places import SCAN_PLACE, SCANS_PER_PLACE, TIED_KEYFRAMES, Places, superseded
 from shared.slam.rows import Rows
 from shared.slam.settings import LoopClosureSettings
 from shared.slam.window import search_window
@@ -506,26 +506,35 @@ class GraphMapper:
 
     # ------------------------------------------------------------------ places
     def retire_places(self, k: int) -> None:
-        """With places on and the robot's stretch tied to an earlier visit (a closure accepted at most
-        :data:`~shared.slam.places.TIED_KEYFRAMES` keyframes before ``k``): retire the held keyframes at
-        keyframe ``k``'s place and the held kept scans at the places of keyframe ``k - 1``'s kept scans,
-        under the graph's estimate now, among those travelled well before (never one a sequential, skip or
-        loop edge still reads). In the step, at the join of ``k``'s loop search (:mod:`shared.slam.places`).
+        """With places on: retire each keyframe that has just fallen far enough behind keyframe ``k`` (never
+        one a sequential or skip edge still reads) where an older held keyframe holds its place and a loop
+        closure tied its stretch to it; it rides on that keyframe (:func:`shared.slam.places.superseded`).
+        With the robot's stretch tied to an earlier visit (a closure accepted at most
+        :data:`~shared.slam.places.TIED_KEYFRAMES` keyframes before ``k``), also retire the held kept scans
+        at the places of keyframe ``k - 1``'s kept scans among those travelled well before. Under the
+        graph's estimate now, in the step, at the join of ``k``'s loop search (:mod:`shared.slam.places`).
         O(held keyframes + held kept scans), vectorised."""
         p = self.places
-        if not p.enabled or not self.closures or self.closures[-1].current < k - TIED_KEYFRAMES:
+        if not p.enabled or not self.closures:
             return
         s = self.settings
         estimate = self.graph.pose_array()
         fronts = self._fronts.view()
         travelled = fronts[:, 3]
-        limit = travelled[k] - max(s.recent_m, SKIP_MAX_M) - s.keyframe_m
+        gap = max(s.recent_m, SKIP_MAX_M) + s.keyframe_m
+        limit = travelled[k] - gap
         n = len(estimate)
-        old = np.flatnonzero(p.keyframes_held()[:n] & (travelled[:n] < limit))
-        retired = near(estimate, old, estimate[k], s.keyframe_m / 2, s.keyframe_rad)
-        p.retire_keyframes(retired)
-        for r in retired.tolist():  # out of the solver at its next rebuild, carried by k (shared.slam.riders)
-            self.graph.ride(int(r), k)
+        first = int(np.searchsorted(travelled[:n], travelled[k - 1] - gap)) if k > 0 else 0
+        last = int(np.searchsorted(travelled[:n], limit))
+        held = p.keyframes_held()[:n]
+        place = (s.keyframe_m / 2, s.keyframe_rad)
+        for j, anchor in superseded(
+            estimate, travelled[:n], held, self._pairs.view(), range(first, last), gap, place
+        ):
+            p.retire_keyframes(np.array([j]))
+            self.graph.ride(j, anchor)  # out of the solver at its next rebuild, carried by the place's first
+        if self.closures[-1].current < k - TIED_KEYFRAMES:
+            return
         kept = self._kept.view()
         keys = kept[:, 3].astype(np.intp)
         new = np.flatnonzero(keys == k - 1)

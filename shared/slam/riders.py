@@ -1,11 +1,11 @@
-"""Riders: keyframes taken out of the pose graph's solver and carried rigidly by a newer node at their place.
+"""Riders: keyframes taken out of the pose graph's solver and carried rigidly by another node at their place.
 
 A robot that patrols a building for days adds a keyframe every half metre; places
 (:mod:`shared.slam.places`) already keep one keyframe scan per place, but every keyframe stayed a node of
 the graph with its edges, so the solver, each update's bookkeeping and each rebuild from scratch grew with
 the distance driven. The reduced pose graph (Johannsson et al., ICRA 2013) keeps the nodes bounded by the
-places instead. Here a retired keyframe **rides** on the keyframe that retired it (the newest at its
-place, 25 cm and 20 degrees at most away): at the solver's next rebuild from scratch its pose becomes the
+places instead. Here a retired keyframe **rides** on the held keyframe at its place (the first there,
+25 cm and 20 degrees at most away): at the solver's next rebuild from scratch its pose becomes the
 anchor's pose composed with a fixed offset (the two poses' relative estimate then), and every edge that
 touched it is carried onto the anchor:
 
@@ -34,8 +34,8 @@ touched it is carried onto the anchor:
 
 So the nodes in the solver grow with the places and with the retired keyframes no closure tied directly
 (a quarter of them on the simulated corridor loop), not with every keyframe. What a rider loses is its own
-freedom: the chain of an old lap no longer bends on its own, only with the places it rides on, which is
-what retiring it already said (the newer keyframe sees that place as it is now).
+freedom: the chain of a later lap no longer bends on its own, only with the places it rides on, which is
+what retiring it already said (the place's first keyframe is the reference every visit is matched against).
 
 Pure: arrays in, arrays out. Edge rows are :mod:`shared.slam.graph`'s: ``i, j, x, y, theta``, the kind
 (bits :data:`LOOP`, :data:`CARRIED`) and the information's nine entries (row-major) over the

@@ -21,7 +21,7 @@ from shared.pipeline import MapperState, Pipeline, PipelineConfig
 from shared.sim import scene_patrol_scans
 from shared.sim.worlds import build_scene
 from shared.slam import OnlineGraphMapper
-from shared.slam.places import Places, near
+from shared.slam.places import TIED_KEYFRAMES, Places, near, superseded
 from tests.shared.slam.slamcheck import assert_same_map, state_when
 
 _finite = st.floats(-20.0, 20.0, allow_nan=False)
@@ -65,6 +65,35 @@ def test_a_job_reads_what_was_held_when_it_began_and_data_is_freed_once() -> Non
     assert places.free_upto(2, 1) == ([3, 1], [0])
     assert places.free_upto(2, 1) == ([], [])
     assert (places.freed_keyframes, places.freed_scans) == (2, 1)
+
+
+def test_a_keyframe_is_superseded_by_the_older_one_holding_its_place() -> None:
+    """Known answers: keyframes 0-2 a first visit, 3-5 a second over the same places 20 m of travel later,
+    6 a place of its own. 4 rides on the keyframe its own closure joins (2, not the nearer 1); 3 and 5 on
+    the nearest; 6 holds its place. Without a closure within TIED_KEYFRAMES, or with the older ones
+    travelled within the gap, or retired, nothing retires."""
+    estimate = np.array(
+        [
+            [0.0, 0.0, 0.0],
+            [0.5, 0.0, 0.0],
+            [0.6, 0.0, 0.0],
+            [0.0, 0.01, 0.0],
+            [0.53, 0.0, 0.0],
+            [0.62, 0.0, 0.0],
+            [5.0, 5.0, 0.0],
+        ]
+    )
+    travelled = np.array([0.0, 0.5, 0.6, 20.0, 20.5, 20.6, 21.0])
+    held = np.ones(7, dtype=bool)
+    place = (0.25, math.radians(20.0))
+    pairs = np.array([[4.0, 2.0]])
+    assert superseded(estimate, travelled, held, pairs, range(3, 7), 10.5, place) == [(3, 0), (4, 2), (5, 2)]
+    untied = np.array([[6.0 + TIED_KEYFRAMES + 1, 0.0]])
+    assert superseded(estimate, travelled, held, untied, range(3, 7), 10.5, place) == []
+    assert superseded(estimate, travelled, held, pairs, range(3, 7), 25.0, place) == []
+    retired = held.copy()
+    retired[:3] = False
+    assert superseded(estimate, travelled, retired, pairs, range(3, 7), 10.5, place) == []
 
 
 def test_places_off_holds_everything() -> None:
@@ -123,6 +152,25 @@ def test_the_fourth_lap_holds_no_more_than_the_third_and_maps_as_well() -> None:
     assert acc.mean_distance_m < max(0.02, 1.25 * acc_every.mean_distance_m)
     assert acc.spurious_share <= acc_every.spurious_share + 0.02
     assert len(online.walls()[0]) <= 1.2 * len(every.walls()[0])
+
+
+def test_later_laps_are_matched_against_the_first_keyframe_at_each_place() -> None:
+    """A place keeps its first keyframe (the reference every later lap is matched against, so their match
+    errors do not add up lap after lap); the later keyframes there retire and ride on an older one."""
+    rows = _run(laps=4, places=True)
+    mapper = rows[-1][0]._mapper
+    per_lap = len(mapper._track) // 4 if mapper._track else 0
+    steps = mapper._fronts.view()[:, 5]
+    held = mapper.places.keyframes_held()
+    lap1 = steps < per_lap
+    assert per_lap > 0 and held[lap1].mean() > 0.9, "lap 1's keyframes stay held"
+    assert lap1[held].mean() > 2 / 3, "most held keyframes are lap 1's"
+    retired = np.flatnonzero(~held)
+    assert len(retired) > 2 * int(held.sum())
+    anchors = [mapper.graph.riding_on(int(j)) for j in retired]
+    riding = [(int(j), a) for j, a in zip(retired, anchors, strict=True) if a != j]
+    assert len(riding) > len(retired) / 2
+    assert all(a < j for j, a in riding), "a later keyframe rides on an older one"
 
 
 def test_a_state_saved_with_retired_data_still_held_for_a_job_resumes_exactly(late_worker) -> None:  # type: ignore[no-untyped-def]
