@@ -12,7 +12,7 @@ matrix here (per m^2, m rad, rad^2).
 place an older one holds, :mod:`shared.slam.places`) that a loop closure ties directly to that one leaves
 the solver at its next rebuild from scratch and is carried by it at a fixed offset; its edges are carried
 onto the anchor and fused. The solver then grows with the places and with the retired nodes that no
-closure tied (a quarter of them on the simulated corridor loop), not with every keyframe.
+closure tied (about a third of them on the simulated corridor loop), not with every keyframe.
 
 An update that gtsam refuses (an indeterminate system, a non-finite value) raises
 :class:`~shared.slam.errors.OptimisationError`; the estimate from before it stays in force.

@@ -33,7 +33,7 @@ touched it is carried onto the anchor:
   by side, one factor each.
 
 So the nodes in the solver grow with the places and with the retired keyframes no closure tied directly
-(a quarter of them on the simulated corridor loop), not with every keyframe. What a rider loses is its own
+(about a third of them on the simulated corridor loop), not with every keyframe. What a rider loses is its own
 freedom: the chain of a later lap no longer bends on its own, only with the places it rides on, which is
 what retiring it already said (the place's first keyframe is the reference every visit is matched against).
 
