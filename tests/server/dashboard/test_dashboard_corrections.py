@@ -108,6 +108,20 @@ def test_a_loop_closure_redraws_in_place(live: Live, tmp_path: Path) -> None:
     assert not errors, errors
 
 
+def _keyframe_per_pose(v: int, first: int, n: int, closure: list[int]) -> dict[str, Any]:
+    """Map version ``v`` (a snapshot at 1, else a delta): ``n`` poses from stamp ``first`` on, a keyframe
+    at each, one wall and the loop closure ``closure``."""
+    return {
+        "version": v,
+        "base_version": v - 1 if v > 1 else None,
+        "stamp_s": float(first + n),
+        "segments": [[float(v), 0.0, 0.0, 1.0, 1.0]],
+        "trajectory": [[float(s), 0.001 * s, 1.0, 0.0] for s in range(first, first + n)],
+        "keyframes": [[float(k), float(k), 0.001 * k, 1.0, 0.0] for k in range(first, first + n)],
+        "loop_closures": [closure],
+    }
+
+
 def test_a_row_of_a_keyframe_the_server_dropped_is_left_out_on_the_page(live: Live) -> None:
     """A keyframe per pose for 9,000 poses: the server keeps the keyframes its thinned trajectory owns
     (server/mapgraph.py prune_graph). A later correction's row for a dropped keyframe and a closure to it
@@ -116,15 +130,7 @@ def test_a_row_of_a_keyframe_the_server_dropped_is_left_out_on_the_page(live: Li
     per = 1000
 
     def delta(v: int, first: int, n: int) -> dict[str, Any]:
-        return {
-            "version": v,
-            "base_version": v - 1 if v > 1 else None,
-            "stamp_s": float(first + n),
-            "segments": [[float(v), 0.0, 0.0, 1.0, 1.0]],
-            "trajectory": [[float(s), 0.001 * s, 1.0, 0.0] for s in range(first, first + n)],
-            "keyframes": [[float(k), float(k), 0.001 * k, 1.0, 0.0] for k in range(first, first + n)],
-            "loop_closures": [[first + n - 1, max(first - per, 0)]],
-        }
+        return _keyframe_per_pose(v, first, n, [first + n - 1, max(first - per, 0)])
 
     with live.client(token) as robot:
         for k in range(9):
@@ -163,15 +169,7 @@ def test_a_page_left_open_holds_the_keyframes_of_the_rows_it_holds(live: Live) -
 
     def upload(v: int) -> dict[str, Any]:
         first = (v - 1) * per
-        return {
-            "version": v,
-            "base_version": v - 1 if v > 1 else None,
-            "stamp_s": float(first + per),
-            "segments": [[float(v), 0.0, 0.0, 1.0, 1.0]],
-            "trajectory": [[float(s), 0.001 * s, 1.0, 0.0] for s in range(first, first + per)],
-            "keyframes": [[float(k), float(k), 0.001 * k, 1.0, 0.0] for k in range(first, first + per)],
-            "loop_closures": [[max(first - 2 * per, 0), first + per - 1]],
-        }
+        return _keyframe_per_pose(v, first, per, [max(first - 2 * per, 0), first + per - 1])
 
     with sync_api.sync_playwright() as p:
         browser = launch_chromium(p)
