@@ -139,7 +139,6 @@ export class PoseGraphLayer {
       if (lo > 0) used[lo - 1] = 1;
       if (row[0] > last) last = row[0];
     }
-    if (!trajectory.length) used.fill(1);
     for (let i = ids.length - 1; i >= 0 && stamps[i] > last; i--) used[i] = 1;
     let dropped = 0;
     ids.forEach((k, i) => { if (!used[i]) { this.keyframes.delete(k); dropped++; } });
