@@ -18,6 +18,7 @@ from sqlalchemy.orm import Session
 
 from server import jsontext
 from server.models import MapDeltaRecord
+from server.pgdriver import driver, driver_errors
 
 __all__ = ["KEEP_VERSIONS", "LoggedUpload", "append", "chain_from", "clear", "read_after"]
 
@@ -26,6 +27,12 @@ KEEP_VERSIONS = 256
 _LOG: Table = MapDeltaRecord.__table__  # type: ignore[assignment]
 #: built once: a statement built per upload is compiled from its cache key, made anew every time
 _INSERT = insert(_LOG)
+#: PostgreSQL: the entry and the trim as one statement, sent to psycopg itself in the upload's pipeline
+#: (server.pgwrite says why); the trim never reaches the new entry (``keep`` >= 1)
+_LOG_SQL = (
+    "WITH logged AS (INSERT INTO map_deltas (robot_id, version, base_version, body, undo) "
+    "VALUES (%s, %s, %s, %s, %s)) DELETE FROM map_deltas WHERE robot_id = %s AND version <= %s"
+)
 _TRIM = delete(_LOG).where(_LOG.c.robot_id == bindparam("log_robot"), _LOG.c.version <= bindparam("log_upto"))
 
 
@@ -59,6 +66,10 @@ def append(
         base, body = event["base_version"], jsontext.dumps(event)
     else:
         base, body = None, None
+    if conn.dialect.name == "postgresql":
+        with driver_errors():
+            driver(conn).execute(_LOG_SQL, (robot_id, version, base, body, undo, robot_id, version - keep))
+        return LoggedUpload(version, base, body, event.get("map_session"))
     row = {"robot_id": robot_id, "version": version, "base_version": base, "body": body, "undo": undo}
     conn.execute(_INSERT, row)
     conn.execute(_TRIM, {"log_robot": robot_id, "log_upto": version - keep})

@@ -18,7 +18,7 @@ from typing import Any
 from sqlalchemy import Connection, Table, bindparam, delete, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 
-from server import pgrows
+from server import pgrows, pgwrite
 from server.mapcounts import Counts
 from server.models import MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint, utcnow
 from server.schemas import MapUpload
@@ -144,8 +144,9 @@ def _multi_row(conn: Connection, sql: str, width: int, rows: list[tuple[Any, ...
 def _bulk_segments(
     conn: Connection, robot_id: int, version: int, rows: list[list[float]], prepared: PreparedRows
 ) -> None:
-    """Upsert walls (the hot path: ~200 rows several times a second). SQLite and PostgreSQL both speak
-    ``ON CONFLICT ... DO UPDATE``; other backends go through :func:`_upsert`. A segment id given twice in
+    """Upsert walls (the hot path: ~200 rows several times a second), on SQLite as multi-row ``ON CONFLICT
+    ... DO UPDATE`` statements; other backends but PostgreSQL (:mod:`server.pgwrite`) go through
+    :func:`_upsert`. A segment id given twice in
     one upload keeps its last row."""
     if not rows:
         return
@@ -156,8 +157,6 @@ def _bulk_segments(
             for sid, r in last.items()
         ]
         _upsert(conn, _SEG, ["robot_id", "segment_id"], _COORDS, values)
-    elif conn.dialect.name == "postgresql":
-        pgrows.upsert_segments(conn, prepared.segments)
     else:
         _multi_row(conn, _SEGMENT_SQL, 7, prepared.segments)
 
@@ -188,51 +187,24 @@ def write_rows(
     ``counts``: :mod:`server.mapcounts`), the robot row, the upload record. No statement here returns
     rows (PostgreSQL pipelines them)."""
     v = up.version
-    if up.base_version is not None:
-        delete_walls(conn, robot_id, up.removed)
-    _bulk_segments(conn, robot_id, v, up.segments, rows)
-    if conn.dialect.name == "postgresql":
-        pgrows.insert_trajectory(conn, rows.trajectory)
-    else:
-        _multi_row(conn, _TRAJECTORY_SQL, 6, rows.trajectory)
     now = utcnow()
-    pose = {"x_m": up.pose[0], "y_m": up.pose[1], "theta_rad": up.pose[2]}
-    _upsert(
-        conn,
-        _STATE,
-        ["robot_id"],
-        (
-            "version",
-            "stamp_s",
-            "centroids",
-            "pose",
-            "wall_time_s",
-            "updated_at",
-            "n_walls",
-            "n_poses",
-            *graph,
-        ),
-        [
-            {
-                "robot_id": robot_id,
-                "version": v,
-                "stamp_s": up.stamp_s,
-                "centroids": {"xy": up.centroids},
-                "pose": pose,
-                "wall_time_s": up.wall_time_s,
-                "updated_at": now,
-                "n_walls": counts.walls,
-                "n_poses": counts.poses,
-                **graph,
-            }
-        ],
-    )
+    state = {
+        "robot_id": robot_id,
+        "version": v,
+        "stamp_s": up.stamp_s,
+        "centroids": {"xy": up.centroids},
+        "pose": {"x_m": up.pose[0], "y_m": up.pose[1], "theta_rad": up.pose[2]},
+        "wall_time_s": up.wall_time_s,
+        "updated_at": now,
+        "n_walls": counts.walls,
+        "n_poses": counts.poses,
+        **graph,
+    }
     changes: dict[str, Any] = {"map_version": v, "map_session": up.map_session}
     if seen_at is not None:
         changes["last_seen_at"] = seen_at
     if up.status is not None:
         changes.update(status_columns(up.status))
-    conn.execute(_ROBOT_UPDATE, {"robot_row": robot_id, **changes})
     record = {
         "robot_id": robot_id,
         "idempotency_key": key,
@@ -243,6 +215,15 @@ def write_rows(
         "n_removed": len(up.removed),
         "received_at": now,
     }
+    if conn.dialect.name == "postgresql":  # all of it as one statement (server.pgwrite)
+        pgwrite.write_upload(conn, robot_id, up, rows.segments, rows.trajectory, state, changes, record)
+        return
+    if up.base_version is not None:
+        delete_walls(conn, robot_id, up.removed)
+    _bulk_segments(conn, robot_id, v, up.segments, rows)
+    _multi_row(conn, _TRAJECTORY_SQL, 6, rows.trajectory)
+    _upsert(conn, _STATE, ["robot_id"], tuple(c for c in state if c != "robot_id"), [state])
+    conn.execute(_ROBOT_UPDATE, {"robot_row": robot_id, **changes})
     conn.execute(_UPLOAD_INSERT, record)
 
 

@@ -30,18 +30,22 @@ from typing import Any
 
 import psycopg
 from sqlalchemy import Connection
-from sqlalchemy.exc import DBAPIError
 
 from server import jsontext
 from server.mapcounts import Counts
 from server.maphistory import UndoReads
+from server.pgdriver import driver, driver_errors
 
 __all__ = [
     "BATCH_KEY",
+    "DELETE_SQL",
+    "SEGMENTS_SQL",
+    "TRAJECTORY_SQL",
     "DeltaProbe",
     "PendingReads",
     "UploadReads",
     "array_text",
+    "columns",
     "delete_walls",
     "driver",
     "driver_errors",
@@ -54,7 +58,7 @@ __all__ = [
 
 #: Rows ``[robot_id, segment_id, x0_m, y0_m, x1_m, y1_m, version]``, one array parameter a column; a segment
 #: id at most once per call (``ON CONFLICT`` cannot touch one row twice in a statement).
-_SEGMENTS_SQL = (
+SEGMENTS_SQL = (
     "INSERT INTO map_segments (robot_id, segment_id, x0_m, y0_m, x1_m, y1_m, version) "
     "SELECT * FROM unnest(%s::integer[], %s::bigint[], %s::float8[], %s::float8[], %s::float8[], "
     "%s::float8[], %s::bigint[]) "
@@ -63,12 +67,12 @@ _SEGMENTS_SQL = (
 )
 #: Rows ``[robot_id, version, stamp_s, x_m, y_m, theta_rad]``, one array a column, inserted in their order
 #: (``WITH ORDINALITY``: the ids follow the rows, as the multi-row insert's do).
-_TRAJECTORY_SQL = (
+TRAJECTORY_SQL = (
     "INSERT INTO trajectory_points (robot_id, version, stamp_s, x_m, y_m, theta_rad) "
     "SELECT r, v, s, x, y, t FROM unnest(%s::integer[], %s::bigint[], %s::float8[], %s::float8[], "
     "%s::float8[], %s::float8[]) WITH ORDINALITY AS u(r, v, s, x, y, t, n) ORDER BY n"
 )
-_DELETE_SQL = "DELETE FROM map_segments WHERE robot_id = %s AND segment_id = ANY(%s::bigint[])"
+DELETE_SQL = "DELETE FROM map_segments WHERE robot_id = %s AND segment_id = ANY(%s::bigint[])"
 
 
 def array_text(values: Iterable[Any]) -> str:
@@ -85,27 +89,28 @@ def array_text(values: Iterable[Any]) -> str:
     return "{" + text[1:-1] + "}"
 
 
-def _columns(rows: Sequence[Sequence[Any]]) -> tuple[str, ...]:
+def columns(rows: Sequence[Sequence[Any]]) -> tuple[str, ...]:
+    """``rows``' columns, each as one array's text (:func:`array_text`). O(rows)."""
     return tuple(array_text(col) for col in zip(*rows, strict=True))
 
 
 def upsert_segments(conn: Connection, rows: Sequence[Sequence[Any]]) -> None:
-    """Insert or replace the walls ``rows`` (see :data:`_SEGMENTS_SQL`) in ``conn``'s transaction: one
+    """Insert or replace the walls ``rows`` (see :data:`SEGMENTS_SQL`) in ``conn``'s transaction: one
     statement, one round trip. O(rows)."""
     if rows:
-        conn.exec_driver_sql(_SEGMENTS_SQL, _columns(rows))
+        conn.exec_driver_sql(SEGMENTS_SQL, columns(rows))
 
 
 def insert_trajectory(conn: Connection, rows: Sequence[Sequence[Any]]) -> None:
-    """Append the poses ``rows`` (see :data:`_TRAJECTORY_SQL`): one statement. O(rows)."""
+    """Append the poses ``rows`` (see :data:`TRAJECTORY_SQL`): one statement. O(rows)."""
     if rows:
-        conn.exec_driver_sql(_TRAJECTORY_SQL, _columns(rows))
+        conn.exec_driver_sql(TRAJECTORY_SQL, columns(rows))
 
 
 def delete_walls(conn: Connection, robot_id: int, ids: Sequence[int]) -> None:
     """Delete the robot's walls ``ids`` (absent ones are no error): one statement. O(ids)."""
     if ids:
-        conn.exec_driver_sql(_DELETE_SQL, (int(robot_id), array_text(int(i) for i in ids)))
+        conn.exec_driver_sql(DELETE_SQL, (int(robot_id), array_text(int(i) for i in ids)))
 
 
 _LOCK_SQL = "SELECT pg_advisory_xact_lock(%s, %s)"
@@ -244,20 +249,3 @@ def pipelined(conn: Connection) -> Iterator[None]:
         return
     with driver_errors(), driver(conn).pipeline():
         yield
-
-
-def driver(conn: Connection) -> psycopg.Connection[Any]:
-    """The psycopg connection under ``conn``."""
-    pg = conn.connection.driver_connection
-    if not isinstance(pg, psycopg.Connection):
-        raise TypeError(f"expected a psycopg connection, got {type(pg).__name__}")
-    return pg
-
-
-@contextmanager
-def driver_errors() -> Iterator[None]:
-    """psycopg's errors, raised outside SQLAlchemy's execution (a pipeline's sync), as SQLAlchemy's."""
-    try:
-        yield
-    except psycopg.Error as exc:
-        raise DBAPIError.instance(None, None, exc, psycopg.Error) from exc
