@@ -20,6 +20,7 @@ Checks are vectorised (numpy): O(rows) with no Python call per row.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -122,15 +123,29 @@ def first_violation(rows: Any, bounds: tuple[Bound, ...]) -> tuple[int, int, flo
     return row, col, float(arr[row, col])
 
 
+@functools.lru_cache(maxsize=64)
+def _limits(bounds: tuple[Bound, ...]) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """The bounds' lower and upper limits and integer flags as arrays, made once per bounds."""
+    return (
+        np.array([b.lo for b in bounds]),
+        np.array([b.hi for b in bounds]),
+        np.array([b.integer for b in bounds]),
+    )
+
+
 def _bad_mask(arr: FloatArray, bounds: tuple[Bound, ...]) -> np.ndarray:
-    lo = np.array([b.lo for b in bounds])
-    hi = np.array([b.hi for b in bounds])
+    lo, hi, ints = _limits(bounds)
     with np.errstate(invalid="ignore"):
         bad = ~np.isfinite(arr) | (arr < lo) | (arr > hi)
-        ints = np.array([b.integer for b in bounds])
         if ints.any():
             bad |= ints & (np.floor(arr) != arr)
     return bad
+
+
+def _outside(value: float, bound: Bound) -> bool:
+    """Whether one value breaks ``bound`` (not finite, outside it, or not an integer where one is due)."""
+    v = float(value)
+    return not (math.isfinite(v) and bound.lo <= v <= bound.hi) or (bound.integer and not v.is_integer())
 
 
 def bad_rows(rows: Any, bounds: tuple[Bound, ...]) -> np.ndarray:
@@ -157,25 +172,43 @@ def _check_rows(name: str, rows: Any, bounds: tuple[Bound, ...]) -> None:
         raise _refuse(f"{name}[{row}][{col}]", bounds[col], value)
 
 
+@functools.lru_cache(maxsize=8)
+def _upload_bounds(extent_m: float) -> dict[str, tuple[Bound, ...]]:
+    """Every bound an upload is checked against, made once per world extent."""
+    return {
+        "segments": segment_bounds(extent_m),
+        "centroids": centroid_bounds(extent_m),
+        "trajectory": trajectory_bounds(extent_m),
+        "pose": pose_bounds(extent_m),
+        "stamp_s": (_stamp("stamp_s"),),
+        "wall_time_s": (Bound("wall_time_s", 0.0, WALL_TIME_MAX_S, "s", "Unix time"),),
+        "removed": (_id("segment_id"),),
+    }
+
+
 def check_upload_bounds(up: MapUpload, world_extent_m: float) -> None:
     """Raise :class:`InvalidRequestError` (422) naming the first field outside its declared bound (module
-    docstring): field path, value and bound. O(rows of the upload)."""
-    _check_rows("segments", up.segments, segment_bounds(world_extent_m))
-    _check_rows("centroids", up.centroids, centroid_bounds(world_extent_m))
-    _check_rows("trajectory", up.trajectory, trajectory_bounds(world_extent_m))
-    pose = pose_bounds(world_extent_m)
-    hit = first_violation([up.pose], pose)
-    if hit is not None:
-        raise _refuse(f"pose[{hit[1]}]", pose[hit[1]], hit[2])
-    stamp = _stamp("stamp_s")
-    if first_violation([up.stamp_s], (stamp,)) is not None:
+    docstring): field path, value and bound. O(rows of the upload); the rows in numpy, the single values
+    and the removed ids (integers already) in Python (a numpy call costs more than a handful of
+    comparisons: this check took 0.21 ms of a 200-wall delta's ~0.44 ms parse)."""
+    bounds = _upload_bounds(world_extent_m)
+    for name in ("segments", "centroids", "trajectory"):
+        rows = getattr(up, name)
+        if rows:
+            _check_rows(name, rows, bounds[name])
+    for col, (value, bound) in enumerate(zip(up.pose, bounds["pose"], strict=True)):
+        if _outside(value, bound):
+            raise _refuse(f"pose[{col}]", bound, float(value))
+    (stamp,) = bounds["stamp_s"]
+    if _outside(up.stamp_s, stamp):
         raise _refuse("stamp_s", stamp, up.stamp_s)
-    wall = Bound("wall_time_s", 0.0, WALL_TIME_MAX_S, "s", "Unix time")
-    if up.wall_time_s is not None and first_violation([up.wall_time_s], (wall,)) is not None:
+    (wall,) = bounds["wall_time_s"]
+    if up.wall_time_s is not None and _outside(up.wall_time_s, wall):
         raise _refuse("wall_time_s", wall, up.wall_time_s)
-    removed = first_violation(up.removed, (_id("segment_id"),))
-    if removed is not None:
-        raise _refuse(f"removed[{removed[0]}]", _id("segment_id"), removed[2])
+    (sid,) = bounds["removed"]
+    if up.removed and (min(up.removed) < sid.lo or max(up.removed) > sid.hi):
+        i = next(i for i, v in enumerate(up.removed) if _outside(v, sid))
+        raise _refuse(f"removed[{i}]", sid, float(up.removed[i]))
 
 
 @dataclass(frozen=True, slots=True)
