@@ -79,9 +79,15 @@ class Hub:
         """Tell the other server processes that ``topic`` reached ``version``, in ``conn``'s transaction:
         PostgreSQL delivers the notice at commit, or never if the transaction rolls back. A no-op unless
         ``cross_process``. Any thread (it only uses ``conn``). One statement, O(1)."""
-        if self.cross_process:
-            payload = encode_notice(self.origin, topic, version)
+        payload = self.notice(topic, version)
+        if payload is not None:
             conn.exec_driver_sql("SELECT pg_notify(%s, %s)", (CHANNEL, payload))
+
+    def notice(self, topic: str, version: int) -> str | None:
+        """The payload :meth:`announce` would send on :data:`server.notices.CHANNEL` (None unless
+        ``cross_process``), for a writer that sends it in a statement of its own
+        (:func:`server.maplog.append`). O(1)."""
+        return encode_notice(self.origin, topic, version) if self.cross_process else None
 
     def receive(self, payload: str) -> bool:
         """Publish a notice heard from the database to this process's subscribers of its topic; False

@@ -18,6 +18,7 @@ from sqlalchemy.orm import Session
 
 from server import jsontext
 from server.models import MapDeltaRecord
+from server.notices import CHANNEL
 from server.pgdriver import driver, driver_errors
 
 __all__ = ["KEEP_VERSIONS", "LoggedUpload", "append", "chain_from", "clear", "read_after"]
@@ -27,11 +28,13 @@ KEEP_VERSIONS = 256
 _LOG: Table = MapDeltaRecord.__table__  # type: ignore[assignment]
 #: built once: a statement built per upload is compiled from its cache key, made anew every time
 _INSERT = insert(_LOG)
-#: PostgreSQL: the entry and the trim as one statement, sent to psycopg itself in the upload's pipeline
-#: (server.pgwrite says why); the trim never reaches the new entry (``keep`` >= 1)
+#: PostgreSQL: the entry, the trim and the notice to other processes (when the last parameter is true) as
+#: one statement, sent to psycopg itself in the upload's pipeline (server.pgwrite says why); the trim never
+#: reaches the new entry
 _LOG_SQL = (
     "WITH logged AS (INSERT INTO map_deltas (robot_id, version, base_version, body, undo) "
-    "VALUES (%s, %s, %s, %s, %s)) DELETE FROM map_deltas WHERE robot_id = %s AND version <= %s"
+    "VALUES (%s, %s, %s, %s, %s)), trimmed AS (DELETE FROM map_deltas WHERE robot_id = %s AND version <= %s) "
+    "SELECT pg_notify(%s, %s) WHERE %s"
 )
 _TRIM = delete(_LOG).where(_LOG.c.robot_id == bindparam("log_robot"), _LOG.c.version <= bindparam("log_upto"))
 
@@ -55,12 +58,21 @@ def clear(conn: Connection, robot_id: int) -> None:
 
 
 def append(
-    conn: Connection, robot_id: int, event: dict[str, Any], keep: int = KEEP_VERSIONS, undo: str | None = None
+    conn: Connection,
+    robot_id: int,
+    event: dict[str, Any],
+    keep: int = KEEP_VERSIONS,
+    undo: str | None = None,
+    notice: str | None = None,
 ) -> LoggedUpload:
     """Log the upload whose stream event is ``event`` (:class:`server.mapstore.AppliedUpload`'s) in
     ``conn``'s transaction, with a delta's undo record (``undo``, :func:`server.maphistory.capture_undo`),
     and drop the robot's entries ``keep`` or more versions older; returns the
-    entry (its JSON is what every stream sends, encoded once here). O(event)."""
+    entry (its JSON is what every stream sends, encoded once here). ``notice``: a payload for the other
+    server processes (:meth:`server.hub.Hub.notice`, PostgreSQL only), sent in the same statement.
+    O(event)."""
+    if notice is not None and conn.dialect.name != "postgresql":
+        raise ValueError(f"a notice needs PostgreSQL's NOTIFY, not {conn.dialect.name}")
     version = int(event["version"])
     if event["kind"] == "delta":
         base, body = event["base_version"], jsontext.dumps(event)
@@ -68,7 +80,20 @@ def append(
         base, body = None, None
     if conn.dialect.name == "postgresql":
         with driver_errors():
-            driver(conn).execute(_LOG_SQL, (robot_id, version, base, body, undo, robot_id, version - keep))
+            tell = notice is not None
+            params = (
+                robot_id,
+                version,
+                base,
+                body,
+                undo,
+                robot_id,
+                version - keep,
+                CHANNEL,
+                notice or "",
+                tell,
+            )
+            driver(conn).execute(_LOG_SQL, params)
         return LoggedUpload(version, base, body, event.get("map_session"))
     row = {"robot_id": robot_id, "version": version, "base_version": base, "body": body, "undo": undo}
     conn.execute(_INSERT, row)

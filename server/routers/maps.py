@@ -141,9 +141,9 @@ async def upload_map(
         # written with the map's rows (on PostgreSQL in their round trip)
         if applied.new_session:  # the log holds the current session's uploads only: versions anew
             clear_log(conn, robot_id)
-        state.hub.announce(conn, f"maps:{robot_id}", body.version)
         assert applied.event is not None
-        return log_upload(conn, robot_id, applied.event, undo=applied.undo)
+        notice = state.hub.notice(f"maps:{robot_id}", body.version)  # sent with the log's entry
+        return log_upload(conn, robot_id, applied.event, undo=applied.undo, notice=notice)
 
     def write(conn: Connection) -> AppliedUpload:
         pending, queued[0] = queued[0], None

@@ -2,20 +2,23 @@
 SQLite, the reference): on both backends of the shared live server, a snapshot and then a delta leave the
 walls, poses, map state, robot row, upload record and delta log that the upload says, whatever optional
 parts it has (removed walls, also sent again; a status with any of its fields; a last-seen time; the pose
-graph's columns)."""
+graph's columns); the log's entry carries the notice to other server processes (PostgreSQL), heard at
+commit only."""
 
 from __future__ import annotations
 
 from datetime import UTC, datetime
 from typing import Any
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sqlalchemy import select
 
-from server import maplog
+from server import maplog, pgdriver
 from server.mapstore import apply_upload
 from server.models import MapDeltaRecord, MapSegment, MapState, MapUploadRecord, Robot, TrajectoryPoint
+from server.notices import CHANNEL, encode_notice
 from server.schemas import MapUpload
 from tests.server.live import Live
 
@@ -186,3 +189,36 @@ def test_a_wall_removed_and_sent_again_in_one_delta_is_stored_with_its_sent_row(
     got = _read(live, rid)
     assert got["walls"] == {2: (5.0, 5.0, 6.0, 6.0), 3: (0.0, 0.0, 3.0, 3.0)}
     assert got["counts"] == (2, 0)
+
+
+def test_the_logs_entry_carries_the_notice_to_other_processes_at_commit_only(live: Live) -> None:
+    rid, _ = live.new_robot()
+    event = {"kind": "delta", "robot_id": rid, "version": 2, "base_version": 1, "segments": []}
+    topic = f"maps:{rid}"
+    notice = encode_notice("0123abcd", topic, 2)
+    if live.state.db.is_sqlite:  # one process: nobody to tell, and no NOTIFY
+        with live.state.db.write_conn() as conn, pytest.raises(ValueError, match="PostgreSQL"):
+            maplog.append(conn, rid, event, notice=notice)
+        return
+    with live.state.db.engine.connect() as listening:
+        pg = pgdriver.driver(listening)
+        listening.commit()
+        pg.autocommit = True
+        pg.execute(f"LISTEN {CHANNEL}")
+
+        def rolled_back() -> None:  # no notice from it
+            with live.state.db.write_conn() as conn:
+                maplog.append(conn, rid, {**event, "version": 3}, notice=encode_notice("0123abcd", topic, 3))
+                raise RuntimeError("roll back")
+
+        with pytest.raises(RuntimeError):
+            rolled_back()
+        with live.state.db.write_conn() as conn:
+            maplog.append(conn, rid, event, notice=notice)
+        heard = [n.payload for n in pg.notifies(timeout=10.0, stop_after=1)]
+        pg.execute(f"UNLISTEN {CHANNEL}")
+        pg.autocommit = False
+    assert heard == [notice]
+    with live.state.db.read() as s:
+        logged = s.execute(select(MapDeltaRecord.version).where(MapDeltaRecord.robot_id == rid)).all()
+    assert [v for (v,) in logged] == [2]
