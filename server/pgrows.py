@@ -114,12 +114,24 @@ def delete_walls(conn: Connection, robot_id: int, ids: Sequence[int]) -> None:
 
 
 _LOCK_SQL = "SELECT pg_advisory_xact_lock(%s, %s)"
-#: the robot's map version and session, and its stored walls and poses (:mod:`server.mapcounts`)
+#: the robot's map version and session, its stored walls and poses (:mod:`server.mapcounts`) and the upload
+#: already applied under the idempotency key: one row, NULLs for what is absent (no robot, a new key)
 _ROBOT_SQL = (
-    "SELECT r.map_version, r.map_session, s.n_walls, s.n_poses FROM robots AS r "
-    "LEFT JOIN map_states AS s ON s.robot_id = r.id WHERE r.id = %s"
+    "SELECT r.map_version, r.map_session, s.n_walls, s.n_poses, u.version, u.map_session "
+    "FROM (SELECT 1) AS one LEFT JOIN robots AS r ON r.id = %(rid)s "
+    "LEFT JOIN map_states AS s ON s.robot_id = %(rid)s "
+    "LEFT JOIN map_uploads AS u ON u.robot_id = %(rid)s AND u.idempotency_key = %(key)s"
 )
-_SEEN_SQL = "SELECT version, map_session FROM map_uploads WHERE robot_id = %s AND idempotency_key = %s"
+#: and for a delta also what its undo record reads of the map state: whether the base version's log entry
+#: holds its body, the map state (its centroids only if not)
+_DELTA_SQL = (
+    "SELECT r.map_version, r.map_session, s.n_walls, s.n_poses, u.version, u.map_session, l.logged, "
+    "s.stamp_s, s.pose::text, s.wall_time_s, CASE WHEN l.logged THEN NULL ELSE s.centroids::text END "
+    "FROM (SELECT EXISTS (SELECT 1 FROM map_deltas WHERE robot_id = %(rid)s AND version = %(base)s "
+    "AND body IS NOT NULL) AS logged) AS l LEFT JOIN robots AS r ON r.id = %(rid)s "
+    "LEFT JOIN map_states AS s ON s.robot_id = %(rid)s "
+    "LEFT JOIN map_uploads AS u ON u.robot_id = %(rid)s AND u.idempotency_key = %(key)s"
+)
 
 
 #: a delta's touched walls, the ids as one array's text (:func:`array_text`: a Python list is adapted
@@ -127,13 +139,6 @@ _SEEN_SQL = "SELECT version, map_session FROM map_uploads WHERE robot_id = %s AN
 _TOUCHED_SQL = (
     "SELECT segment_id, x0_m, y0_m, x1_m, y1_m FROM map_segments WHERE robot_id = %s "
     "AND segment_id = ANY(%s::bigint[]) ORDER BY segment_id"
-)
-#: whether the base version's log entry holds its body, and the map state (its centroids only if not)
-_UNDO_STATE_SQL = (
-    "SELECT l.logged, s.stamp_s, s.pose::text, s.wall_time_s, "
-    "CASE WHEN l.logged THEN NULL ELSE s.centroids::text END FROM (SELECT EXISTS (SELECT 1 FROM map_deltas "
-    "WHERE robot_id = %s AND version = %s AND body IS NOT NULL) AS logged) AS l "
-    "LEFT JOIN map_states AS s ON s.robot_id = %s"
 )
 
 
@@ -177,11 +182,13 @@ class PendingReads:
 
     def _result(self) -> UploadReads:
         curs = self._curs
-        robot, seen = curs[1].fetchone(), curs[2].fetchone()
+        row = curs[1].fetchone()
+        assert row is not None  # one row whatever exists (outer joins)
+        seen = None if row[4] is None else (int(row[4]), row[5])
         undo = None
         if self._delta:
-            touched = curs[3].fetchall()
-            logged, stamp, pose, wall_time, centroids = curs[4].fetchone() or (False, None, None, None, None)
+            touched = curs[2].fetchall()
+            logged, stamp, pose, wall_time, centroids = row[6:11]
             state = None
             if stamp is not None and pose is not None:  # a map state row (its columns are NOT NULL)
                 state = (
@@ -193,14 +200,9 @@ class PendingReads:
             undo = UndoReads(touched, bool(logged), state)
         for cur in curs:
             cur.close()
-        if robot is None:
-            return UploadReads(None, None if seen is None else (int(seen[0]), seen[1]))
-        return UploadReads(
-            (int(robot[0]), robot[1]),
-            None if seen is None else (int(seen[0]), seen[1]),
-            Counts(int(robot[2] or 0), int(robot[3] or 0)),
-            undo,
-        )
+        if row[0] is None:
+            return UploadReads(None, seen)
+        return UploadReads((int(row[0]), row[1]), seen, Counts(int(row[2] or 0), int(row[3] or 0)), undo)
 
 
 def queue_lock_and_read(
@@ -210,13 +212,13 @@ def queue_lock_and_read(
     the write batches queue every upload's lock and reads in one pipeline, one round trip for all."""
     rid = int(robot_id)
     pg = driver(conn)
-    curs = [pg.cursor() for _ in range(3 + 2 * (delta is not None))]
+    curs = [pg.cursor() for _ in range(2 + (delta is not None))]
     curs[0].execute(_LOCK_SQL, (lock_class, rid))
-    curs[1].execute(_ROBOT_SQL, (rid,))
-    curs[2].execute(_SEEN_SQL, (rid, key))
-    if delta is not None:
-        curs[3].execute(_TOUCHED_SQL, (rid, array_text(delta.touched)))
-        curs[4].execute(_UNDO_STATE_SQL, (rid, delta.base_version, rid))
+    if delta is None:
+        curs[1].execute(_ROBOT_SQL, {"rid": rid, "key": key})
+    else:
+        curs[1].execute(_DELTA_SQL, {"rid": rid, "key": key, "base": int(delta.base_version)})
+        curs[2].execute(_TOUCHED_SQL, (rid, array_text(delta.touched)))
     return PendingReads(curs, delta is not None)
 
 
