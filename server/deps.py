@@ -24,7 +24,8 @@ from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import Connection, bindparam, select, update
 
 from server.agents import InstanceCheck
-from server.credcache import CredentialCache, Principal, credential_kind, find_principals
+from server.credbatch import LookupBatcher
+from server.credcache import CredentialCache, Kind, Principal, credential_kind, find_principals
 from server.csrf import CSRF_HEADER, require_csrf_token
 from server.database import Database
 from server.errors import AuthError, ForbiddenError
@@ -75,6 +76,7 @@ class AppState:
     instances: InstanceCheck = field(init=False)  # the agent process speaking for each robot
     credentials: CredentialCache = field(init=False)
     polls: PollSweep = field(init=False)  # the long-polls' safety net (server.pollsweep)
+    lookups: LookupBatcher = field(init=False)  # cache misses answered together (server.credbatch)
     _seen: dict[int, datetime] = field(default_factory=dict)
     _seen_mono: dict[int, float] = field(default_factory=dict)  # time.monotonic() when last heard from
     mono_clock: Callable[[], float] = time.monotonic
@@ -86,6 +88,7 @@ class AppState:
         self.limiter = AuthLimiter.from_settings(self.settings, self.db)
         self.credentials = CredentialCache(self.settings.credential_cache_s)
         self.polls = PollSweep(self.hub, self.read_seqs)
+        self.lookups = LookupBatcher(lambda batch: run_in_threadpool(self.lookup_many, batch))
 
     def read_seqs(self, ids: list[int]) -> dict[int, int]:
         """``{robot_id: last_seq}`` of the robots among ``ids`` that exist (blocking; a worker thread).
@@ -110,6 +113,28 @@ class AppState:
         found, hit = self.credentials.get(key, max_age_s)
         return key, found, hit
 
+    async def principal(self, credential: str) -> Principal | None:
+        """The principal behind a bearer token or session id, or ``None``: from the cache, else from the
+        next read of the misses that arrived together (:mod:`server.credbatch`). On the event loop."""
+        key, found, hit = self.cached(credential)
+        if hit:
+            return found
+        kind = credential_kind(credential)
+        return None if kind is None else await self.lookups.get(key, kind)
+
+    def lookup_many(self, batch: dict[Kind, list[str]]) -> dict[str, Principal | None]:
+        """The principals behind the credential hashes of ``batch`` (``{kind: [hash, ...]}``, None for those
+        not valid), in one read, each answer cached. Blocking: call it from a worker thread."""
+        begun = self.credentials.started()
+        out: dict[str, Principal | None] = {}
+        with self.db.read() as s:
+            for kind, keys in batch.items():
+                found = find_principals(s, kind, keys)
+                for key in keys:
+                    out[key] = found.get(key)
+                    self.credentials.put(key, kind, out[key], begun)
+        return out
+
     def lookup(self, credential: str, *, fresh: bool = False) -> Principal | None:
         """The principal behind a bearer token or session id, or ``None`` (cache, then database; only the
         database when ``fresh``). Blocking: call it from a worker thread."""
@@ -127,10 +152,7 @@ class AppState:
 
     async def authenticate(self, credential: str) -> bool:
         """Whether ``credential`` is a valid token or session now (cache first; on the event loop)."""
-        _key, found, hit = self.cached(credential)
-        if not hit:
-            found = await run_in_threadpool(self.lookup, credential)
-        return found is not None
+        return await self.principal(credential) is not None
 
     def mark_seen(self, robot_id: int) -> None:
         """Note that the robot was heard from now (in memory, on the wall clock for display and storage and
@@ -236,9 +258,7 @@ async def get_principal(request: Request, state: StateDep) -> Principal:
                 f"the session cookie holds a session id ({SESSION_PREFIX}...), not a token: log in again"
             )
     request.state.credential = credential  # for streams that re-check it (still_valid)
-    _key, found, hit = state.cached(credential)
-    if not hit:
-        found = await run_in_threadpool(state.lookup, credential)
+    found = await state.principal(credential)
     if found is None:
         raise AuthError("unknown or revoked token" if header else "session expired or unknown: log in again")
     if not header and found.kind != "operator":
