@@ -2,9 +2,9 @@
 upload record (:func:`write_rows`), and the trims that keep them bounded (:func:`thin_trajectory`,
 :func:`trim_upload_records`). :mod:`server.mapstore` decides what an upload writes; this module writes it.
 
-SQLite gets multi-row ``VALUES`` statements at driver level; PostgreSQL gets constant statements with one
-array parameter a column (:mod:`server.pgrows`). Statements used at every upload are built once: SQLAlchemy
-makes a cache key anew for a statement built per call.
+SQLite gets multi-row ``VALUES`` statements at driver level; PostgreSQL gets all of an upload's rows as one
+statement (:mod:`server.pgwrite`, with one array parameter a column: :mod:`server.pgrows`). Statements used
+at every upload are built once: SQLAlchemy makes a cache key anew for a statement built per call.
 """
 
 from __future__ import annotations

@@ -14,8 +14,10 @@ whose ``->>`` extractions cost the database 0.9 ms more per 200-wall upsert.
 
 And an upload's statements go in two pipelines (:func:`lock_and_read` or, in a write batch, every upload's
 lock and reads in one: :func:`queue_lock_and_read`; then :func:`pipelined`): one round trip for the lock
-and the reads that decide, one for all the writes, where one statement after another waited for its answer
-(13 round trips; each one, on a loaded machine, also waits for the database's process to be scheduled).
+and the reads that decide (three statements), one for all the writes (two: :mod:`server.pgwrite`'s, of
+which :data:`SEGMENTS_SQL`, :data:`TRAJECTORY_SQL` and :data:`DELETE_SQL` are parts, and the delta log's),
+where one statement after another waited for its answer (13 round trips; each one, on a loaded machine,
+also waits for the database's process to be scheduled).
 
 SQLite keeps its multi-row ``VALUES`` statements (:mod:`server.mapstore`): its driver has no such cost.
 """
