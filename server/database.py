@@ -120,6 +120,15 @@ class Database:
             yield conn
 
     @contextmanager
+    def write_on(self, conn: Connection) -> Iterator[Connection]:
+        """:meth:`write_conn` on a connection the caller keeps open across transactions (the PostgreSQL
+        writer thread's own: :class:`server.writer.WriteBatcher`). Not for SQLite (no write lock here)."""
+        if self._write_lock is not None:
+            raise ValueError("SQLite's writes go through write_conn (its write lock)")
+        with self._space(), conn.begin():
+            yield conn
+
+    @contextmanager
     def try_write_conn(self, timeout_s: float = 0.0) -> Iterator[Connection | None]:
         """:meth:`write_conn` if this process's SQLite write queue is free now or within ``timeout_s``, else
         ``None`` (the caller, on the event loop, must not wait for another thread's long write). Other

@@ -151,3 +151,33 @@ def test_a_batch_prefetches_the_first_job_of_each_key_in_one_pipeline(pg: Databa
         "run c1",
         "run plain",
     ]
+
+
+def _pid_job(n: int) -> Callable[[Connection], int]:
+    def job(conn: Connection) -> int:
+        conn.execute(text("INSERT INTO t (k, n) VALUES (0, :n)"), {"n": n})
+        return int(conn.execute(text("SELECT pg_backend_pid()")).scalar_one())
+
+    return job
+
+
+def test_a_writer_keeps_its_connection_and_replaces_it_when_the_database_drops_it(pg: Database) -> None:
+    """One backend serves a writer's batches (warm caches and prepared statements); when the database
+    ends it between batches (a restart, ``pg_terminate_backend``), the next job, alone in its batch, is
+    applied on a new connection: the caller sees no error."""
+    writer = WriteBatcher(pg, writers=1)
+
+    async def run(n: int) -> int:
+        return await writer.submit(_pid_job(n), key=0)
+
+    try:
+        pids = [asyncio.run(run(n)) for n in range(4)]
+        assert len(set(pids)) == 1
+        with pg.write_conn() as conn:
+            assert conn.execute(text("SELECT pg_terminate_backend(:p, 10000)"), {"p": pids[0]}).scalar()
+        after = asyncio.run(run(4))
+    finally:
+        writer.close()
+    assert after != pids[0]
+    with pg.read() as s:
+        assert [n for (n,) in s.execute(text("SELECT n FROM t ORDER BY id"))] == [0, 1, 2, 3, 4]
