@@ -14,6 +14,7 @@ read them.
 
 from __future__ import annotations
 
+import math
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
@@ -22,6 +23,8 @@ from pydantic import (
     ConfigDict,
     Field,
     SerializerFunctionWrapHandler,
+    ValidationInfo,
+    field_validator,
     model_serializer,
     model_validator,
 )
@@ -103,6 +106,18 @@ class RobotKernel(_Body):
     sha256: str = Field(max_length=64)
 
 
+def _check_finite(value: Any, path: str) -> None:
+    """Raise ValueError naming the first non-finite float in nested dicts and lists ``value``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{path} = {value!r}: expected a finite number (JSON has no NaN or infinity)")
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _check_finite(item, f"{path}.{key}")
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            _check_finite(item, f"{path}[{i}]")
+
+
 class RobotStatus(_Body):
     """What a robot reports about itself with each map upload."""
 
@@ -112,6 +127,17 @@ class RobotStatus(_Body):
     last_error: str | None = Field(None, max_length=2000, description="The robot's latest problem, if any.")
     config: dict[str, Any] | None = Field(None, description="The configuration in force (PipelineConfig).")
     kernels: list[RobotKernel] | None = Field(None, max_length=1000, description="The robot's kernel store.")
+
+    @field_validator("config")
+    @classmethod
+    def _config_finite(cls, config: dict[str, Any] | None, info: ValidationInfo) -> dict[str, Any] | None:
+        """Refuse a NaN or infinity anywhere in ``config`` read from JSON text that spells one (``NaN``,
+        ``Infinity``: not JSON, and the server's JSON columns have no such numbers), naming where. Python
+        values are left alone: the robot's own status is written as JSON by pydantic, which writes them as
+        null. O(size of config)."""
+        if config is not None and info.mode == "json":
+            _check_finite(config, "config")
+        return config
 
 
 #: Largest keyframe id: a row of floats holds integers exactly up to 2**53 (so does a browser's JSON).

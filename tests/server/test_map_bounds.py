@@ -5,6 +5,7 @@ what is wrong."""
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -12,6 +13,7 @@ import pytest
 from sqlalchemy import text
 
 from server.mapbounds import ID_MAX
+from server.models import Robot
 from tests.server.live import Live
 
 FORMATS = ["geojson", "svg", "dxf", "pgm", "yaml"]
@@ -78,6 +80,27 @@ def test_a_removed_id_beyond_the_bound_is_refused(live: Live) -> None:
         r = robot.post(f"/robots/{rid}/maps", json=delta)
         assert r.status_code == 422, r.text
         assert r.json()["field"] == "removed[1]"
+
+
+def test_a_status_config_with_nan_is_refused_naming_where_and_the_robot_row_keeps_its_config(
+    live: Live,
+) -> None:
+    rid, token = live.new_robot()
+    with live.client(token) as robot:
+        good = json.dumps({**_snapshot(), "status": {"config": {"noise": {"eps_m": 0.05}}}})
+        headers = {"Content-Type": "application/json"}
+        assert robot.post(f"/robots/{rid}/maps", content=good, headers=headers).status_code == 200
+        bad = json.dumps(
+            {**_snapshot(), "version": 2, "status": {"config": {"noise": {"eps_m": float("nan")}}}}
+        )
+        r = robot.post(f"/robots/{rid}/maps", content=bad, headers=headers)  # json.dumps spells NaN
+        assert r.status_code == 422, r.text
+        assert "config.noise.eps_m" in r.text and "finite" in r.text
+    with live.operator() as op:
+        assert op.get(f"/robots/{rid}/maps/latest").json()["version"] == 1
+    with live.state.db.read() as s:
+        robot_row = s.get(Robot, rid)
+        assert robot_row is not None and robot_row.config == {"noise": {"eps_m": 0.05}}
 
 
 def test_an_upload_at_the_edge_of_the_bounds_is_stored(live: Live) -> None:

@@ -187,3 +187,20 @@ def test_an_upload_with_a_session_carries_it_and_one_without_keeps_the_legacy_fi
     assert "map_session" not in MapSnapshot(version=4).model_dump(mode="json")
     with pytest.raises(ValidationError, match="map_session_reason"):
         MapSnapshot(version=4, map_session=session, map_session_reason="x" * 301)
+
+
+@pytest.mark.parametrize("text", ["NaN", "Infinity", "-Infinity"])
+def test_a_status_config_with_a_non_finite_number_is_refused_naming_where(text: str) -> None:
+    """JSON text may spell NaN and infinities; JSON itself and the server's JSON columns have none, so a
+    configuration holding one is refused (on PostgreSQL it failed the write; encoded again it became null)."""
+    raw = '{"config": {"noise": {"eps_m": 0.05, "w": [1.0, NUMBER]}}}'.replace("NUMBER", text)
+    with pytest.raises(ValidationError, match=r"config\.noise\.w\[1\].*finite"):
+        RobotStatus.model_validate_json(raw)
+    assert RobotStatus.model_validate_json('{"config": {"noise": {"w": [1.0, 2]}}}').config == {
+        "noise": {"w": [1.0, 2]}
+    }
+    # the robot's own status is built from Python values and written by pydantic, which writes null
+    mine = RobotStatus.model_validate(
+        {"config": {"noise": {"w": [1.0, float(text.replace("Infinity", "inf"))]}}}
+    )
+    assert json.loads(mine.model_dump_json())["config"] == {"noise": {"w": [1.0, None]}}
