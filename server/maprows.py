@@ -146,8 +146,7 @@ def _bulk_segments(
 ) -> None:
     """Upsert walls (the hot path: ~200 rows several times a second), on SQLite as multi-row ``ON CONFLICT
     ... DO UPDATE`` statements; other backends but PostgreSQL (:mod:`server.pgwrite`) go through
-    :func:`_upsert`. A segment id given twice in
-    one upload keeps its last row."""
+    :func:`_upsert`. A segment id given twice in one upload keeps its last row."""
     if not rows:
         return
     if conn.dialect.name not in ("sqlite", "postgresql"):

@@ -51,7 +51,6 @@ __all__ = [
     "delete_walls",
     "driver",
     "driver_errors",
-    "insert_trajectory",
     "lock_and_read",
     "pipelined",
     "queue_lock_and_read",
@@ -98,15 +97,10 @@ def columns(rows: Sequence[Sequence[Any]]) -> tuple[str, ...]:
 
 def upsert_segments(conn: Connection, rows: Sequence[Sequence[Any]]) -> None:
     """Insert or replace the walls ``rows`` (see :data:`SEGMENTS_SQL`) in ``conn``'s transaction: one
-    statement, one round trip. O(rows)."""
+    statement, one round trip (an upload's walls go in :mod:`server.pgwrite`'s statement; this writes walls
+    alone, as the tests of the pipelines do). O(rows)."""
     if rows:
         conn.exec_driver_sql(SEGMENTS_SQL, columns(rows))
-
-
-def insert_trajectory(conn: Connection, rows: Sequence[Sequence[Any]]) -> None:
-    """Append the poses ``rows`` (see :data:`TRAJECTORY_SQL`): one statement. O(rows)."""
-    if rows:
-        conn.exec_driver_sql(TRAJECTORY_SQL, columns(rows))
 
 
 def delete_walls(conn: Connection, robot_id: int, ids: Sequence[int]) -> None:
