@@ -47,12 +47,12 @@ from shared.pipeline import MapSnapshot, Pipeline
 from shared.pipeline.fusion_solve import mahalanobis2, odometry_information
 from shared.pipeline.pipeline import StepResult
 from shared.protocol.trajectory import thin_positions
-from shared.slam.closure import LoopMatch, candidates, chain_covariance, stacked, verify
+from shared.slam.closure import MIN_PAIRS, LoopMatch, candidates, chain_covariance, stacked, verify
 from shared.slam.edges import AGREEMENT_CHI2, consistent, hold_unseen, with_floor
 from shared.slam.errors import OptimisationError
 from shared.slam.frontproc import Tracked
 from shared.slam.graph import PoseGraph
-from shared.slam.information import scan_edge
+from shared.slam.information import match_information, scan_edge
 from shared.slam.places import SCAN_PLACE, SCANS_PER_PLACE, TIED_KEYFRAMES, Places, superseded
 from shared.slam.rows import Rows
 from shared.slam.settings import LoopClosureSettings
@@ -268,14 +268,9 @@ class GraphMapper:
                 continue
             # closures between the same two stretches of the path share their errors (the same faces
             # seen from the same sides): the n-th of them counts 1/n, not as a new witness
-            near = 2 * self.settings.submap_keyframes
-            pairs = self._pairs.view()
-            n = int(
-                np.count_nonzero(
-                    (np.abs(pairs[:, 0] - k) <= near) & (np.abs(pairs[:, 1] - match.candidate) <= near)
-                )
+            self.graph.add_edge(
+                match.candidate, k, pose, info / (1 + self._witnesses(k, match.candidate)), loop=True
             )
-            self.graph.add_edge(match.candidate, k, pose, info / (1 + n), loop=True)
             self.closures.append(LoopClosure(k, match.candidate, pose, match.inlier_share))
             self._closure_rows.append((pose.x_m, pose.y_m, pose.theta_rad, match.inlier_share))
             self._pairs.append((k, match.candidate))
@@ -283,6 +278,46 @@ class GraphMapper:
             added += 1
         self._update()
         return added
+
+    def _witnesses(self, k: int, c: int) -> int:
+        """How many accepted closures join the stretch of keyframe ``k`` to that of ``c`` (within twice
+        ``submap_keyframes`` of each). O(closures), vectorised."""
+        near = 2 * self.settings.submap_keyframes
+        pairs = self._pairs.view()
+        return int(np.count_nonzero((np.abs(pairs[:, 0] - k) <= near) & (np.abs(pairs[:, 1] - c) <= near)))
+
+    def _tie(self, j: int, anchor: int) -> bool:
+        """Measure the loop edge that lets keyframe ``j``, retiring at ``anchor``'s place with no closure
+        joining the two, ride on it (:mod:`shared.slam.riders` carries only a keyframe whose offset rests on
+        a measurement): ``j``'s scan matched point-to-line onto ``anchor``'s own scan from the graph's
+        estimate (they are at one place, ``places.near``), accepted when at least ``min_inlier_share`` of
+        its returns lie within ``inlier_m`` there (and :data:`~shared.slam.closure.MIN_PAIRS` pairs), held
+        along its blind directions (a corridor's length stays the graph's) and consistent with the graph,
+        as a closure's refinement is (:meth:`_loop_edge`, :meth:`_consistent`); counted like a closure
+        between the same two stretches (1/n). Not a :class:`LoopClosure` record: it ties a keyframe to its
+        place, it is no evidence that the robot is at an earlier visit (that needs a search:
+        :func:`shared.slam.closure.verify`), so it moves no search window and no retirement. Returns
+        whether the edge was added. O(N log N) for N returns."""
+        ref, cur = self.keyframes[anchor], self.keyframes[j]
+        if len(ref.points) < MIN_PAIRS or len(cur.points) < MIN_PAIRS:
+            return False
+        guess = self.graph.pose(anchor).between(self.graph.pose(j))
+        refined = self._scan_edge(ref, cur, guess, refine=True)
+        if refined is None:
+            return False
+        pose, info = refined
+        s = self.settings
+        fit = match_information(
+            ref.points, cur.points, pose, inlier_m=s.inlier_m, range_noise=self._now.range_noise
+        )
+        if fit.inlier_share < s.min_inlier_share or fit.pairs < MIN_PAIRS:
+            return False
+        info = with_floor(info, Pose2D(pose.x_m, pose.y_m, 0.0))
+        pose, info = self._hold_unseen(anchor, j, pose, np.asarray(np.linalg.inv(info), dtype=np.float64))
+        if not self._consistent(anchor, j, pose, info):
+            return False
+        self.graph.add_edge(anchor, j, pose, info / (1 + self._witnesses(j, anchor)), loop=True)
+        return True
 
     def _update(self) -> None:
         t0 = time.perf_counter()
@@ -528,11 +563,14 @@ class GraphMapper:
         last = int(np.searchsorted(travelled[:n], limit))
         held = p.keyframes_held()[:n]
         place = (s.keyframe_m / 2, s.keyframe_rad)
-        for j, anchor in superseded(
-            estimate, travelled[:n], held, self._pairs.view(), range(first, last), gap, place
-        ):
+        pairs, tied = self._pairs.view(), 0
+        for j, anchor in superseded(estimate, travelled[:n], held, pairs, range(first, last), gap, place):
+            joined = np.any((pairs[:, 0] == j) & (pairs[:, 1] == anchor))
+            tied += int(not joined and self._tie(j, anchor))  # else it stays in the solver (riders)
             p.retire_keyframes(np.array([j]))
             self.graph.ride(j, anchor)  # out of the solver at its next rebuild, carried by the place's first
+        if tied:
+            self._update()
         if self.closures[-1].current < k - TIED_KEYFRAMES:
             return
         kept = self._kept.view()
