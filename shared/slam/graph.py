@@ -9,10 +9,10 @@ offline final pass). gtsam's ``Pose2`` tangent order ``(x, y, theta)`` is the or
 matrix here (per m^2, m rad, rad^2).
 
 **Riders** (:mod:`shared.slam.riders`): a node handed to :meth:`PoseGraph.ride` (a keyframe retired at a
-place an older one holds, :mod:`shared.slam.places`) that a loop closure ties directly to that one leaves
-the solver at its next rebuild from scratch and is carried by it at a fixed offset; its edges are carried
-onto the anchor and fused. The solver then grows with the places and with the retired nodes that no
-closure tied (about a third of them on the simulated corridor loop), not with every keyframe.
+place an older one holds, :mod:`shared.slam.places`) that a loop edge ties directly to that one (a
+closure, or the tie the mapper measures at retirement) leaves the solver at its next rebuild from scratch
+and is carried by it at a fixed offset; its edges are carried onto the anchor and fused. The solver then
+grows with the places and with the few retired nodes whose tie failed, not with every keyframe.
 
 An update that gtsam refuses (an indeterminate system, a non-finite value) raises
 :class:`~shared.slam.errors.OptimisationError`; the estimate from before it stays in force.

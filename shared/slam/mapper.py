@@ -47,7 +47,8 @@ from shared.pipeline import MapSnapshot, Pipeline
 from shared.pipeline.fusion_solve import mahalanobis2, odometry_information
 from shared.pipeline.pipeline import StepResult
 from shared.protocol.trajectory import thin_positions
-from shared.slam.closure import MIN_PAIRS, LoopMatch, candidates, chain_covariance, stacked, verify
+from shared.slam.chainsum import ChainSums
+from shared.slam.closure import MIN_PAIRS, LoopMatch, candidates, stacked, verify
 from shared.slam.edges import AGREEMENT_CHI2, consistent, hold_unseen, with_floor
 from shared.slam.errors import OptimisationError
 from shared.slam.frontproc import Tracked
@@ -329,9 +330,12 @@ class GraphMapper:
 
     def chain_covariance(self, c: int, k: int) -> FloatArray:
         """Covariance ``(3, 3)`` of keyframe ``k`` in keyframe ``c``'s frame by the sequential edges alone
-        (:func:`shared.slam.closure.chain_covariance`). O(k - c)."""
-        covariances = self._seq_cov.view()[c:k].reshape(-1, 3, 3)
-        return chain_covariance([kf.frontend for kf in self.keyframes[c : k + 1]], covariances)
+        (:func:`shared.slam.closure.chain_covariance`, from prefix sums: :mod:`shared.slam.chainsum`).
+        O(1) (amortised; the sums are a cache, rebuilt from the rows after a restore)."""
+        sums: ChainSums | None = self.__dict__.get("_chain_sums")
+        if sums is None:
+            sums = self._chain_sums = ChainSums()
+        return sums.covariance(self._fronts.view()[:, :3], self._seq_cov.view(), c, k)
 
     def _consistent(self, c: int, k: int, pose: Pose2D, info: FloatArray) -> bool:
         """Whether a loop closure ``pose`` (keyframe ``k`` in ``c``'s frame) agrees with the graph's

@@ -52,7 +52,8 @@ _SKIP: dict[type, frozenset[str]] = {
     **PIPELINE_SKIP,
     # ``_now`` (what the front end made of the last scan) is read back off the restored front end
     # the records as objects are saved as rows (module docstring: _records, _restore_records)
-    mapper.GraphMapper: frozenset({"_make", "_now", "keyframes", "closures", "_scans"}),
+    # ``_chain_sums`` is a cache of sums over ``_fronts`` and ``_seq_cov``, rebuilt on demand
+    mapper.GraphMapper: frozenset({"_make", "_now", "keyframes", "closures", "_scans", "_chain_sums"}),
     graph.PoseGraph: frozenset({"_params", "_isam", "_new_factors", "_new_values"}),
 }
 

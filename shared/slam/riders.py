@@ -14,9 +14,11 @@ touched it is carried onto the anchor:
   information taken through the first-order map of that composition, ``L' = A^-T L A^-1`` with
   ``A = [[R(O_i), R(O_i) R(z) J v], [0, 0, 1]]``, ``v`` the translation of ``O_j^-1``, ``J`` the 90 degree
   rotation (exact to first order: the rider moves with its anchor, as it now does). The offset is the two
-  nodes' relative estimate when the rider leaves the solver, so only a keyframe that a loop closure joins
-  directly to its anchor rides (the offset then rests on a measurement of it); the others stay in the
-  solver. Adding the offset's doubt (that closure's covariance) to the carried edges was tried: on the
+  nodes' relative estimate when the rider leaves the solver, so only a keyframe that a loop edge joins
+  directly to its anchor rides (the offset then rests on a measurement of it): a closure the search
+  found, or the tie the mapper measures when a keyframe retires without one (its scan matched onto the
+  anchor's: :meth:`shared.slam.mapper.GraphMapper._tie`); one whose tie failed stays in the solver.
+  Adding the offset's doubt (that closure's covariance) to the carried edges was tried: on the
   corridor-doors world it lost 16 points of completeness (the mechanism not found), so the offsets are
   taken as exact;
 - an edge whose two ends ride on the same anchor says nothing any more and is **dropped**; so is a carried
@@ -32,10 +34,10 @@ touched it is carried onto the anchor:
   would take from it what it knows whenever the carried edge is weak in some direction; the two stay side
   by side, one factor each.
 
-So the nodes in the solver grow with the places and with the retired keyframes no closure tied directly
-(about a third of them on the simulated corridor loop), not with every keyframe. What a rider loses is its own
-freedom: the chain of a later lap no longer bends on its own, only with the places it rides on, which is
-what retiring it already said (the place's first keyframe is the reference every visit is matched against).
+So the nodes in the solver grow with the places and with the few retired keyframes whose tie failed, not
+with every keyframe. What a rider loses is its own freedom: the chain of a later lap no longer bends on
+its own, only with the places it rides on, which is what retiring it already said (the place's first
+keyframe is the reference every visit is matched against).
 
 Pure: arrays in, arrays out. Edge rows are :mod:`shared.slam.graph`'s: ``i, j, x, y, theta``, the kind
 (bits :data:`LOOP`, :data:`CARRIED`) and the information's nine entries (row-major) over the
