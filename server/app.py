@@ -22,6 +22,7 @@ from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server import apidocs, dashboard
+from server.admission import PollAdmission
 from server.csrf import OriginGuard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState
@@ -121,6 +122,9 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     app.add_middleware(DisconnectOnShutdown, signal=app.state.shutdown)
     app.add_middleware(OriginGuard, trusted_origins=settings.csrf_trusted_origins)  # CSRF (server.csrf)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(  # uploads before a crowd of long-polls opening (server.admission)
+        PollAdmission, slots=settings.poll_open_slots, floor_hz=settings.poll_open_floor_hz
+    )
     app.add_middleware(  # outermost: a blocked source's invalid credential is refused before the body is read
         AuthFailureLimit,
         limiter=state.limiter,

@@ -38,6 +38,19 @@ class Settings(BaseSettings):
         "PostgreSQL in every other one through LISTEN/NOTIFY) and the notice listener resynchronises "
         "every waiter after it reconnects.",
     )
+    poll_open_slots: int = Field(
+        2,
+        ge=1,
+        le=1000,
+        description="Long-polls opening at a time (server.admission); a poll that is waiting holds none.",
+    )
+    poll_open_floor_hz: float = Field(
+        50.0,
+        gt=0,
+        le=100_000,
+        description="Long-polls open when no other request is in progress (uploads first: server.admission), "
+        "and at least this many a second when the others never pause.",
+    )
     pg_writers: int = Field(
         1,
         ge=1,

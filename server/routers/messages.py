@@ -21,6 +21,7 @@ from fastapi import APIRouter, Depends, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import and_, select
 
+from server.admission import opened
 from server.audit import record
 from server.deps import (
     AgentChecked,
@@ -229,6 +230,7 @@ async def list_messages(
                 return out
             if not waited:
                 watching.enter_context(state.polls.watch(robot_id, after))
+                opened(request)  # the next long-poll may open (server.admission)
             waited = True
             if not await _woken(queue, request, deadline, recheck):
                 return out  # the client went away (or the server is stopping): no read for nobody

@@ -1,0 +1,220 @@
+"""Long-polls' admission (server.admission): other requests go first, polls open a few at a time and at a
+floor rate, a poll that gives up frees its place. Unit tests drive the middleware with a small ASGI app;
+then a real server: a crowd of long-polls opened at once all open, and each gets its message."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlencode
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from starlette.requests import Request
+from starlette.types import Message, Receive, Scope, Send
+
+from server.admission import PollAdmission, is_long_poll, opened
+from tests.server.live import BACKENDS, Live, start_live
+
+
+def _scope(path: str, query: str = "", method: str = "GET") -> Scope:
+    return {"type": "http", "method": method, "path": path, "query_string": query.encode(), "headers": []}
+
+
+class _App:
+    """Records which requests entered; each waits for its own event before it answers (a poll calls
+    :func:`opened` first when told to, as the messages route does when it begins to wait)."""
+
+    def __init__(self) -> None:
+        self.entered: list[str] = []
+        self.release: dict[str, asyncio.Event] = {}
+        self.open_first: set[str] = set()
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        name = scope["path"]
+        self.entered.append(name)
+        if name in self.open_first:
+            opened(Request(scope))
+        await self.release.setdefault(name, asyncio.Event()).wait()
+        await send({"type": "http.response.start", "status": 200, "headers": []})
+        await send({"type": "http.response.body", "body": b""})
+
+
+async def _receive() -> Message:
+    return {"type": "http.request", "body": b"", "more_body": False}
+
+
+async def _send(message: Message) -> None:
+    return None
+
+
+async def _settle() -> None:
+    for _ in range(20):  # let every ready task run its next steps
+        await asyncio.sleep(0)
+
+
+def _request(door: PollAdmission, scope: Scope) -> asyncio.Task[None]:
+    return asyncio.ensure_future(door(scope, _receive, _send))
+
+
+def _poll(i: int) -> Scope:
+    return _scope(f"/api/v1/robots/{i}/messages", "after=0&wait=20")
+
+
+def test_a_long_poll_waits_while_another_request_is_in_progress() -> None:
+    async def go() -> None:
+        app = _App()
+        door = PollAdmission(app, slots=2, floor_hz=1e-6)  # no floor within the test
+        upload = _request(door, _scope("/api/v1/robots/1/maps", method="POST"))
+        await _settle()
+        poll = _request(door, _poll(1))
+        await _settle()
+        assert app.entered == ["/api/v1/robots/1/maps"] and door.waiting == 1
+        app.release["/api/v1/robots/1/maps"].set()  # answered: nothing else in progress, the poll goes in
+        await _settle()
+        assert app.entered[-1] == "/api/v1/robots/1/messages" and door.waiting == 0
+        app.release["/api/v1/robots/1/messages"].set()
+        await asyncio.gather(upload, poll)
+
+    asyncio.run(go())
+
+
+def test_polls_open_at_most_slots_at_a_time_and_the_next_goes_in_when_one_begins_to_wait() -> None:
+    async def go() -> None:
+        app = _App()
+        door = PollAdmission(app, slots=2, floor_hz=1e-6)
+        polls = [_request(door, _poll(i)) for i in range(5)]
+        await _settle()
+        assert len(app.entered) == 2 and door.waiting == 3  # first come, first served
+        assert app.entered == ["/api/v1/robots/0/messages", "/api/v1/robots/1/messages"]
+        app.open_first.update(f"/api/v1/robots/{i}/messages" for i in range(2, 5))
+        app.release["/api/v1/robots/0/messages"].set()  # poll 0 answers (its slot is free)
+        await _settle()
+        # poll 2 went in and began to wait at once (opened): poll 3 followed, and 4 after it
+        assert app.entered[2:] == [f"/api/v1/robots/{i}/messages" for i in (2, 3, 4)]
+        assert door.waiting == 0
+        for event in app.release.values():
+            event.set()
+        await asyncio.gather(*polls)
+        assert door._opening == 0 and door._busy == 0
+
+    asyncio.run(go())
+
+
+def test_under_a_load_that_never_pauses_polls_still_open_at_the_floor_rate() -> None:
+    async def go() -> None:
+        app = _App()
+        door = PollAdmission(app, slots=2, floor_hz=200.0)
+        busy = _request(door, _scope("/api/v1/robots/9/maps", method="POST"))  # never answers in time
+        await _settle()
+        app.open_first.update(f"/api/v1/robots/{i}/messages" for i in range(3))
+        polls = [_request(door, _poll(i)) for i in range(3)]
+        async with asyncio.timeout(30):  # readiness wait: the floor's timer lets them in one by one
+            while len(app.entered) < 4:
+                await asyncio.sleep(0.001)
+        assert door._busy == 1  # the upload was in progress all along
+        for event in app.release.values():
+            event.set()
+        await asyncio.gather(busy, *polls)
+
+    asyncio.run(go())
+
+
+def test_a_poll_that_gives_up_at_the_door_frees_its_place() -> None:
+    async def go() -> None:
+        app = _App()
+        door = PollAdmission(app, slots=1, floor_hz=1e-6)
+        first, gone, last = (_request(door, _poll(i)) for i in range(3))
+        await _settle()
+        assert door.waiting == 2
+        gone.cancel()  # the client went away while waiting at the door
+        await _settle()
+        assert door.waiting == 1
+        app.open_first.add("/api/v1/robots/2/messages")
+        app.release["/api/v1/robots/0/messages"].set()
+        await _settle()
+        assert app.entered == ["/api/v1/robots/0/messages", "/api/v1/robots/2/messages"]
+        app.release["/api/v1/robots/2/messages"].set()
+        await asyncio.gather(first, last)
+        assert gone.cancelled() and door._opening == 0
+
+    asyncio.run(go())
+
+
+def test_a_handler_that_raises_frees_its_slot() -> None:
+    async def go() -> None:
+        async def broken(scope: Scope, receive: Receive, send: Send) -> None:
+            raise RuntimeError("boom")
+
+        door = PollAdmission(broken, slots=1)
+        for i in range(3):
+            with pytest.raises(RuntimeError, match="boom"):
+                await door(_poll(i), _receive, _send)
+        assert door._opening == 0 and door.waiting == 0
+
+    asyncio.run(go())
+
+
+def test_settings_out_of_range_name_the_setting() -> None:
+    with pytest.raises(ValueError, match="poll_open_slots=0"):
+        PollAdmission(_App(), slots=0)
+    with pytest.raises(ValueError, match="poll_open_floor_hz=0"):
+        PollAdmission(_App(), floor_hz=0.0)
+
+
+@given(wait=st.floats(allow_nan=True, allow_infinity=True), other=st.text(max_size=20))
+def test_only_a_get_of_messages_asking_to_wait_is_a_long_poll(wait: float, other: str) -> None:
+    query = urlencode({"after": 3, "wait": repr(wait), "x": other})  # as a client sends it
+    assert is_long_poll(_scope("/api/v1/robots/4/messages", query)) == (wait > 0)
+    assert not is_long_poll(_scope("/api/v1/robots/4/messages", query, method="POST"))
+    assert not is_long_poll(_scope("/api/v1/robots/4/maps", query))
+    assert not is_long_poll(_scope("/api/v1/robots/4/messages", "after=3"))
+    assert not is_long_poll(_scope("/api/v1/robots/4/messages", "wait=soon"))  # left to the route's 422
+
+
+@pytest.fixture(scope="module", params=BACKENDS)
+def one_slot(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
+    """A server letting one long-poll open at a time."""
+    tmp: Path = tmp_path_factory.mktemp(f"admission-{request.param}")
+    yield from start_live(request.param, tmp, poll_open_slots=1)
+
+
+def test_a_crowd_of_long_polls_opened_at_once_all_open_and_get_their_messages(one_slot: Live) -> None:
+    robots = [one_slot.new_robot() for _ in range(12)]
+    results: dict[int, Any] = {}
+
+    def poll(rid: int, token: str) -> None:
+        with one_slot.client(token) as robot:
+            results[rid] = robot.get(f"/robots/{rid}/messages", params={"after": 0, "wait": 30})
+
+    threads = [threading.Thread(target=poll, args=r) for r in robots]
+    for t in threads:
+        t.start()
+    _wait_until(lambda: len(one_slot.state.polls.waiting()) == len(robots))  # every one opened
+    with one_slot.operator() as op:
+        for rid, _ in robots:
+            r = op.post(
+                f"/robots/{rid}/messages",
+                content=b"<xml><message><mode>offline</mode></message></xml>",
+                headers={"Content-Type": "application/xml"},
+            )
+            assert r.status_code in (200, 201), r.text
+    for t in threads:
+        t.join(60)
+    assert all(not t.is_alive() for t in threads)
+    for rid, _ in robots:
+        assert results[rid].status_code == 200, results[rid].text
+        assert [m["seq"] for m in results[rid].json()["messages"]] == [1]
+
+
+def _wait_until(cond: Any) -> None:
+    import time
+
+    deadline = time.monotonic() + 30
+    while not cond():  # readiness wait, not a timing assertion
+        assert time.monotonic() < deadline, "the long-polls never all opened"
+        time.sleep(0.01)
