@@ -30,6 +30,7 @@ import gtsam
 import numpy as np
 
 from shared.slam.errors import OptimisationError
+from shared.slam.ridepose import RiderPoses
 from shared.slam.riders import (
     EDGE_WIDTH,
     LOOP,
@@ -40,7 +41,7 @@ from shared.slam.riders import (
     take_riders,
 )
 from shared.slam.rows import Rows
-from shared.types import FloatArray, Pose2D, wrap_angle
+from shared.types import FloatArray, Pose2D
 
 __all__ = ["RESOLVE_EVERY_UPDATES", "Edge", "PoseGraph"]
 
@@ -83,30 +84,19 @@ def _edge_of(row: FloatArray) -> Edge:
     return Edge(int(i), int(j), Pose2D(x, y, th), info, bool(int(loop) & LOOP))
 
 
-def _poses_of(values: gtsam.Values, rides: FloatArray) -> FloatArray:
+def _poses_of(values: gtsam.Values, riders: RiderPoses, rows: Rows, n: int) -> FloatArray:
     """Nodes ``0..n-1`` as read-only rows ``(n, 3)`` ``[x_m, y_m, theta_rad]``: those in the solver read
     off ``values`` in key order (one C++ call: the per-node ``atPose2``, and a ``Pose2D`` per node, took a
-    third of an update's time on long graphs), the riders composed from their anchors (``rides``: rows of
-    the rider table, :data:`~shared.slam.riders.RIDE_WIDTH`). O(n), vectorised."""
+    third of an update's time on long graphs), the riders composed from their anchors (``rows``: the
+    rider table, :data:`~shared.slam.riders.RIDE_WIDTH`; :class:`~shared.slam.ridepose.RiderPoses`).
+    O(n), vectorised; trigonometry O(nodes in the solver)."""
     arr = np.array(gtsam.utilities.extractPose2(values), dtype=np.float64).reshape(-1, 3)
-    anchor = rides[:, 0].astype(np.intp)
-    solved = np.flatnonzero(anchor < 0)
-    if len(arr) != len(solved):
-        raise OptimisationError(f"the solution holds {len(arr)} poses for {len(solved)} nodes")
     if not np.isfinite(arr).all():
         raise OptimisationError("the solution holds a pose that is not finite")
-    out = np.empty((len(rides), 3))
-    out[solved] = arr
-    riders = np.flatnonzero(anchor >= 0)
-    if len(riders):
-        base, off = out[anchor[riders]], rides[riders, 1:4]
-        c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
-        out[riders, 0] = base[:, 0] + c * off[:, 0] - s * off[:, 1]
-        out[riders, 1] = base[:, 1] + s * off[:, 0] + c * off[:, 1]
-        out[riders, 2] = base[:, 2] + off[:, 2]
-    th = out[:, 2]
-    for i in np.flatnonzero((th <= -math.pi) | (th > math.pi)).tolist():  # as Pose2D wraps: (-pi, pi]
-        th[i] = wrap_angle(float(th[i]))
+    try:
+        out = riders.compose(arr, rows, n)
+    except ValueError as exc:
+        raise OptimisationError(f"the solution does not fit the graph: {exc}") from exc
     return _frozen(out)
 
 
@@ -155,6 +145,19 @@ class PoseGraph:
         self._queued: list[tuple[int, int]] = []
         self._fresh_solver()
 
+    def _all_poses(self, values: gtsam.Values) -> FloatArray:
+        """Every node's pose from the solver's ``values`` (:func:`_poses_of`), its plan kept across updates
+        (not part of a saved state: made again on first use after a restore)."""
+        riders: RiderPoses | None = self.__dict__.get("_rider_poses")
+        if riders is None:
+            riders = self._rider_poses = RiderPoses()
+        return _poses_of(values, riders, self._rides, len(self._estimate))
+
+    def _solved_indices(self, n: int) -> list[int]:
+        """Nodes ``0..n-1`` that are in the solver (not riding), ascending. O(n) numpy."""
+        out: list[int] = np.flatnonzero(self._rides.view()[:n, 0] < 0).tolist()
+        return out
+
     def _fresh_solver(self) -> None:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(0.01)
@@ -193,10 +196,9 @@ class PoseGraph:
         """The anchor, every node in the solver at ``estimate`` (rows) and ``edges``, queued for one
         update."""
         self._prior()
-        riding = self._rides.view()[: len(estimate), 0] >= 0
-        for k, (x, y, th) in enumerate(estimate.tolist()):
-            if not riding[k]:
-                self._new_values.insert(k, gtsam.Pose2(x, y, th))
+        for k in self._solved_indices(len(estimate)):  # the riders are not in the solver: O(solved) inserts
+            x, y, th = estimate[k].tolist()
+            self._new_values.insert(k, gtsam.Pose2(x, y, th))
         self._queue_edges(edges)
 
     def _resolve(self, take_riders: bool = True) -> None:
@@ -237,7 +239,7 @@ class PoseGraph:
                     self._estimate = np.vstack([self._estimate, _row(guess)])
                 self._queue_edges(self._edges.view()[edges:e_after])
                 edges = e_after
-                self._estimate = _poses_of(self._solve(loops), self._rides.view()[: len(self._estimate)])
+                self._estimate = self._all_poses(self._solve(loops))
         except (OptimisationError, IndexError) as exc:
             log.warning("the pose graph's solver did not replay (%s); rebuilt from the saved estimate", exc)
         exact = self._estimate.shape == saved.shape and bool(np.array_equal(self._estimate, saved))
@@ -342,7 +344,7 @@ class PoseGraph:
             return
         loops, self._loop_pending = self._loop_pending, False
         self._log.append((len(self._estimate), len(self._edges), loops))
-        self._estimate = _poses_of(self._solve(loops), self._rides.view()[: len(self._estimate)])
+        self._estimate = self._all_poses(self._solve(loops))
         if len(self._log) >= RESOLVE_EVERY_UPDATES:
             self._resolve()
 
@@ -362,17 +364,16 @@ class PoseGraph:
                 )
             )
         initial = gtsam.Values()
-        riding = self._rides.view()[: len(self._estimate), 0] >= 0
-        for k, (x, y, th) in enumerate(self._estimate.tolist()):
-            if not riding[k]:
-                initial.insert(k, gtsam.Pose2(x, y, th))
+        for k in self._solved_indices(len(self._estimate)):
+            x, y, th = self._estimate[k].tolist()
+            initial.insert(k, gtsam.Pose2(x, y, th))
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations)
         try:
             result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
         except RuntimeError as exc:
             raise OptimisationError(f"batch optimisation failed: {exc}") from exc
-        poses = _poses_of(result, self._rides.view()[: len(self._estimate)])
+        poses = self._all_poses(result)
         if np.isfinite(poses).all():
             self._estimate = poses
             self._resolve()

@@ -54,7 +54,7 @@ _SKIP: dict[type, frozenset[str]] = {
     # the records as objects are saved as rows (module docstring: _records, _restore_records)
     # ``_chain_sums`` is a cache of sums over ``_fronts`` and ``_seq_cov``, rebuilt on demand
     mapper.GraphMapper: frozenset({"_make", "_now", "keyframes", "closures", "_scans", "_chain_sums"}),
-    graph.PoseGraph: frozenset({"_params", "_isam", "_new_factors", "_new_values"}),
+    graph.PoseGraph: frozenset({"_params", "_isam", "_new_factors", "_new_values", "_rider_poses"}),
 }
 
 

@@ -58,6 +58,7 @@ __all__ = [
     "LOOP",
     "RIDE_WIDTH",
     "carry",
+    "compose_many",
     "fuse",
     "inverse_edge",
     "inverse_jacobian",
@@ -87,6 +88,25 @@ def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
     """Pose ``a @ b`` of two ``(3,)`` rows (x, y, theta)."""
     xy = a[:2] + _rot(float(a[2])) @ b[:2]
     return np.array([xy[0], xy[1], _wrap(float(a[2] + b[2]))])
+
+
+def compose_many(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Poses ``a @ b_k`` of one ``(3,)`` row and rows ``b`` ``(K, 3)``, as :func:`_compose` gives each one
+    (the headings by the same IEEE remainder): a node's riders handed on in one pass. O(K) numpy."""
+    c, s = math.cos(float(a[2])), math.sin(float(a[2]))
+    out = np.empty_like(b, dtype=np.float64)
+    out[:, 0] = a[0] + (c * b[:, 0] + -s * b[:, 1])
+    out[:, 1] = a[1] + (s * b[:, 0] + c * b[:, 1])
+    theta = a[2] + b[:, 2]
+    # within (-2 pi, 2 pi) the remainder is one exact subtraction or addition of 2 pi (Sterbenz's lemma);
+    # -pi and pi stay (the remainder's tie to even)
+    near = np.abs(theta) < math.tau
+    theta[near & (theta > math.pi)] -= math.tau
+    theta[near & (theta < -math.pi)] += math.tau
+    for k in np.flatnonzero(~near).tolist():
+        theta[k] = _wrap(float(theta[k]))
+    out[:, 2] = theta
+    return out
 
 
 def _inverse(a: FloatArray) -> FloatArray:
@@ -279,8 +299,10 @@ def take_riders(
         if anchor == index:
             continue
         rides[index] = [anchor, *offset.tolist()]
-        for r in np.flatnonzero(rides[:, 0] == index).tolist():  # its riders handed on
-            rides[r] = [anchor, *_compose(offset, rides[r, 1:4]).tolist()]
+        handed = np.flatnonzero(rides[:, 0] == index)  # its riders handed on, in one pass
+        if len(handed):
+            rides[handed, 1:4] = compose_many(offset, rides[handed, 1:4])
+            rides[handed, 0] = anchor
     riding = rides[:, 0] >= 0
     anchor_of = np.where(riding, rides[:, 0], np.arange(len(rides))).astype(np.intp)
     offsets = np.where(riding[:, None], rides[:, 1:4], 0.0)

@@ -14,7 +14,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared.slam import PoseGraph
+from shared.slam import PoseGraph, riders
 from shared.slam.graph import RESOLVE_EVERY_UPDATES
 from shared.slam.riders import (
     CARRIED,
@@ -22,6 +22,7 @@ from shared.slam.riders import (
     LOOP,
     RIDE_WIDTH,
     carry,
+    compose_many,
     fuse,
     inverse_edge,
     reduce_edges,
@@ -273,3 +274,23 @@ def test_an_edge_to_a_rider_goes_to_its_anchor() -> None:
     assert len(graph.edges) == before + 1
     assert {last.i, last.j} == {graph.riding_on(rider), k}
     assert graph.residual_sigmas(last) < 1.0
+
+
+_heading = st.one_of(
+    st.floats(-math.pi, math.pi), st.sampled_from([math.pi, -math.pi]), st.floats(-20.0, 20.0)
+)
+_pose_rows = st.tuples(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), _heading)
+
+
+@settings(max_examples=200, deadline=None)
+@given(_pose_rows, st.lists(_pose_rows, min_size=1, max_size=30))
+def test_riders_handed_on_in_one_pass_are_composed_as_one_by_one(
+    a: tuple[float, float, float], bs: list[tuple[float, float, float]]
+) -> None:
+    """compose_many, which hands a leaving node's riders on, against _compose on each: the headings are
+    the same IEEE remainder bit for bit, the positions the same to rounding (a 2x2 product in BLAS)."""
+    row, rows = np.array(a), np.array(bs)
+    got = compose_many(row, rows)
+    want = np.array([riders._compose(row, b) for b in rows])
+    assert np.array_equal(got[:, 2], want[:, 2])
+    np.testing.assert_allclose(got[:, :2], want[:, :2], rtol=1e-12, atol=1e-9)
