@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shared.slam.riders import remainder_tau
 from shared.slam.rows import Rows
 from shared.types import FloatArray, IntArray
 
@@ -98,18 +99,10 @@ def _make_plan(rows: Rows, n: int) -> _Plan:
 
 
 def _wrap_headings(theta: FloatArray) -> None:
-    """Headings wrapped to (-pi, pi] in place, as :func:`shared.types.wrap_angle` (IEEE remainder) does,
-    bit for bit. Within (-2 pi, 2 pi] a wrap is one exact subtraction or addition of 2 pi (Sterbenz's
-    lemma: the IEEE remainder's own result); values farther out take the per-value path. O(n)."""
-    high, low = theta > math.pi, theta <= -math.pi
-    if not (high.any() or low.any()):
-        return
-    far = (theta > 2 * math.pi) | (theta <= -2 * math.pi)
-    theta[high & ~far] -= 2 * math.pi
-    theta[low & ~far] += 2 * math.pi  # -pi itself becomes pi, as wrap_angle gives
-    for i in np.flatnonzero(far).tolist():
-        wrapped = math.remainder(float(theta[i]), 2 * math.pi)
-        theta[i] = math.pi if wrapped == -math.pi else wrapped
+    """Headings wrapped to (-pi, pi] in place, as :func:`shared.types.wrap_angle` does, bit for bit: the
+    IEEE remainder by 2 pi (:func:`~shared.slam.riders.remainder_tau`), -pi made pi. O(n)."""
+    remainder_tau(theta)
+    theta[theta == -math.pi] = math.pi
 
 
 def compose_reference(solved_poses: FloatArray, table: FloatArray) -> FloatArray:

@@ -63,6 +63,7 @@ __all__ = [
     "inverse_edge",
     "inverse_jacobian",
     "reduce_edges",
+    "remainder_tau",
     "residual_sigmas",
     "take_riders",
 ]
@@ -98,15 +99,25 @@ def compose_many(a: FloatArray, b: FloatArray) -> FloatArray:
     out[:, 0] = a[0] + (c * b[:, 0] + -s * b[:, 1])
     out[:, 1] = a[1] + (s * b[:, 0] + c * b[:, 1])
     theta = a[2] + b[:, 2]
-    # within (-2 pi, 2 pi) the remainder is one exact subtraction or addition of 2 pi (Sterbenz's lemma);
-    # -pi and pi stay (the remainder's tie to even)
-    near = np.abs(theta) < math.tau
-    theta[near & (theta > math.pi)] -= math.tau
-    theta[near & (theta < -math.pi)] += math.tau
-    for k in np.flatnonzero(~near).tolist():
-        theta[k] = _wrap(float(theta[k]))
+    remainder_tau(theta)
     out[:, 2] = theta
     return out
+
+
+def remainder_tau(theta: FloatArray) -> None:
+    """``theta`` replaced in place by its IEEE remainder by 2 pi (``math.remainder``, bit for bit: -pi and
+    pi stay). Within (-2 pi, 2 pi) that is one exact subtraction or addition of 2 pi (Sterbenz's lemma);
+    values farther out take the per-value path. O(n)."""
+    size = np.abs(theta)
+    outside = size > math.pi
+    if not outside.any():
+        return
+    near = outside & (size < math.tau)
+    down, up = near & (theta > 0), near & (theta < 0)  # both before either moves a value
+    theta[down] -= math.tau
+    theta[up] += math.tau
+    for k in np.flatnonzero(outside & ~near).tolist():
+        theta[k] = _wrap(float(theta[k]))
 
 
 def _inverse(a: FloatArray) -> FloatArray:

@@ -26,6 +26,7 @@ from shared.slam.riders import (
     fuse,
     inverse_edge,
     reduce_edges,
+    remainder_tau,
     residual_sigmas,
     take_riders,
 )
@@ -294,3 +295,16 @@ def test_riders_handed_on_in_one_pass_are_composed_as_one_by_one(
     want = np.array([riders._compose(row, b) for b in rows])
     assert np.array_equal(got[:, 2], want[:, 2])
     np.testing.assert_allclose(got[:, :2], want[:, :2], rtol=1e-12, atol=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.one_of(st.floats(-100.0, 100.0), st.sampled_from([math.pi, -math.pi, math.tau, -math.tau, 0.0])),
+        max_size=40,
+    )
+)
+def test_the_vectorised_remainder_is_math_remainder_bit_for_bit(values: list[float]) -> None:
+    theta = np.array(values, dtype=np.float64)
+    remainder_tau(theta)
+    assert theta.tolist() == [math.remainder(v, math.tau) for v in values]
