@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import weakref
 from urllib.parse import parse_qsl
 
 from starlette.requests import Request
@@ -62,14 +63,14 @@ class _Slot:
 
     __slots__ = ("_door", "_held")
 
-    def __init__(self, door: PollAdmission) -> None:
+    def __init__(self, door: _Door) -> None:
         self._door, self._held = door, True
 
     def release(self) -> None:
         if self._held:
             self._held = False
-            self._door._opening -= 1
-            self._door._wake()
+            self._door.opening -= 1
+            self._door.wake()
 
 
 def opened(request: Request) -> None:
@@ -80,12 +81,60 @@ def opened(request: Request) -> None:
         slot.release()
 
 
-class PollAdmission:
-    """ASGI middleware: other requests before long-polls' openings (see the module's docstring).
+class _Door:
+    """The admission's state in one event loop: requests in progress (``busy``), polls opening
+    (``opening``), the polls at the door in arrival order, the loop time the last one was let in, and the
+    timer that lets one in at the floor rate when the others never pause."""
 
-    State (one event loop's): requests in progress (``_busy``), polls opening (``_opening``), the polls at
-    the door in arrival order, the loop time the last one was let in, and the timer that lets one in at
-    the floor rate when the others never pause."""
+    def __init__(self, loop: asyncio.AbstractEventLoop, slots: int, gap_s: float) -> None:
+        self.loop, self.slots, self.gap_s = loop, slots, gap_s
+        self.busy = self.opening = 0
+        self.queue: collections.deque[asyncio.Future[None]] = collections.deque()
+        self.last_in: float | None = None  # set when the first poll comes: the floor counts from there
+        self.timer: asyncio.TimerHandle | None = None
+
+    @property
+    def waiting(self) -> int:
+        """Long-polls waiting at the door now. O(waiting)."""
+        return sum(not f.done() for f in self.queue)
+
+    def may_enter(self) -> bool:
+        if self.opening >= self.slots:
+            return False
+        now = self.loop.time()
+        last = now if self.last_in is None else self.last_in
+        return self.busy == 0 or now - last >= self.gap_s
+
+    def enter(self) -> None:
+        self.opening += 1
+        self.last_in = self.loop.time()
+
+    def wake(self) -> None:
+        """Let in the polls at the door that may enter now; if some wait only for the others to pause, a
+        timer lets the first in when the floor rate allows."""
+        while self.queue and self.queue[0].done():  # cancelled while waiting (the client went away)
+            self.queue.popleft()
+        while self.queue and self.may_enter():
+            entry = self.queue.popleft()
+            if not entry.done():
+                self.enter()
+                entry.set_result(None)
+            while self.queue and self.queue[0].done():
+                self.queue.popleft()
+        if self.queue and self.opening < self.slots and self.timer is None:
+            now = self.loop.time()
+            last = now if self.last_in is None else self.last_in
+            self.timer = self.loop.call_later(max(0.0, last + self.gap_s - now), self._on_timer)
+
+    def _on_timer(self) -> None:
+        self.timer = None
+        self.wake()
+
+
+class PollAdmission:
+    """ASGI middleware: other requests before long-polls' openings (see the module's docstring). Its
+    state is kept per event loop (one in a server process; tests may run an app in several, one after the
+    other), so nothing of a loop that has ended reaches the next."""
 
     def __init__(
         self, app: ASGIApp, slots: int = POLL_OPEN_SLOTS, floor_hz: float = POLL_OPEN_FLOOR_HZ
@@ -95,36 +144,36 @@ class PollAdmission:
         if not floor_hz > 0:
             raise ValueError(f"poll_open_floor_hz={floor_hz}: expected a rate above 0")
         self.app, self.slots, self.gap_s = app, slots, 1.0 / floor_hz
-        self._busy = self._opening = 0
-        self._door: collections.deque[asyncio.Future[None]] = collections.deque()
-        self._last_in: float | None = None  # set when the first poll comes: the floor counts from there
-        self._timer: asyncio.TimerHandle | None = None
+        self._doors: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _Door] = weakref.WeakKeyDictionary()
 
-    @property
-    def waiting(self) -> int:
-        """Long-polls waiting at the door now."""
-        return sum(not f.done() for f in self._door)
+    def door(self) -> _Door:
+        """The state of the running event loop (made on first use)."""
+        loop = asyncio.get_running_loop()
+        door = self._doors.get(loop)
+        if door is None:
+            door = self._doors[loop] = _Door(loop, self.slots, self.gap_s)
+        return door
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
         elif is_long_poll(scope):
-            await self._poll(scope, receive, send)
+            await self._poll(self.door(), scope, receive, send)
         else:
-            await self._other(scope, receive, send)
+            await self._other(self.door(), scope, receive, send)
 
-    async def _other(self, scope: Scope, receive: Receive, send: Send) -> None:
+    async def _other(self, door: _Door, scope: Scope, receive: Receive, send: Send) -> None:
         """A request that goes first: counted in progress until its response starts (a stream then no
         longer counts) or its handler ends."""
-        self._busy += 1
+        door.busy += 1
         counted = True
 
         def done() -> None:
             nonlocal counted
             if counted:
                 counted = False
-                self._busy -= 1
-                self._wake()
+                door.busy -= 1
+                door.wake()
 
         async def started_send(message: Message) -> None:
             if message["type"] == "http.response.start":
@@ -136,23 +185,23 @@ class PollAdmission:
         finally:
             done()
 
-    async def _poll(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if self._last_in is None:
-            self._last_in = self._loop_time()
-        if self._door or not self._may_enter():
-            entry = asyncio.get_running_loop().create_future()
-            self._door.append(entry)
-            self._wake()
+    async def _poll(self, door: _Door, scope: Scope, receive: Receive, send: Send) -> None:
+        if door.last_in is None:
+            door.last_in = door.loop.time()
+        if door.queue or not door.may_enter():
+            entry = door.loop.create_future()
+            door.queue.append(entry)
+            door.wake()
             try:
                 await entry
             except asyncio.CancelledError:
                 if entry.done() and not entry.cancelled():  # let in as it was cancelled: give the slot on
-                    self._opening -= 1
-                    self._wake()
+                    door.opening -= 1
+                    door.wake()
                 raise
         else:
-            self._enter()
-        slot = _Slot(self)
+            door.enter()
+        slot = _Slot(door)
         scope[_KEY] = slot
 
         async def releasing_send(message: Message) -> None:
@@ -164,38 +213,3 @@ class PollAdmission:
             await self.app(scope, receive, releasing_send)
         finally:
             slot.release()
-
-    def _may_enter(self) -> bool:
-        if self._opening >= self.slots:
-            return False
-        last = self._loop_time() if self._last_in is None else self._last_in
-        return self._busy == 0 or self._loop_time() - last >= self.gap_s
-
-    def _enter(self) -> None:
-        self._opening += 1
-        self._last_in = self._loop_time()
-
-    @staticmethod
-    def _loop_time() -> float:
-        return asyncio.get_running_loop().time()
-
-    def _wake(self) -> None:
-        """Let in the polls at the door that may enter now; if some wait only for the others to pause, a
-        timer lets the first in when the floor rate allows."""
-        while self._door and self._door[0].done():  # cancelled while waiting (the client went away)
-            self._door.popleft()
-        while self._door and self._may_enter():
-            entry = self._door.popleft()
-            if not entry.done():
-                self._enter()
-                entry.set_result(None)
-            while self._door and self._door[0].done():
-                self._door.popleft()
-        if self._door and self._opening < self.slots and self._timer is None:
-            last = self._loop_time() if self._last_in is None else self._last_in
-            due_s = max(0.0, last + self.gap_s - self._loop_time())
-            self._timer = asyncio.get_running_loop().call_later(due_s, self._on_timer)
-
-    def _on_timer(self) -> None:
-        self._timer = None
-        self._wake()

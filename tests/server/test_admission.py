@@ -57,8 +57,8 @@ async def _settle() -> None:
         await asyncio.sleep(0)
 
 
-def _request(door: PollAdmission, scope: Scope) -> asyncio.Task[None]:
-    return asyncio.ensure_future(door(scope, _receive, _send))
+def _request(gate: PollAdmission, scope: Scope) -> asyncio.Task[None]:
+    return asyncio.ensure_future(gate(scope, _receive, _send))
 
 
 def _poll(i: int) -> Scope:
@@ -68,15 +68,15 @@ def _poll(i: int) -> Scope:
 def test_a_long_poll_waits_while_another_request_is_in_progress() -> None:
     async def go() -> None:
         app = _App()
-        door = PollAdmission(app, slots=2, floor_hz=1e-6)  # no floor within the test
-        upload = _request(door, _scope("/api/v1/robots/1/maps", method="POST"))
+        gate = PollAdmission(app, slots=2, floor_hz=1e-6)  # no floor within the test
+        upload = _request(gate, _scope("/api/v1/robots/1/maps", method="POST"))
         await _settle()
-        poll = _request(door, _poll(1))
+        poll = _request(gate, _poll(1))
         await _settle()
-        assert app.entered == ["/api/v1/robots/1/maps"] and door.waiting == 1
+        assert app.entered == ["/api/v1/robots/1/maps"] and gate.door().waiting == 1
         app.release["/api/v1/robots/1/maps"].set()  # answered: nothing else in progress, the poll goes in
         await _settle()
-        assert app.entered[-1] == "/api/v1/robots/1/messages" and door.waiting == 0
+        assert app.entered[-1] == "/api/v1/robots/1/messages" and gate.door().waiting == 0
         app.release["/api/v1/robots/1/messages"].set()
         await asyncio.gather(upload, poll)
 
@@ -86,21 +86,21 @@ def test_a_long_poll_waits_while_another_request_is_in_progress() -> None:
 def test_polls_open_at_most_slots_at_a_time_and_the_next_goes_in_when_one_begins_to_wait() -> None:
     async def go() -> None:
         app = _App()
-        door = PollAdmission(app, slots=2, floor_hz=1e-6)
-        polls = [_request(door, _poll(i)) for i in range(5)]
+        gate = PollAdmission(app, slots=2, floor_hz=1e-6)
+        polls = [_request(gate, _poll(i)) for i in range(5)]
         await _settle()
-        assert len(app.entered) == 2 and door.waiting == 3  # first come, first served
+        assert len(app.entered) == 2 and gate.door().waiting == 3  # first come, first served
         assert app.entered == ["/api/v1/robots/0/messages", "/api/v1/robots/1/messages"]
         app.open_first.update(f"/api/v1/robots/{i}/messages" for i in range(2, 5))
         app.release["/api/v1/robots/0/messages"].set()  # poll 0 answers (its slot is free)
         await _settle()
         # poll 2 went in and began to wait at once (opened): poll 3 followed, and 4 after it
         assert app.entered[2:] == [f"/api/v1/robots/{i}/messages" for i in (2, 3, 4)]
-        assert door.waiting == 0
+        assert gate.door().waiting == 0
         for event in app.release.values():
             event.set()
         await asyncio.gather(*polls)
-        assert door._opening == 0 and door._busy == 0
+        assert gate.door().opening == 0 and gate.door().busy == 0
 
     asyncio.run(go())
 
@@ -108,15 +108,15 @@ def test_polls_open_at_most_slots_at_a_time_and_the_next_goes_in_when_one_begins
 def test_under_a_load_that_never_pauses_polls_still_open_at_the_floor_rate() -> None:
     async def go() -> None:
         app = _App()
-        door = PollAdmission(app, slots=2, floor_hz=200.0)
-        busy = _request(door, _scope("/api/v1/robots/9/maps", method="POST"))  # never answers in time
+        gate = PollAdmission(app, slots=2, floor_hz=200.0)
+        busy = _request(gate, _scope("/api/v1/robots/9/maps", method="POST"))  # never answers in time
         await _settle()
         app.open_first.update(f"/api/v1/robots/{i}/messages" for i in range(3))
-        polls = [_request(door, _poll(i)) for i in range(3)]
+        polls = [_request(gate, _poll(i)) for i in range(3)]
         async with asyncio.timeout(30):  # readiness wait: the floor's timer lets them in one by one
             while len(app.entered) < 4:
                 await asyncio.sleep(0.001)
-        assert door._busy == 1  # the upload was in progress all along
+        assert gate.door().busy == 1  # the upload was in progress all along
         for event in app.release.values():
             event.set()
         await asyncio.gather(busy, *polls)
@@ -127,20 +127,20 @@ def test_under_a_load_that_never_pauses_polls_still_open_at_the_floor_rate() -> 
 def test_a_poll_that_gives_up_at_the_door_frees_its_place() -> None:
     async def go() -> None:
         app = _App()
-        door = PollAdmission(app, slots=1, floor_hz=1e-6)
-        first, gone, last = (_request(door, _poll(i)) for i in range(3))
+        gate = PollAdmission(app, slots=1, floor_hz=1e-6)
+        first, gone, last = (_request(gate, _poll(i)) for i in range(3))
         await _settle()
-        assert door.waiting == 2
+        assert gate.door().waiting == 2
         gone.cancel()  # the client went away while waiting at the door
         await _settle()
-        assert door.waiting == 1
+        assert gate.door().waiting == 1
         app.open_first.add("/api/v1/robots/2/messages")
         app.release["/api/v1/robots/0/messages"].set()
         await _settle()
         assert app.entered == ["/api/v1/robots/0/messages", "/api/v1/robots/2/messages"]
         app.release["/api/v1/robots/2/messages"].set()
         await asyncio.gather(first, last)
-        assert gone.cancelled() and door._opening == 0
+        assert gone.cancelled() and gate.door().opening == 0
 
     asyncio.run(go())
 
@@ -150,13 +150,40 @@ def test_a_handler_that_raises_frees_its_slot() -> None:
         async def broken(scope: Scope, receive: Receive, send: Send) -> None:
             raise RuntimeError("boom")
 
-        door = PollAdmission(broken, slots=1)
+        gate = PollAdmission(broken, slots=1)
         for i in range(3):
             with pytest.raises(RuntimeError, match="boom"):
-                await door(_poll(i), _receive, _send)
-        assert door._opening == 0 and door.waiting == 0
+                await gate(_poll(i), _receive, _send)
+        assert gate.door().opening == 0 and gate.door().waiting == 0
 
     asyncio.run(go())
+
+
+def test_a_loop_that_ended_with_polls_at_the_door_leaves_nothing_to_the_next() -> None:
+    """The state is the event loop's own: an app run again in a new loop (as tests and restarts do)
+    starts with nobody in progress and nobody at the door."""
+    app = _App()
+    gate = PollAdmission(app, slots=1, floor_hz=1e-6)
+
+    async def first() -> None:
+        _request(gate, _scope("/api/v1/robots/1/maps", method="POST"))  # never answers
+        _request(gate, _poll(1))
+        await _settle()
+        assert gate.door().waiting == 1 and gate.door().busy == 1
+        # asyncio.run cancels both when this returns
+
+    asyncio.run(first())
+
+    async def second() -> None:
+        app.open_first.add("/api/v1/robots/2/messages")
+        poll = _request(gate, _poll(2))
+        await _settle()
+        assert app.entered[-1] == "/api/v1/robots/2/messages"  # let in at once: nothing in progress here
+        assert gate.door().busy == 0 and gate.door().opening == 0
+        app.release["/api/v1/robots/2/messages"].set()
+        await poll
+
+    asyncio.run(second())
 
 
 def test_settings_out_of_range_name_the_setting() -> None:
