@@ -42,6 +42,7 @@ from shared.protocol import (
 )
 
 __all__ = [
+    "IDLE_CONNECTION_S",
     "Backoff",
     "KernelDownload",
     "PollAnswer",
@@ -56,6 +57,11 @@ log = logging.getLogger(__name__)
 
 #: Longest ``Retry-After`` the agent honours by default, s (a longer one is capped to this).
 DEFAULT_MAX_RETRY_AFTER_S = 60.0
+
+#: How long the agent keeps an idle connection to the server for reuse, s: shorter than the server's own
+#: idle timeout (``server.cli.KEEP_ALIVE_S``), so the agent, not the server, closes an idle connection and
+#: a request never goes out on a connection the server is closing at that moment.
+IDLE_CONNECTION_S = 4.0
 
 _M = TypeVar("_M", bound=BaseModel)
 
@@ -237,6 +243,7 @@ class ServerLink:
                 AGENT_INSTANCE_HEADER: self.instance_id,
             },
             timeout=httpx.Timeout(timeout_s),
+            limits=httpx.Limits(keepalive_expiry=IDLE_CONNECTION_S),
             transport=transport,
         )
 

@@ -12,9 +12,15 @@ import typer
 from server.settings import DEFAULT_DATABASE_URL
 from server.workers import server_class
 
-__all__ = ["server_app"]
+__all__ = ["KEEP_ALIVE_S", "server_app"]
 
 log = logging.getLogger(__name__)
+
+#: How long the server keeps an idle HTTP/1.1 connection open (s). Longer than the idle time after which
+#: httpx clients (the agent, the CLI, scripts; 5 s by default) drop a pooled connection, so the client
+#: always closes first: with equal timers (uvicorn's default is also 5 s) a request sent on a connection the
+#: server is closing at that moment is reset ("Connection reset by peer") and is not retried by the client.
+KEEP_ALIVE_S = 20
 
 server_app = typer.Typer(
     help="The linemap server: REST API for robots, control messages, kernels and live maps.",
@@ -90,6 +96,7 @@ def _uvicorn_config(host: str, port: int) -> dict[str, Any]:
         "port": port,
         "log_level": "warning",
         "timeout_graceful_shutdown": 5,
+        "timeout_keep_alive": KEEP_ALIVE_S,
         # proxy_headers=False: uvicorn would otherwise rewrite the client address from X-Forwarded-For sent
         # by any local client (its default trusts 127.0.0.1); the app reads forwarded headers itself, and
         # only from the operator's LINEMAP_TRUSTED_PROXIES (server.limiter.client_source).

@@ -26,6 +26,7 @@ from sqlalchemy import create_engine, make_url, text
 
 from server.app import create_app
 from server.bootstrap import ensure_admin_token
+from server.cli import KEEP_ALIVE_S
 from server.database import normalize_url
 from server.deps import AppState
 from server.settings import Settings
@@ -112,6 +113,7 @@ class ServerThread:
             log_level="warning",
             lifespan="on",
             timeout_graceful_shutdown=2,
+            timeout_keep_alive=KEEP_ALIVE_S,  # as `linemap server` runs it
             proxy_headers=False,  # as `linemap server` runs it: forwarded headers are the app's business
         )
         self.server = uvicorn.Server(config)

@@ -94,3 +94,27 @@ def test_token_create_and_bad_database_url(tmp_path: Path) -> None:
     )
     assert bad.returncode == 2
     assert "Traceback" not in bad.stderr and "nosuchdriver" in bad.stderr
+
+
+def test_server_keeps_idle_connections_longer_than_its_clients() -> None:
+    """The server's idle timeout exceeds the agent's and httpx's default idle expiry, so a client always
+    closes an idle connection first (with equal timers a request can meet the server's close and be reset),
+    and the test servers serve with the same value."""
+    from robot_agent.link import IDLE_CONNECTION_S, ServerLink
+    from server.cli import KEEP_ALIVE_S, _uvicorn_config
+    from tests.server.live import ServerThread
+
+    served = _uvicorn_config("127.0.0.1", 8000)["timeout_keep_alive"]
+    assert served == KEEP_ALIVE_S
+    assert served > IDLE_CONNECTION_S
+    with httpx.Client() as client:  # httpx's default pool, as a user's script has it
+        default_expiry = client._transport._pool._keepalive_expiry  # type: ignore[attr-defined]
+    assert served > default_expiry
+    link = ServerLink("http://127.0.0.1:8000", 1, "lmr_x")
+    try:
+        assert link._client._transport._pool._keepalive_expiry == IDLE_CONNECTION_S  # type: ignore[attr-defined]
+    finally:
+        link.close()
+    thread = ServerThread(object())
+    thread.sock.close()
+    assert thread.server.config.timeout_keep_alive == served
