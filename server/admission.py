@@ -17,6 +17,13 @@ is let in, first come first served, when fewer than ``slots`` polls are opening 
 - no poll was let in for ``1 / floor_hz`` seconds: under a load that never pauses, polls still open at
   ``floor_hz`` a second (the priority cannot starve them; ~15 % of a core at the default 50/s).
 
+A poll that waited at the door is screened again when it is let in (``screen``, the failed-authentication
+limit's :class:`server.authguard.AuthScreen`): if its source was blocked meanwhile and its credential is
+invalid, it gets the limit's 429 there, its slot given on at once, without its route's work. So a flood
+of long-polls with a bad token, admitted past the limit before the limit had counted enough of them,
+drains from the door at the cost of a cache lookup each, instead of keeping real robots' polls waiting
+behind it.
+
 A poll has opened when its handler begins to wait (it calls :func:`opened`), or when its response starts
 or its handler ends (an immediate answer, an error). Nothing else is held back; a poll that waited at the
 door loses nothing (its read happens when it is let in, and the messages it asks for are in the database);
@@ -29,18 +36,22 @@ from __future__ import annotations
 import asyncio
 import collections
 import weakref
+from collections.abc import Awaitable, Callable
 from urllib.parse import parse_qsl
 
 from starlette.requests import Request
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-__all__ = ["POLL_OPEN_FLOOR_HZ", "POLL_OPEN_SLOTS", "PollAdmission", "is_long_poll", "opened"]
+__all__ = ["POLL_OPEN_FLOOR_HZ", "POLL_OPEN_SLOTS", "PollAdmission", "Screen", "is_long_poll", "opened"]
 
 #: Long-polls opening at a time (the server's setting ``poll_open_slots``).
 POLL_OPEN_SLOTS = 2
 #: Long-polls let in a second while other requests never pause (the setting ``poll_open_floor_hz``).
 POLL_OPEN_FLOOR_HZ = 50.0
 _KEY = "linemap.poll_admission"
+
+#: Screens a request's scope: a coroutine that sends its refusal, or None to serve it.
+Screen = Callable[[Scope], Awaitable[Callable[[Send], Awaitable[None]] | None]]
 
 
 def is_long_poll(scope: Scope) -> bool:
@@ -137,13 +148,17 @@ class PollAdmission:
     other), so nothing of a loop that has ended reaches the next."""
 
     def __init__(
-        self, app: ASGIApp, slots: int = POLL_OPEN_SLOTS, floor_hz: float = POLL_OPEN_FLOOR_HZ
+        self,
+        app: ASGIApp,
+        slots: int = POLL_OPEN_SLOTS,
+        floor_hz: float = POLL_OPEN_FLOOR_HZ,
+        screen: Screen | None = None,
     ) -> None:
         if slots < 1:
             raise ValueError(f"poll_open_slots={slots}: expected at least 1")
         if not floor_hz > 0:
             raise ValueError(f"poll_open_floor_hz={floor_hz}: expected a rate above 0")
-        self.app, self.slots, self.gap_s = app, slots, 1.0 / floor_hz
+        self.app, self.slots, self.gap_s, self.screen = app, slots, 1.0 / floor_hz, screen
         self._doors: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _Door] = weakref.WeakKeyDictionary()
 
     def door(self) -> _Door:
@@ -188,7 +203,8 @@ class PollAdmission:
     async def _poll(self, door: _Door, scope: Scope, receive: Receive, send: Send) -> None:
         if door.last_in is None:
             door.last_in = door.loop.time()
-        if door.queue or not door.may_enter():
+        waited = bool(door.queue) or not door.may_enter()
+        if waited:
             entry = door.loop.create_future()
             door.queue.append(entry)
             door.wake()
@@ -210,6 +226,12 @@ class PollAdmission:
             await send(message)
 
         try:
+            if waited and self.screen is not None:
+                refusal = await self.screen(scope)
+                if refusal is not None:
+                    slot.release()  # before the refusal's delay: the door does not wait for it
+                    await refusal(send)
+                    return
             await self.app(scope, receive, releasing_send)
         finally:
             slot.release()

@@ -1,5 +1,5 @@
 """The FastAPI application: routers under ``/api/v1``, error translation, the request-size limit (413) and
-the failed-authentication limit (429, :mod:`server.limiter`).
+the failed-authentication limit (429, :mod:`server.limiter`, applied by :mod:`server.authguard`).
 
 ``create_app(settings)`` migrates the database to the newest schema (Alembic) unless told not to, and
 returns the app; ``linemap server`` serves it with uvicorn.
@@ -23,12 +23,13 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server import apidocs, dashboard
 from server.admission import PollAdmission
+from server.authguard import AuthFailureLimit, AuthScreen
 from server.csrf import OriginGuard
 from server.database import Database
 from server.deps import SESSION_COOKIE, AppState
 from server.errors import RateLimitedError, ServerError, StorageFullError
 from server.hub import Hub
-from server.limiter import AuthFailureLimit, retry_after_header
+from server.limiter import retry_after_header
 from server.mediatype import require_media_type
 from server.migrate import upgrade
 from server.parsepool import UploadParser
@@ -122,11 +123,7 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
     app.add_middleware(DisconnectOnShutdown, signal=app.state.shutdown)
     app.add_middleware(OriginGuard, trusted_origins=settings.csrf_trusted_origins)  # CSRF (server.csrf)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
-    app.add_middleware(  # uploads before a crowd of long-polls opening (server.admission)
-        PollAdmission, slots=settings.poll_open_slots, floor_hz=settings.poll_open_floor_hz
-    )
-    app.add_middleware(  # outermost: a blocked source's invalid credential is refused before the body is read
-        AuthFailureLimit,
+    screen = AuthScreen(  # the failed-authentication limit's refusals (server.authguard)
         limiter=state.limiter,
         authenticate=state.authenticate,
         cookie=SESSION_COOKIE,
@@ -134,6 +131,14 @@ def create_app(settings: Settings | None = None, *, migrate: bool = True) -> Fas
         networks=settings.trusted_networks(),
         header=settings.trusted_proxy_header,
     )
+    app.add_middleware(  # uploads before a crowd of long-polls opening; polls screened again when let in
+        PollAdmission,
+        slots=settings.poll_open_slots,
+        floor_hz=settings.poll_open_floor_hz,
+        screen=screen.refusal,
+    )
+    # outermost: a blocked source's invalid credential is refused before the body is read
+    app.add_middleware(AuthFailureLimit, screen=screen)
     for router, prefix in ROUTERS:
         app.include_router(router, prefix=prefix)
     dashboard.mount(app)

@@ -25,23 +25,21 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Callable, Sequence
 from typing import Literal, cast
 
 from sqlalchemy import Table, and_, case, delete, null, or_
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.sql.dml import ReturningInsert
-from starlette.requests import cookie_parser
 from starlette.responses import JSONResponse
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import Scope, Send
 
 from server.database import Database
 from server.models import AuthFailure
 from server.settings import Settings
 
 __all__ = [
-    "AuthFailureLimit",
     "AuthLimiter",
     "IPNetwork",
     "client_source",
@@ -300,80 +298,3 @@ class AuthLimiter:
         await send({"type": "http.response.start", "status": 429, "headers": body.raw_headers})
         await send({"type": "http.response.body", "body": body.body})
 
-
-class AuthFailureLimit:
-    """ASGI middleware applying :class:`AuthLimiter` to API requests (``api_prefix``) that carry a
-    credential: an ``Authorization`` header, the ``cookie`` session cookie, or a login (``POST
-    <api_prefix>/session``).
-
-    A 401 from the application counts one failure of the request's source (:func:`client_source`); when
-    the source was already over the limit, that 401 is replaced by the 429. While this process knows the
-    source is blocked, a bearer token or session cookie is checked first with ``authenticate`` (True:
-    valid) and an invalid one is refused before the application runs (no body read, no route work).
-    """
-
-    def __init__(
-        self,
-        app: ASGIApp,
-        limiter: AuthLimiter,
-        authenticate: Callable[[str], Awaitable[bool]],
-        cookie: str,
-        api_prefix: str,
-        networks: Sequence[IPNetwork] = (),
-        header: Literal["x-forwarded-for", "forwarded"] = "x-forwarded-for",
-    ) -> None:
-        self.app = app
-        self.limiter = limiter
-        self.authenticate = authenticate
-        self.cookie, self.api_prefix = cookie, api_prefix
-        self.networks, self.header = list(networks), header
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or not self.limiter.enabled:
-            await self.app(scope, receive, send)
-            return
-        presented, credential = self._credential(scope)
-        if not presented:
-            await self.app(scope, receive, send)
-            return
-        source = client_source(scope, self.networks, self.header)
-        left = self.limiter.blocked_for(source)
-        if left is not None and credential is not None and not await self.authenticate(credential):
-            await self.limiter.refuse(send, source, left)
-            return
-        replaced = False
-
-        async def watching_send(message: Message) -> None:
-            nonlocal replaced
-            if replaced:
-                return  # the 401's body: a 429 went out instead
-            if message["type"] == "http.response.start" and message["status"] == 401:
-                try:
-                    wait = await asyncio.to_thread(self.limiter.failed, source)
-                except Exception:  # the count is lost, the 401 still goes out (never a 500 for it)
-                    log.exception("could not count a failed authentication of %s", source)
-                    wait = None
-                if wait is not None:
-                    replaced = True
-                    await self.limiter.refuse(send, source, wait)
-                    return
-            await send(message)
-
-        await self.app(scope, receive, watching_send)
-
-    def _credential(self, scope: Scope) -> tuple[bool, str | None]:
-        """(does the request carry a credential, the bearer token or session id when readable here)."""
-        path: str = scope.get("path", "")
-        if not path.startswith(self.api_prefix + "/"):
-            return False, None
-        presented = scope.get("method") == "POST" and path == self.api_prefix + "/session"
-        credential: str | None = None
-        for name, value in scope["headers"]:
-            if name == b"authorization":
-                scheme, _, token = value.decode("latin-1").partition(" ")
-                return True, token.strip() if scheme.lower() == "bearer" else ""
-            if name == b"cookie":
-                sid = cookie_parser(value.decode("latin-1")).get(self.cookie)
-                if sid is not None:
-                    presented, credential = True, sid
-        return presented, credential

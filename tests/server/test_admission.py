@@ -159,6 +159,53 @@ def test_a_handler_that_raises_frees_its_slot() -> None:
     asyncio.run(go())
 
 
+def test_polls_that_waited_are_screened_when_let_in_and_a_refused_one_gives_its_slot_on_at_once() -> None:
+    """The failed-authentication limit blocked the flood's source while its polls waited at the door: each
+    is refused when let in, without its route's work, and gives its slot on before its (held) refusal is
+    sent, so the robot's own poll behind the flood goes in at once. A poll let in at once (it did not
+    wait) is not screened again (the outer limit just did)."""
+
+    async def go() -> None:
+        app = _App()
+        blocked: set[str] = set()
+        held = asyncio.Event()  # the limiter's refusal delay: never over within the test
+        refused: list[str] = []
+        screened: list[str] = []
+
+        async def screen(scope: Scope) -> Any:
+            screened.append(scope["path"])
+            if scope["path"] not in blocked:
+                return None
+
+            async def refusal(send: Send) -> None:
+                refused.append(scope["path"])
+                await held.wait()
+
+            return refusal
+
+        gate = PollAdmission(app, slots=1, floor_hz=1e-6, screen=screen)
+        first = _request(gate, _poll(0))  # let in at once
+        await _settle()
+        flood = [_request(gate, _poll(i)) for i in range(1, 6)]
+        robot = _request(gate, _poll(99))
+        await _settle()
+        assert gate.door().waiting == 6 and screened == []
+        blocked.update(f"/api/v1/robots/{i}/messages" for i in range(1, 6))  # the source is blocked now
+        app.open_first.add("/api/v1/robots/99/messages")
+        app.release["/api/v1/robots/0/messages"].set()
+        await _settle()
+        assert refused == [f"/api/v1/robots/{i}/messages" for i in range(1, 6)]
+        assert app.entered == ["/api/v1/robots/0/messages", "/api/v1/robots/99/messages"]
+        assert screened == [f"/api/v1/robots/{i}/messages" for i in (1, 2, 3, 4, 5, 99)]
+        assert gate.door().waiting == 0 and gate.door().opening == 0  # the robot's poll has opened
+        assert not any(task.done() for task in flood)  # their refusals are still held
+        held.set()
+        app.release["/api/v1/robots/99/messages"].set()
+        await asyncio.gather(first, robot, *flood)
+
+    asyncio.run(go())
+
+
 def test_a_loop_that_ended_with_polls_at_the_door_leaves_nothing_to_the_next() -> None:
     """The state is the event loop's own: an app run again in a new loop (as tests and restarts do)
     starts with nobody in progress and nobody at the door."""
@@ -245,3 +292,92 @@ def _wait_until(cond: Any) -> None:
     while not cond():  # readiness wait, not a timing assertion
         assert time.monotonic() < deadline, "the long-polls never all opened"
         time.sleep(0.01)
+
+
+def _gate(app: Any) -> PollAdmission:
+    """The app's PollAdmission (white-box: built with the middleware stack on the first request)."""
+    layer = app.middleware_stack
+    while not isinstance(layer, PollAdmission):
+        layer = layer.app
+    return layer
+
+
+def _waiting(gate: PollAdmission) -> int:
+    """Polls waiting at the door of the server's event loop (read from the test's thread)."""
+    return sum(door.waiting for door in list(gate._doors.values()))
+
+
+@pytest.fixture(scope="module", params=BACKENDS)
+def strict(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
+    """One poll opening at a time, no floor within a test, a source blocked after 3 failures, no delay."""
+    tmp: Path = tmp_path_factory.mktemp(f"admission-strict-{request.param}")
+    settings = {"poll_open_slots": 1, "poll_open_floor_hz": 0.001}
+    settings |= {"auth_fail_limit": 3, "auth_fail_delay_s": 0}
+    yield from start_live(request.param, tmp, **settings)
+
+
+def test_bad_token_polls_at_the_door_when_their_source_is_blocked_are_refused_without_route_work(
+    strict: Live,
+) -> None:
+    """A real server: an upload whose body is still arriving holds the door; 8 long-polls with a bad token
+    wait there; the same source then fails 3 times and is blocked; when the upload ends, the 8 polls get
+    the limit's 429 at the door: none reaches its route (none is counted as a new failure), and the
+    robot's own poll, queued behind them, opens and gets its message."""
+    import socket
+
+    rid, token = strict.new_robot()
+    with strict.client() as anyone:
+        assert anyone.get("/healthz").status_code in (200, 404)  # the middleware stack is built
+    gate = _gate(strict.app)
+    limiter = strict.state.limiter
+    failures: list[str] = []
+    counted = limiter.failed
+
+    def counting(source: str) -> Any:
+        failures.append(source)
+        return counted(source)
+
+    limiter.failed = counting  # type: ignore[method-assign]
+    host, port = strict.base_url.rsplit("//", 1)[1].split(":")
+    slow = socket.create_connection((host, int(port)))
+    results: dict[str, Any] = {}
+    try:
+        head = (
+            f"POST /api/v1/robots/{rid}/maps HTTP/1.1\r\nHost: {host}\r\nAuthorization: Bearer {token}\r\n"
+            "Content-Type: application/json\r\nContent-Length: 40\r\n\r\n{"
+        )
+        slow.sendall(head.encode())
+
+        def poll(name: str, auth: str) -> None:
+            with strict.client(auth) as c:
+                results[name] = c.get(f"/robots/{rid}/messages", params={"after": 0, "wait": 30})
+
+        threads = [threading.Thread(target=poll, args=(f"bad{i}", "lmr_not_a_token")) for i in range(8)]
+        for t in threads:
+            t.start()
+        _wait_until(lambda: _waiting(gate) == 8)
+        robot = threading.Thread(target=poll, args=("robot", token))
+        robot.start()
+        _wait_until(lambda: _waiting(gate) == 9)
+        with strict.client("lmr_not_a_token") as bad:
+            codes = [bad.get("/whoami").status_code for _ in range(4)]
+        assert codes[:3] == [401, 401, 401] and codes[3] == 429, codes  # blocked after 3 failures
+        before = len(failures)
+        slow.sendall(b" " * 39)  # the upload's body ends (not a valid map: its answer is an error)
+        _wait_until(lambda: not any(t.is_alive() for t in threads))
+        assert all(results[f"bad{i}"].status_code == 429 for i in range(8))
+        assert len(failures) == before, "a refused poll reached its route and failed there"
+        _wait_until(lambda: len(strict.state.polls.waiting()) >= 1)  # the robot's poll has opened
+        with strict.operator() as op:
+            r = op.post(
+                f"/robots/{rid}/messages",
+                content=b"<xml><message><mode>offline</mode></message></xml>",
+                headers={"Content-Type": "application/xml"},
+            )
+            assert r.status_code in (200, 201), r.text
+        robot.join(60)
+        assert results["robot"].status_code == 200, results["robot"].text
+        assert [m["seq"] for m in results["robot"].json()["messages"]] == [1]
+    finally:
+        slow.close()
+        limiter.failed = counted  # type: ignore[method-assign]
