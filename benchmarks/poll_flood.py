@@ -40,10 +40,13 @@ API = "/api/v1"
 PERIOD_S = 0.1  # the robot polls and uploads at the sensor's 10 Hz
 
 
-async def _flood(base: str, rid: int, flood: int, address: str) -> tuple[Counter[int], float]:
-    """``flood`` bad-token long-polls at once; (their status codes, seconds until the last answer)."""
+async def _flood(base: str, rid: int, flood: int, address: str, token: bool) -> tuple[Counter[int], float]:
+    """``flood`` long-polls at once, with a bad token or (``token`` False) none; (their status codes,
+    seconds until the last answer)."""
     limits = httpx.Limits(max_connections=flood + 10, max_keepalive_connections=0)
-    bad = {"Authorization": "Bearer lmr_bogus_token_from_nowhere", "X-Forwarded-For": address}
+    bad = {"X-Forwarded-For": address}
+    if token:
+        bad["Authorization"] = "Bearer lmr_bogus_token_from_nowhere"
     url = f"{base}{API}/robots/{rid}/messages"
     async with httpx.AsyncClient(limits=limits, timeout=120) as attacker:
         t0 = time.perf_counter()
@@ -53,12 +56,14 @@ async def _flood(base: str, rid: int, flood: int, address: str) -> tuple[Counter
     return Counter(a.status_code if isinstance(a, httpx.Response) else 0 for a in answers), end_s
 
 
-def _attacker(base: str, rid: int, flood: int, address: str, out: Queue[tuple[Counter[int], float]]) -> None:
-    out.put(asyncio.run(_flood(base, rid, flood, address)))
+def _attacker(
+    base: str, rid: int, flood: int, address: str, token: bool, out: Queue[tuple[Counter[int], float]]
+) -> None:
+    out.put(asyncio.run(_flood(base, rid, flood, address, token)))
 
 
 def _round(
-    base: str, rid: int, token: str, flood: int, address: str, version: int
+    base: str, rid: int, token: str, flood: int, address: str, version: int, bad_token: bool = True
 ) -> tuple[list[float], list[float], Counter[int], float, int]:
     """One flood from its own process; meanwhile the robot polls (``wait=0.01``) and uploads, one after the
     other at 10 Hz, until the flood is answered. (its polls' ms, its uploads' ms, the flood's status codes,
@@ -68,7 +73,7 @@ def _round(
     uploads: list[float] = []
     ctx = multiprocessing.get_context("spawn")
     out: Queue[tuple[Counter[int], float]] = ctx.Queue()
-    attacker = ctx.Process(target=_attacker, args=(base, rid, flood, address, out))
+    attacker = ctx.Process(target=_attacker, args=(base, rid, flood, address, bad_token, out))
     with httpx.Client(base_url=f"{base}{API}/robots/{rid}", headers=good, timeout=120) as robot:
         robot.get("/messages", params={"wait": 0.01}).raise_for_status()  # connected before the flood
         attacker.start()
@@ -105,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--db", help="database URL [a SQLite temp file]")
     p.add_argument("--flood", type=int, default=500, help="bad-token long-polls per round [500]")
     p.add_argument("--rounds", type=int, default=5, help="rounds, each from a new address [5]")
+    p.add_argument("--no-token", action="store_true", help="the flood sends no credential at all")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     with tempfile.TemporaryDirectory(prefix="linemap-flood-") as tmp:
@@ -119,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
             worst_poll, worst_upload, version = [], [], 0
             for k in range(args.rounds):
                 polls, uploads, codes, end_s, version = _round(
-                    server.base, rid, token, args.flood, f"198.51.100.{k + 1}", version
+                    server.base, rid, token, args.flood, f"198.51.100.{k + 1}", version, not args.no_token
                 )
                 worst_poll.append(max(polls))
                 worst_upload.append(max(uploads))
