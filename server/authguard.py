@@ -78,12 +78,16 @@ class AuthScreen:
 
     async def refusal(self, scope: Scope) -> Refusal | None:
         """The refusal to send instead of serving the request, or ``None`` to serve it."""
-        if not self.limiter.enabled:
-            return None
         presented, credential = self.credential(scope)
-        if not presented or credential is None:
+        if not presented:
             return None
-        source = self.source(scope)
+        return await self.refusal_of(self.source(scope), credential)
+
+    async def refusal_of(self, source: str, credential: str | None) -> Refusal | None:
+        """:meth:`refusal` for a request from ``source`` presenting ``credential`` (None: one not readable
+        here, such as a login's password, which only the route can judge)."""
+        if credential is None or not self.limiter.enabled:
+            return None
         left = self.limiter.blocked_for(source)
         if left is None or await self.authenticate(credential):
             return None
@@ -102,15 +106,15 @@ class AuthFailureLimit:
         self.app, self.screen, self.limiter = app, screen, screen.limiter
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        presented, _ = self.screen.credential(scope)
+        presented, credential = self.screen.credential(scope)
         if not presented or not self.limiter.enabled:
             await self.app(scope, receive, send)
             return
-        refusal = await self.screen.refusal(scope)
+        source = self.screen.source(scope)
+        refusal = await self.screen.refusal_of(source, credential)
         if refusal is not None:
             await refusal(send)
             return
-        source = self.screen.source(scope)
         replaced = False
 
         async def watching_send(message: Message) -> None:
