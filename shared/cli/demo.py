@@ -260,7 +260,8 @@ def demo_cmd(
     directory.mkdir(parents=True, exist_ok=True)
     resume = _resume(directory, world) if keep else None
     if not keep:
-        for pattern in ("server.db*", "robot.db*", "*.log", "demo.json*", "robot.token"):
+        # the demo's own files only: a folder the user named may hold other things (their own logs)
+        for pattern in ("server.db*", "robot.db*", "server.log", "agent.log", "demo.json*", "robot.token"):
             for old in directory.glob(pattern):
                 old.unlink()
     db = directory / "server.db"

@@ -27,6 +27,9 @@ def free_port() -> int:
 
 def test_demo_serves_a_live_robot_and_stops_cleanly(tmp_path: Path) -> None:
     port = free_port()
+    (tmp_path / "d").mkdir()
+    theirs = tmp_path / "d" / "field-notes.log"  # the user's own file in the folder they named
+    theirs.write_text("keep me")
     out = (tmp_path / "demo.out").open("wb")
     proc = subprocess.Popen(
         [LINEMAP, "demo", "--dir", str(tmp_path / "d"), "--port", str(port)],
@@ -67,6 +70,7 @@ def test_demo_serves_a_live_robot_and_stops_cleanly(tmp_path: Path) -> None:
         out.close()
     log = (tmp_path / "demo.out").read_text()
     assert "stopped" in log and "Traceback" not in log
+    assert theirs.read_text() == "keep me"
     for pid in (info["server_pid"], info["agent_pid"]):
         assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text()
 
@@ -89,6 +93,9 @@ def test_demo_refuses_a_port_in_use(tmp_path: Path) -> None:
 def test_children_do_not_outlive_a_killed_demo(tmp_path: Path) -> None:
     """kill -9 of the demo itself: the server and the agent it started stop too (no orphans)."""
     port = free_port()
+    (tmp_path / "d").mkdir()
+    theirs = tmp_path / "d" / "field-notes.log"  # the user's own file in the folder they named
+    theirs.write_text("keep me")
     out = (tmp_path / "demo.out").open("wb")
     proc = subprocess.Popen(
         [LINEMAP, "demo", "--dir", str(tmp_path / "d"), "--port", str(port)],
