@@ -30,6 +30,8 @@ PG_MAX_OVERFLOW = 20
 #: SQLite: how long a writer waits for a lock (ms), and how long a log reset waits for readers (ms).
 BUSY_TIMEOUT_MS = 30_000
 WAL_RESET_WAIT_MS = 200
+#: PostgreSQL: how a read-only unit of work runs (Database.read).
+_SNAPSHOT: dict[str, Any] = {"isolation_level": "REPEATABLE READ", "postgresql_readonly": True}
 
 
 def normalize_url(url: str) -> str:
@@ -156,8 +158,19 @@ class Database:
 
     @contextmanager
     def read(self) -> Iterator[Session]:
-        """A unit of work that only reads (never takes the SQLite write queue)."""
+        """A unit of work that only reads (never takes the SQLite write queue), on one snapshot of the
+        database: every statement in it sees the same committed state, so a rollout read while its driver
+        commits a tick never shows the robots' new states beside the rollout's old wave.
+
+        PostgreSQL: ``REPEATABLE READ READ ONLY`` (its default, READ COMMITTED, takes a new snapshot per
+        statement; a read-only transaction at this level never fails to serialise). SQLite: an explicit
+        ``BEGIN`` (the driver otherwise runs each SELECT in its own implicit transaction); in WAL mode the
+        snapshot is taken at the first read and writers are not blocked."""
         with self._factory() as session, session.begin():
+            if self.is_sqlite:
+                session.connection().exec_driver_sql("BEGIN")
+            else:
+                session.connection(execution_options=_SNAPSHOT)
             yield session
 
     def checkpoint(self) -> bool:
